@@ -1,0 +1,41 @@
+# Source this file (bash or zsh) to get a shell in which every node and command of the
+# valve suite runs:   source ros2_ws/env.bash
+# It activates the project venv (which is also the ROS 2 Jazzy prefix), overlays the built
+# colcon workspace, puts the suite's console scripts on PATH and keeps DDS traffic on this
+# machine. Run `make setup` first (make demo / make test do it for you).
+
+if [ -n "${BASH_SOURCE[0]:-}" ]; then
+  _valve_ws="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+else
+  _valve_ws="$(cd "$(dirname "$0")" && pwd)"  # zsh
+fi
+_valve_root="$(dirname "$_valve_ws")"
+_valve_venv="${VALVE_VENV:-$_valve_root/.venv}"
+
+if [ ! -x "$_valve_venv/bin/python" ] || [ ! -f "$_valve_ws/install/setup.bash" ]; then
+  echo "valve suite: not set up yet; run 'make setup' in $_valve_root first" >&2
+  unset _valve_ws _valve_root _valve_venv
+  return 1 2>/dev/null || exit 1
+fi
+
+export VIRTUAL_ENV="$_valve_venv"
+case ":$PATH:" in *":$_valve_venv/bin:"*) ;; *) export PATH="$_valve_venv/bin:$PATH" ;; esac
+# The venv is the ROS prefix of the pip-installed Jazzy wheels.
+export AMENT_PREFIX_PATH="$_valve_venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
+export CMAKE_PREFIX_PATH="$_valve_venv${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}"
+# shellcheck disable=SC1091
+. "$_valve_ws/install/setup.bash"
+# ament_python installs console scripts in lib/<pkg> (for `ros2 run`); put them on PATH too
+# so `valve_simulator` works without the ros2 CLI, which the wheels do not provide.
+for _valve_pkg in valve_model_pkg valve_driver_pkg; do
+  case ":$PATH:" in
+    *":$_valve_ws/install/$_valve_pkg/lib/$_valve_pkg:"*) ;;
+    *) export PATH="$_valve_ws/install/$_valve_pkg/lib/$_valve_pkg:$PATH" ;;
+  esac
+done
+# Never let DDS traffic leave the machine.
+export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-42}"
+export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
+export VALVE_SUITE_ROOT="$_valve_root"
+unset _valve_ws _valve_root _valve_venv _valve_pkg

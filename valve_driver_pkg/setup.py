@@ -1,0 +1,30 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'valve_driver_pkg'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml', 'README.md']),
+        ('share/' + package_name + '/config', glob('config/*.yaml') + glob('config/*.dbc')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+    ],
+    package_data={package_name: ['protocol/*.dbc']},
+    install_requires=['setuptools'],
+    zip_safe=False,
+    maintainer='valve suite team',
+    maintainer_email='valve-suite@example.com',
+    description='CAN driver and controller emulator for the valve suite.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'valve_can_driver = valve_driver_pkg.nodes.can_driver_node:main',
+            'valve_controller_emulator = valve_driver_pkg.emulator.emulator_main:main',
+        ],
+    },
+)
