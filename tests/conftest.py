@@ -10,7 +10,8 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 # Each pytest process talks DDS on a domain of its own (derived from its pid) and only on
 # this machine, so parallel runs and a user's running suite never see each other.
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ.setdefault('ROS_DOMAIN_ID', str(100 + os.getpid() % 100))
+# Domains 0..101 keep the DDS ports below Linux's ephemeral range.
+os.environ['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)
 
 # The ROS-free cores are importable straight from the source tree, even without the
 # colcon overlay (it is a symlink install, so both are the same files).
