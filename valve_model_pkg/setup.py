@@ -35,6 +35,7 @@ setup(
             'valve_flow_check = valve_model_pkg.cli.flow_check:main',
             'valve_identify = valve_model_pkg.cli.identify:main',
             'valve_report = valve_model_pkg.cli.report:main',
+            'valve_demo = valve_model_pkg.cli.demo:main',
         ],
     },
 )

@@ -1,0 +1,129 @@
+"""What every node of the suite shares: topic names, QoS profiles, parameter declaration.
+
+The topic names and types here are the suite's contract: the simulator and the CAN driver
+publish the same state on the same topic, so controllers and recordings cannot tell them
+apart.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType)
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+__all__ = [
+    'ATMOSPHERIC_PRESSURE_PA', 'TOPIC_STATE', 'TOPIC_DUTY_COMMAND', 'TOPIC_FLOW_COMMAND',
+    'TOPIC_SUPPLY_PRESSURE', 'TOPIC_OUTPUT_PRESSURE', 'TOPIC_FLOW_STATUS', 'TOPIC_DIAGNOSTICS',
+    'STATE_QOS', 'COMMAND_QOS', 'PRESSURE_QOS', 'declare_float', 'declare_int', 'declare_bool',
+    'declare_string', 'gauge_from_absolute', 'absolute_from_gauge', 'key_values',
+    'DiagnosticLevel',
+]
+
+#: Standard atmosphere [Pa]. sensor_msgs/FluidPressure carries ABSOLUTE pressure, the suite's
+#: own messages and the measured-data files carry gauge pressure; this converts between them.
+ATMOSPHERIC_PRESSURE_PA = 101_325.0
+
+TOPIC_STATE = 'valve/state'                      # valve_msgs/ValveState
+TOPIC_DUTY_COMMAND = 'valve/duty_command'        # valve_msgs/DutyCommand
+TOPIC_FLOW_COMMAND = 'valve/flow_command'        # valve_msgs/FlowCommand
+TOPIC_SUPPLY_PRESSURE = 'valve/supply_pressure'  # sensor_msgs/FluidPressure (absolute Pa)
+TOPIC_OUTPUT_PRESSURE = 'valve/output_pressure'  # sensor_msgs/FluidPressure (absolute Pa)
+TOPIC_FLOW_STATUS = 'valve/flow_to_duty_status'  # valve_msgs/FlowToDutyStatus
+TOPIC_DIAGNOSTICS = '/diagnostics'               # diagnostic_msgs/DiagnosticArray
+
+# State at 1 kHz: reliable so that a recorder loses nothing, a deep queue so a slow
+# subscriber does not stall the publisher for a burst.
+STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+# Commands: reliable; only the latest matters but a few are kept for a recorder.
+COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+PRESSURE_QOS = COMMAND_QOS
+
+
+class DiagnosticLevel:
+    """diagnostic_msgs/DiagnosticStatus levels as bytes (the message field is a byte)."""
+
+    OK = DiagnosticStatus.OK
+    WARN = DiagnosticStatus.WARN
+    ERROR = DiagnosticStatus.ERROR
+    STALE = DiagnosticStatus.STALE
+
+
+def gauge_from_absolute(absolute_pa: float) -> float:
+    """Gauge pressure [Pa] from an absolute sensor_msgs/FluidPressure reading [Pa]."""
+    return float(absolute_pa) - ATMOSPHERIC_PRESSURE_PA
+
+
+def absolute_from_gauge(gauge_pa: float) -> float:
+    """Absolute pressure [Pa] for a sensor_msgs/FluidPressure message from gauge [Pa]."""
+    return float(gauge_pa) + ATMOSPHERIC_PRESSURE_PA
+
+
+def declare_float(node: Node, name: str, default: float, description: str,
+                  low: float = -math.inf, high: float = math.inf) -> float:
+    """Declare a double parameter with its description and range; return its value.
+
+    The range shows in ``ros2 param describe`` and is enforced by rcl when set at run
+    time. Infinite bounds are left open (rcl needs finite bounds, so only finite ones are
+    attached to the descriptor).
+    """
+    descriptor = ParameterDescriptor(description=description, type=ParameterType.PARAMETER_DOUBLE)
+    if math.isfinite(low) and math.isfinite(high):
+        descriptor.floating_point_range = [FloatingPointRange(from_value=float(low),
+                                                              to_value=float(high), step=0.0)]
+    else:
+        descriptor.additional_constraints = f'range [{low}, {high}]'
+    value = float(node.declare_parameter(name, float(default), descriptor).value)
+    if not (low <= value <= high) or math.isnan(value):
+        raise ValueError(f'parameter {name!r} = {value!r} is outside [{low}, {high}]')
+    return value
+
+
+def declare_int(node: Node, name: str, default: int, description: str,
+                low: int, high: int) -> int:
+    """Declare an integer parameter with its description and range; return its value."""
+    descriptor = ParameterDescriptor(description=description,
+                                     type=ParameterType.PARAMETER_INTEGER,
+                                     integer_range=[IntegerRange(from_value=int(low),
+                                                                 to_value=int(high), step=1)])
+    value = int(node.declare_parameter(name, int(default), descriptor).value)
+    if not low <= value <= high:
+        raise ValueError(f'parameter {name!r} = {value!r} is outside [{low}, {high}]')
+    return value
+
+
+def declare_bool(node: Node, name: str, default: bool, description: str) -> bool:
+    """Declare a boolean parameter with its description; return its value."""
+    descriptor = ParameterDescriptor(description=description, type=ParameterType.PARAMETER_BOOL)
+    return bool(node.declare_parameter(name, bool(default), descriptor).value)
+
+
+def declare_string(node: Node, name: str, default: str, description: str) -> str:
+    """Declare a string parameter with its description; return its value."""
+    descriptor = ParameterDescriptor(description=description,
+                                     type=ParameterType.PARAMETER_STRING)
+    return str(node.declare_parameter(name, str(default), descriptor).value)
+
+
+def key_values(**values: object) -> list[KeyValue]:
+    """Diagnostic key/value pairs from keyword arguments (values formatted as text)."""
+    out = []
+    for key, value in values.items():
+        text = f'{value:.6g}' if isinstance(value, float) else str(value)
+        out.append(KeyValue(key=key, value=text))
+    return out
+
+
+@dataclass(frozen=True)
+class Pressures:
+    """Supply and output port pressures, gauge [Pa]."""
+
+    supply_pa: float
+    output_pa: float

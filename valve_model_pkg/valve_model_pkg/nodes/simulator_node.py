@@ -1,0 +1,296 @@
+"""valve_simulator: the nonlinear valve model run in real time as a ROS 2 node.
+
+Topics (names relative to the node's namespace):
+
+- subscribes ``valve/duty_command`` (valve_msgs/DutyCommand): main PWM duty and frequency;
+- subscribes ``valve/supply_pressure``, ``valve/output_pressure`` (sensor_msgs/FluidPressure,
+  absolute Pa as sensor_msgs defines it); until one arrives the parameters are used;
+- publishes ``valve/state`` (valve_msgs/ValveState) at ``publish_rate_hz`` (default 1 kHz);
+- publishes ``/diagnostics`` (diagnostic_msgs/DiagnosticArray): once per
+  ``diagnostics_period_s`` and at once on every tick that fell behind.
+
+On each tick the model is advanced to the node's clock (ROS time, so ``use_sim_time``
+works) and the state at that instant is published, stamped with it. The work per tick is
+bounded (``max_advance_per_tick_s``): if the clock jumps further than that (a stalled
+process, a jump in simulated time), the model is advanced by the bound, then moved on to
+the clock without integrating the gap, and the tick is reported as fallen behind. Time
+running backwards (a replayed bag looping) resets the model.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import time
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.time import Time
+from sensor_msgs.msg import FluidPressure
+from valve_msgs.msg import DutyCommand, ValveState
+
+from valve_model_pkg.model import ElectronicsConfig, ValveStepper, default_parameters_path, \
+    load_parameters
+from valve_model_pkg.nodes.common import (COMMAND_QOS, PRESSURE_QOS, STATE_QOS, TOPIC_DIAGNOSTICS,
+                                          TOPIC_DUTY_COMMAND, TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
+                                          TOPIC_SUPPLY_PRESSURE, DiagnosticLevel, declare_bool,
+                                          declare_float, declare_string, gauge_from_absolute,
+                                          key_values)
+
+#: Highest main PWM frequency the drive accepts [Hz]: above it the valve (3.7 ms opening)
+#: can no longer follow and the internal chopper's period becomes comparable.
+MAX_PWM_FREQUENCY_HZ = 1000.0
+#: Lowest output gauge pressure accepted [Pa]: a perfect vacuum is -1 atm gauge.
+ATMOSPHERE_MARGIN_PA = 101_325.0
+
+
+class ValveSimulatorNode(Node):
+    """Real-time simulation of one PWM-driven solenoid valve."""
+
+    def __init__(self) -> None:
+        super().__init__('valve_simulator')
+        params_file = declare_string(
+            self, 'params_file', '',
+            'Valve parameter set (YAML); empty = the paper\'s Table 1/2 values shipped in '
+            'config/valve.yaml')
+        self._rate_hz = declare_float(self, 'publish_rate_hz', 1000.0,
+                                      'Rate of valve/state messages [Hz]', 1.0, 10000.0)
+        duty = declare_float(self, 'duty', 0.0, 'Initial main PWM duty [1]', 0.0, 1.0)
+        pwm_hz = declare_float(self, 'pwm_frequency_hz', 50.0,
+                               'Initial main PWM frequency [Hz]', 1.0, MAX_PWM_FREQUENCY_HZ)
+        supply_pa = declare_float(
+            self, 'supply_pressure_pa', 400_000.0,
+            'Supply pressure, gauge [Pa], used until valve/supply_pressure is received',
+            0.0, 1.0e6)
+        output_pa = declare_float(
+            self, 'output_pressure_pa', 0.0,
+            'Output port pressure, gauge [Pa], used until valve/output_pressure is received',
+            -ATMOSPHERE_MARGIN_PA, 1.0e6)
+        supply_voltage = declare_float(self, 'supply_voltage_v', 24.0,
+                                       'Drive supply voltage [V]', 0.0, 60.0)
+        current_control = declare_bool(
+            self, 'current_control', True,
+            'Internal current-control chopper with PI holding 0.5 A after opening (Sec. 4)')
+        capacitor = declare_bool(
+            self, 'capacitor', True,
+            'Negative release voltage from the capacitor charged during opening (Sec. 4)')
+        self._frame_id = declare_string(self, 'valve_name', 'valve',
+                                        'Name of the valve, used as header.frame_id')
+        self._max_advance_s = declare_float(
+            self, 'max_advance_per_tick_s', 0.05,
+            'Most model time integrated in one tick [s]; bounds the work per callback',
+            1e-4, 1.0)
+        diag_period = declare_float(self, 'diagnostics_period_s', 1.0,
+                                    'Period of the diagnostics summary [s]', 0.05, 60.0)
+
+        path = params_file or str(default_parameters_path())
+        self._params = load_parameters(path)  # refuses a bad file with the field and value
+        electronics = dataclasses.replace(ElectronicsConfig(), current_control=current_control,
+                                          capacitor=capacitor)
+        self._stepper = ValveStepper(self._params, electronics, supply_voltage_v=supply_voltage)
+        self._stepper.set_command(duty, pwm_hz)
+        self._stepper.set_pressures(supply_pa, output_pa)
+        self._params_path = path
+
+        self._state_pub = self.create_publisher(ValveState, TOPIC_STATE, STATE_QOS)
+        self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self.create_subscription(DutyCommand, TOPIC_DUTY_COMMAND, self._on_duty, COMMAND_QOS)
+        self.create_subscription(FluidPressure, TOPIC_SUPPLY_PRESSURE, self._on_supply,
+                                 PRESSURE_QOS)
+        self.create_subscription(FluidPressure, TOPIC_OUTPUT_PRESSURE, self._on_output,
+                                 PRESSURE_QOS)
+
+        self._period_s = 1.0 / self._rate_hz
+        self._t0: Time | None = None          # ROS time at model time 0
+        self._last_now_ns: int | None = None
+        self._last_tick_wall: float | None = None
+        self._sequence = 0
+        self._ticks = 0
+        self._behind_ticks = 0
+        self._skipped_model_s = 0.0
+        self._last_behind_reason = ''
+        self._rejected_commands = 0
+        self._last_reject_reason = ''
+        self._max_tick_compute_s = 0.0
+        self._window_start_wall = time.monotonic()
+        self._window_ticks = 0
+        self._achieved_rate_hz = 0.0
+
+        self.create_timer(self._period_s, self._on_tick)
+        self.create_timer(diag_period, self._publish_summary)
+        self.get_logger().info(
+            f'simulating {path} at {self._rate_hz:g} Hz; duty {duty:g} at {pwm_hz:g} Hz, '
+            f'supply {supply_pa:g} Pa gauge, current control {current_control}, '
+            f'capacitor {capacitor}')
+
+    # --- inputs ---------------------------------------------------------------------------
+    def _reject(self, reason: str) -> None:
+        self._rejected_commands += 1
+        self._last_reject_reason = reason
+        self.get_logger().warning(reason)
+
+    def _on_duty(self, msg: DutyCommand) -> None:
+        duty, freq = float(msg.duty), float(msg.pwm_frequency)
+        if not math.isfinite(duty) or not math.isfinite(freq):
+            self._reject(f'duty command rejected: duty={duty!r}, pwm_frequency={freq!r} '
+                         'is not finite; keeping the last valid command')
+            return
+        if freq < 0.0 or freq > MAX_PWM_FREQUENCY_HZ:
+            self._reject(f'duty command rejected: pwm_frequency={freq!r} Hz outside '
+                         f'(0, {MAX_PWM_FREQUENCY_HZ:g}]; keeping the last valid command')
+            return
+        if freq == 0.0:  # 0 = keep the frequency in force (DutyCommand.msg)
+            freq = self._stepper.sample().pwm_frequency_hz
+        if not 0.0 <= duty <= 1.0:
+            clamped = min(max(duty, 0.0), 1.0)
+            self._reject(f'duty {duty!r} outside [0, 1]; clamped to {clamped:g}')
+            duty = clamped
+        self._stepper.set_command(duty, freq)
+
+    def _pressure_from(self, msg: FluidPressure, port: str) -> float | None:
+        absolute = float(msg.fluid_pressure)
+        if not math.isfinite(absolute) or absolute < 0.0:
+            self._reject(f'{port} pressure rejected: {absolute!r} Pa absolute is not a '
+                         'finite non-negative pressure; keeping the last valid value')
+            return None
+        return gauge_from_absolute(absolute)
+
+    def _on_supply(self, msg: FluidPressure) -> None:
+        gauge = self._pressure_from(msg, 'supply')
+        if gauge is not None:
+            s = self._stepper.sample()
+            self._stepper.set_pressures(gauge, s.output_pressure_pa)
+
+    def _on_output(self, msg: FluidPressure) -> None:
+        gauge = self._pressure_from(msg, 'output')
+        if gauge is not None:
+            s = self._stepper.sample()
+            self._stepper.set_pressures(s.supply_pressure_pa, gauge)
+
+    # --- real-time loop -------------------------------------------------------------------
+    def _on_tick(self) -> None:
+        wall_start = time.monotonic()
+        now = self.get_clock().now()
+        now_ns = now.nanoseconds
+        if now_ns == 0:  # use_sim_time and no /clock yet
+            return
+        if self._t0 is None or (self._last_now_ns is not None and now_ns < self._last_now_ns):
+            if self._t0 is not None:
+                self.get_logger().warning('clock went backwards; restarting the model')
+                self._stepper.reset()
+            self._t0 = now
+        self._last_now_ns = now_ns
+        target_s = (now - self._t0).nanoseconds * 1e-9
+
+        behind_reasons = []
+        if self._last_tick_wall is not None:
+            gap = wall_start - self._last_tick_wall
+            if gap > 2.0 * self._period_s:
+                behind_reasons.append(f'tick came {gap * 1e3:.2f} ms after the previous one '
+                                      f'(period {self._period_s * 1e3:.3g} ms)')
+        self._last_tick_wall = wall_start
+
+        lag = target_s - self._stepper.sample().t_s
+        if lag > self._max_advance_s:
+            # Bound the work of this callback: integrate max_advance, skip the rest.
+            self._stepper.advance_to(self._stepper.sample().t_s + self._max_advance_s)
+            skipped = target_s - self._stepper.sample().t_s
+            self._skipped_model_s += skipped
+            # Model time runs on from here: ROS time t0 + skipped maps to the model's now.
+            self._t0 = Time(nanoseconds=self._t0.nanoseconds + int(round(skipped * 1e9)),
+                            clock_type=self._t0.clock_type)
+            behind_reasons.append(f'model {lag * 1e3:.1f} ms behind the clock; '
+                                  f'{skipped * 1e3:.1f} ms skipped without integration')
+        elif lag > 0.0:
+            self._stepper.advance_to(target_s)
+
+        self._publish_state(now)
+        compute = time.monotonic() - wall_start
+        self._max_tick_compute_s = max(self._max_tick_compute_s, compute)
+        if compute > self._period_s:
+            behind_reasons.append(f'tick took {compute * 1e3:.2f} ms, longer than the period')
+        self._ticks += 1
+        self._window_ticks += 1
+        if behind_reasons:
+            self._behind_ticks += 1
+            self._last_behind_reason = '; '.join(behind_reasons)
+            self._publish_diagnostics(DiagnosticLevel.WARN,
+                                      'fell behind: ' + self._last_behind_reason)
+
+    def _publish_state(self, now: Time) -> None:
+        s = self._stepper.sample()
+        msg = ValveState()
+        msg.header.stamp = now.to_msg()
+        msg.header.frame_id = self._frame_id
+        msg.sequence = self._sequence
+        self._sequence += 1
+        msg.coil_voltage = float(s.coil_voltage_v)
+        msg.coil_current = float(s.coil_current_a)
+        msg.spool_position = float(s.spool_position_m)
+        msg.spool_velocity = float(s.spool_velocity_m_s)
+        msg.spool_position_avg = float(s.position_avg_m)
+        msg.mass_flow = float(s.mass_flow_kg_s)
+        msg.duty = float(s.duty)
+        msg.pwm_frequency = float(s.pwm_frequency_hz)
+        msg.supply_pressure = float(s.supply_pressure_pa)
+        msg.output_pressure = float(s.output_pressure_pa)
+        msg.source = ValveState.SOURCE_SIMULATOR
+        msg.position_measured = False
+        self._state_pub.publish(msg)
+
+    # --- diagnostics ----------------------------------------------------------------------
+    def _publish_summary(self) -> None:
+        wall = time.monotonic()
+        elapsed = wall - self._window_start_wall
+        if elapsed > 0:
+            self._achieved_rate_hz = self._window_ticks / elapsed
+        self._window_start_wall, self._window_ticks = wall, 0
+        level, text = DiagnosticLevel.OK, 'running in real time'
+        if self._behind_ticks:
+            level = DiagnosticLevel.WARN
+            text = f'{self._behind_ticks} tick(s) fell behind; last: {self._last_behind_reason}'
+        self._publish_diagnostics(level, text)
+        self._max_tick_compute_s = 0.0
+
+    def _publish_diagnostics(self, level: int, text: str) -> None:
+        s = self._stepper.sample()
+        status = DiagnosticStatus(level=level, name=f'{self.get_name()}: real-time model',
+                                  message=text, hardware_id=self._frame_id)
+        status.values = key_values(
+            ticks=self._ticks, ticks_behind=self._behind_ticks,
+            skipped_model_time_s=self._skipped_model_s,
+            achieved_rate_hz=self._achieved_rate_hz, target_rate_hz=self._rate_hz,
+            max_tick_compute_s=self._max_tick_compute_s,
+            rejected_commands=self._rejected_commands,
+            last_rejection=self._last_reject_reason, model_time_s=s.t_s,
+            duty=s.duty, pwm_frequency_hz=s.pwm_frequency_hz,
+            supply_pressure_pa=s.supply_pressure_pa, params_file=self._params_path)
+        array = DiagnosticArray()
+        array.header.stamp = self.get_clock().now().to_msg()
+        array.status = [status]
+        self._diag_pub.publish(array)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the node until Ctrl-C or an external shutdown."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = ValveSimulatorNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ValueError, OSError) as err:
+        # A bad parameter or parameter file: say which and fail, never run on defaults.
+        rclpy.logging.get_logger('valve_simulator').fatal(f'cannot start: {err}')
+        sys.exit(1)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
