@@ -1,0 +1,64 @@
+"""Exceptions of valve_driver_pkg: one small tree, leaves also inherit the matching built-in.
+
+::
+
+    ValveDriverError
+    ├── ProtocolError
+    │   ├── DbcError (ValueError)            the DBC file breaks the protocol's layout rules
+    │   ├── ProtocolEncodeError (ValueError) a signal value outside its DBC range (strict)
+    │   └── FrameRejected                    a received frame failed a check (carries reason)
+    └── BusError
+        ├── BusOpenError (OSError)           the bus could not be opened
+        └── BusClosedError (ConnectionError) the bus went away while in use
+"""
+from __future__ import annotations
+
+__all__ = [
+    'ValveDriverError', 'ProtocolError', 'DbcError', 'ProtocolEncodeError', 'FrameRejected',
+    'BusError', 'BusOpenError', 'BusClosedError',
+]
+
+
+class ValveDriverError(Exception):
+    """Base class of every error raised by valve_driver_pkg."""
+
+
+class ProtocolError(ValveDriverError):
+    """Something about the CAN protocol (DBC, encoding, decoding) is wrong."""
+
+
+class DbcError(ProtocolError, ValueError):
+    """The DBC file cannot be used: missing message, bad layout, overlapping ids."""
+
+
+class ProtocolEncodeError(ProtocolError, ValueError):
+    """A signal value is outside the range the DBC allows (cantools strict encoding)."""
+
+
+class FrameRejected(ProtocolError):
+    """A received frame failed a check; ``reason`` is a :class:`RejectReason` value.
+
+    Parameters
+    ----------
+    reason : str
+        Machine-readable reason (``RejectReason`` member value), used as a counter key.
+    detail : str
+        Human-readable description naming the frame, the check and the values.
+    """
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(detail)
+        self.reason = reason
+        self.detail = detail
+
+
+class BusError(ValveDriverError):
+    """Base class of CAN bus (transport) errors."""
+
+
+class BusOpenError(BusError, OSError):
+    """The bus could not be opened (no interface, no hub listening, bad channel)."""
+
+
+class BusClosedError(BusError, ConnectionError):
+    """The bus went away while it was in use (hub closed, interface down)."""
