@@ -1,0 +1,75 @@
+"""Merge benchmarks/results/*.json into benchmarks/results.json and the README's table.
+
+Each bench_*.py writes ``benchmarks/results/<name>.json``: a list of records with the keys
+``name, value, unit, reference_name, reference_value, ratio, target, passed, notes``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+START, END = '<!-- bench:start -->', '<!-- bench:end -->'
+
+
+def _fmt(value: object) -> str:
+    if isinstance(value, float):
+        return f'{value:.4g}'
+    return '' if value is None else str(value)
+
+
+def collect() -> dict:
+    records = []
+    for path in sorted((HERE / 'results').glob('*.json')):
+        try:
+            entries = json.loads(path.read_text())
+        except json.JSONDecodeError as err:
+            print(f'collect: skipping {path}: {err}', file=sys.stderr)
+            continue
+        for entry in entries:
+            entry.setdefault('suite', path.stem)
+            records.append(entry)
+    return {
+        'generated': time.strftime('%Y-%m-%dT%H:%M:%S%z'),
+        'machine': {'python': platform.python_version(), 'platform': platform.platform(),
+                    'cpus': os.cpu_count()},
+        'results': records,
+    }
+
+
+def table(summary: dict) -> str:
+    lines = ['| suite | benchmark | value | reference | ratio | target | met |',
+             '|---|---|---|---|---|---|---|']
+    for r in summary['results']:
+        ref = f"{_fmt(r.get('reference_value'))} {r.get('unit', '')} ({r.get('reference_name', '')})" \
+            if r.get('reference_name') else ''
+        met = {True: 'yes', False: '**no**'}.get(r.get('passed'), '')
+        lines.append(f"| {r['suite']} | {r['name']} | {_fmt(r.get('value'))} {r.get('unit', '')} "
+                     f"| {ref} | {_fmt(r.get('ratio'))} | {r.get('target', '')} | {met} |")
+    m = summary['machine']
+    lines.append('')
+    lines.append(f"Measured {summary['generated']} on {m['cpus']} CPUs, Python {m['python']} "
+                 f"({m['platform']}) by `make bench`; raw figures in `benchmarks/results.json`.")
+    return '\n'.join(lines)
+
+
+def main() -> int:
+    summary = collect()
+    (HERE / 'results.json').write_text(json.dumps(summary, indent=2) + '\n')
+    readme = ROOT / 'README.md'
+    text = readme.read_text() if readme.exists() else ''
+    if START in text and END in text:
+        head, rest = text.split(START, 1)
+        _, tail = rest.split(END, 1)
+        readme.write_text(f'{head}{START}\n{table(summary)}\n{END}{tail}')
+    print(table(summary))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,102 @@
+"""valve_simulator as its own process: rate, duty following, diagnostics, bad input."""
+from __future__ import annotations
+
+import math
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import FluidPressure
+
+from valve_model_pkg.nodes.common import (COMMAND_QOS, TOPIC_DIAGNOSTICS,
+                                          TOPIC_SUPPLY_PRESSURE, absolute_from_gauge)
+from valve_model_pkg.nodes.probe import StateProbe
+
+pytestmark = pytest.mark.node
+
+X_MAX_M = 0.33e-3  # Table 2 identified stroke
+
+
+def _start_sim(start_node, rate_hz: float, *extra: str):
+    return start_node('valve_simulator', '--ros-args', '-p', f'publish_rate_hz:={rate_hz}',
+                      *extra)
+
+
+@pytest.mark.parametrize('rate_hz', [1000.0, 200.0])
+def test_state_arrives_at_the_configured_rate_and_follows_duty(start_node, ros, rate_hz):
+    sim = _start_sim(start_node, rate_hz)
+    probe = ros.add(StateProbe('test_probe'))
+    ros.wait_for(lambda: probe.count > 10, 30.0, 'the first valve/state messages')
+
+    # Rate over a 3 s window of message stamps and of arrivals, both within +-20 %.
+    probe.reset_window()
+    ros.spin_for(3.0)
+    w = probe.window()
+    assert w.rate_hz == pytest.approx(rate_hz, rel=0.2), sim.output[-2000:]
+    assert w.count / 3.0 == pytest.approx(rate_hz, rel=0.2)
+    assert w.position_avg_pct == pytest.approx(0.0, abs=1e-6)  # duty 0: closed
+
+    # Follow a duty command: 60 % at 50 Hz opens the valve for part of each period.
+    probe.command(0.6, 50.0)
+    ros.spin_for(1.0)
+    probe.reset_window()
+    ros.spin_for(1.0)
+    w = probe.window(x_max_m=X_MAX_M)
+    assert w.last is not None
+    assert w.last.duty == pytest.approx(0.6)
+    assert w.last.pwm_frequency == pytest.approx(50.0)
+    assert 10.0 < w.position_avg_pct < 95.0
+    assert w.current_max_a > 0.3
+    assert w.mass_flow_kg_s > 0.0
+
+    probe.command(0.0, 50.0)
+    ros.spin_for(1.0)
+    probe.reset_window()
+    ros.spin_for(0.5)
+    assert probe.window(x_max_m=X_MAX_M).position_avg_pct == pytest.approx(0.0, abs=0.5)
+    assert probe.gaps == 0
+    assert sim.alive()
+    assert sim.stop() == 0
+
+
+def test_bad_commands_are_rejected_and_the_node_survives(start_node, ros):
+    sim = _start_sim(start_node, 500.0)
+    probe = ros.add(StateProbe('test_probe'))
+    diags: list[DiagnosticArray] = []
+    probe.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, diags.append, 10)
+    supply_pub = probe.create_publisher(FluidPressure, TOPIC_SUPPLY_PRESSURE, COMMAND_QOS)
+    ros.wait_for(lambda: probe.count > 10, 30.0, 'valve/state')
+
+    probe.command(0.4, 50.0)
+    ros.spin_for(0.5)
+    for duty, freq in [(math.nan, 50.0), (0.5, math.inf), (0.5, -3.0), (0.5, 1e9)]:
+        probe.command(duty, freq)
+    supply_pub.publish(FluidPressure(fluid_pressure=math.nan))
+    ros.spin_for(1.0)
+    last = probe.window().last
+    assert last is not None
+    assert last.duty == pytest.approx(0.4)  # last valid command still in force
+    assert last.pwm_frequency == pytest.approx(50.0)
+
+    probe.command(1.7, 50.0)  # out of range: clamped and reported
+    supply_pub.publish(FluidPressure(fluid_pressure=absolute_from_gauge(2.0e5)))
+    ros.spin_for(1.0)
+    last = probe.window().last
+    assert last.duty == pytest.approx(1.0)
+    assert last.supply_pressure == pytest.approx(2.0e5)
+    ros.wait_for(lambda: any(kv.key == 'rejected_commands' and int(kv.value) >= 6
+                             for d in diags for s in d.status for kv in s.values),
+                 5.0, 'diagnostics counting the rejected commands')
+    assert sim.alive()
+    out = sim.output
+    assert 'not finite' in out and 'clamped' in out
+    assert sim.stop() == 0
+
+
+def test_a_bad_parameter_file_is_refused_at_start(start_node, tmp_path):
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('this: is not a valve\n')
+    sim = start_node('valve_simulator', '--ros-args', '-p', f'params_file:={bad}')
+    sim.proc.wait(timeout=60)
+    assert sim.proc.returncode != 0
+    assert 'cannot start' in sim.output
+    assert str(bad) in sim.output or 'missing' in sim.output
