@@ -1,0 +1,622 @@
+"""Measured valve data: CSV files and rosbag2 bags into one in-memory form.
+
+Two sources feed the identification:
+
+* bench CSV files in the shared format (``measured-data-format.md``): metadata lines
+  ``# key: value``, one header row, one row per sample, SI units, gauge pressures;
+* rosbag2 bags recorded from the suite (``valve_msgs/msg/ValveState`` on ``/valve/state``).
+
+Both end up as a :class:`Measurement`. Malformed input is refused with a
+:class:`~valve_model_pkg.identification.errors.MeasurementFormatError` naming the file, the
+line (or message) and the reason. Nothing is dropped silently: a sample whose current is
+empty or ``nan`` is kept as ``nan`` (and excluded from the error integrals), gaps in the
+time axis are counted, and every such finding is listed in :attr:`Measurement.notes`.
+
+Files with different sample rates are combined by keeping each on its own time base: the
+model is simulated at its own step and sampled at each file's sample times, and the error
+integrals are integrals over time, so a 1 kHz file and a 50 kHz file weigh by duration,
+not by sample count.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from .errors import MeasurementFormatError
+
+__all__ = [
+    'Measurement',
+    'VALVE_STATE_MSG',
+    'VALVE_STATE_TYPE',
+    'read_csv',
+    'read_bag',
+    'read_measurements',
+    'write_csv',
+]
+
+_LOG = logging.getLogger(__name__)
+
+#: The message type the suite records its valve state with.
+VALVE_STATE_TYPE = 'valve_msgs/msg/ValveState'
+
+#: Text of ``valve_msgs/msg/ValveState.msg``, used to register the type when a bag does
+#: not embed its definition (a unit test keeps it equal to the interface file).
+VALVE_STATE_MSG = """\
+std_msgs/Header header
+uint64 sequence
+float64 coil_voltage
+float64 coil_current
+float64 spool_position
+float64 spool_velocity
+float64 spool_position_avg
+float64 mass_flow
+float64 duty
+float64 pwm_frequency
+float64 supply_pressure
+float64 output_pressure
+uint8 SOURCE_SIMULATOR=0
+uint8 SOURCE_CAN=1
+uint8 source
+bool position_measured
+"""
+
+_REQUIRED_COLUMNS = ('t', 'voltage', 'current')
+_KNOWN_COLUMNS = ('t', 'voltage', 'current', 'position', 'mass_flow', 'duty')
+_NUMERIC_METADATA = (
+    'supply_pressure_pa', 'output_pressure_pa', 'supply_temperature_k',
+    'pwm_frequency_hz', 'sample_rate_hz',
+)
+_MIN_SAMPLES = 10
+# A step of the time axis longer than this many nominal periods counts as missing samples.
+_GAP_FACTOR = 1.5
+_VACUUM_GAUGE_PA = -101_325.0
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One measured trace, whatever file it came from.
+
+    Attributes
+    ----------
+    source : str
+        File (or bag directory) the trace was read from.
+    t_s : numpy.ndarray, shape (n,)
+        Sample times [s], strictly increasing, starting at or after 0.
+    voltage_v : numpy.ndarray, shape (n,)
+        Voltage at the coil terminals [V]. Between samples it is held (zero-order hold).
+    current_a : numpy.ndarray, shape (n,)
+        Measured coil current [A]; ``nan`` marks a missing value.
+    supply_pressure_pa : float or None
+        Supply pressure, gauge [Pa]; ``None`` when the file does not say.
+    output_pressure_pa : float
+        Output port pressure, gauge [Pa] (0 when the file does not say).
+    experiment : str
+        ``step`` or ``pwm`` (``unknown`` when the file does not say).
+    position_m : numpy.ndarray or None, shape (n,)
+        Measured spool position [m] when available.
+    metadata : dict
+        All metadata as read (unknown keys kept).
+    notes : tuple of str
+        Everything the reader noticed and kept: missing values, gaps, rate mismatches.
+    n_missing_values : int
+        Number of samples whose current is missing (``nan``).
+    n_gaps : int
+        Number of steps of the time axis longer than 1.5 nominal periods.
+    """
+
+    source: str
+    t_s: np.ndarray
+    voltage_v: np.ndarray
+    current_a: np.ndarray
+    supply_pressure_pa: float | None
+    output_pressure_pa: float = 0.0
+    experiment: str = 'unknown'
+    position_m: np.ndarray | None = None
+    metadata: dict[str, str] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+    n_missing_values: int = 0
+    n_gaps: int = 0
+
+    @property
+    def name(self) -> str:
+        """Short name of the source (file name without directories)."""
+        return Path(self.source).name
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples (rows), missing values included."""
+        return int(self.t_s.size)
+
+    @property
+    def duration_s(self) -> float:
+        """Time span of the trace [s]."""
+        return float(self.t_s[-1] - self.t_s[0]) if self.t_s.size else 0.0
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """Actual sample rate [Hz] from the median sampling period."""
+        if self.t_s.size < 2:
+            return float('nan')
+        return 1.0 / float(np.median(np.diff(self.t_s)))
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Boolean mask of samples with a measured current, shape (n,)."""
+        return np.isfinite(self.current_a)
+
+    def with_current(self, current_a: np.ndarray, source: str | None = None) -> 'Measurement':
+        """Return a copy whose current is replaced (used for residuals and for tests).
+
+        Parameters
+        ----------
+        current_a : numpy.ndarray, shape (n,)
+            New current trace [A].
+        source : str, optional
+            New source name; by default the old one.
+        """
+        cur = np.asarray(current_a, dtype=float)
+        if cur.shape != self.t_s.shape:
+            raise ValueError(f'current has shape {cur.shape}, expected {self.t_s.shape}')
+        return Measurement(
+            source=self.source if source is None else source, t_s=self.t_s,
+            voltage_v=self.voltage_v, current_a=cur,
+            supply_pressure_pa=self.supply_pressure_pa,
+            output_pressure_pa=self.output_pressure_pa, experiment=self.experiment,
+            position_m=self.position_m, metadata=dict(self.metadata), notes=self.notes,
+            n_missing_values=int(np.count_nonzero(~np.isfinite(cur))), n_gaps=self.n_gaps)
+
+    def summary(self) -> str:
+        """One line a person can read in a progress log."""
+        p = ('unknown' if self.supply_pressure_pa is None
+             else f'{self.supply_pressure_pa / 1e5:.2f} bar')
+        v = self.voltage_v
+        return (f'{self.name}: {self.n_samples} samples, {self.duration_s * 1e3:.1f} ms at '
+                f'{self.sample_rate_hz / 1e3:.3g} kHz, voltage {v.min():.3g}..{v.max():.3g} V, '
+                f'supply {p}, {self.n_missing_values} missing values, {self.n_gaps} gaps')
+
+
+# --------------------------------------------------------------------------------------
+# CSV
+# --------------------------------------------------------------------------------------
+
+def _parse_float(path: str, lineno: int, column: str, text: str, *,
+                 allow_missing: bool) -> float:
+    """Parse one CSV field; empty or ``nan`` is a missing value where that is allowed."""
+    token = text.strip()
+    if token == '' or token.lower() in ('nan', 'na', 'null'):
+        if allow_missing:
+            return math.nan
+        raise MeasurementFormatError(path, lineno, f'column {column!r} has no value')
+    try:
+        value = float(token)
+    except ValueError:
+        raise MeasurementFormatError(
+            path, lineno, f'column {column!r}: {token!r} is not a number') from None
+    if not math.isfinite(value):
+        raise MeasurementFormatError(path, lineno, f'column {column!r}: {token!r} is not finite')
+    return value
+
+
+def _check_time_axis(path: str, t: np.ndarray, linenos: Sequence[int] | None) -> None:
+    """Refuse a time axis that is not strictly increasing from at or after zero."""
+    if t[0] < 0.0:
+        raise MeasurementFormatError(
+            path, linenos[0] if linenos else None, f't = {t[0]!r} s is negative')
+    steps = np.diff(t)
+    bad = np.flatnonzero(steps <= 0.0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        where = linenos[i] if linenos else None
+        raise MeasurementFormatError(
+            path, where, f't = {t[i]!r} s does not increase (previous sample t = {t[i - 1]!r} s)'
+            + ('' if linenos else f' at message {i}'))
+
+
+def _gap_notes(t: np.ndarray, nominal_rate_hz: float | None) -> tuple[int, int, list[str]]:
+    """Count steps of the time axis that skip samples; returns (gaps, samples lost, notes)."""
+    dt = np.diff(t)
+    period = 1.0 / nominal_rate_hz if nominal_rate_hz else float(np.median(dt))
+    long_steps = np.flatnonzero(dt > _GAP_FACTOR * period)
+    if long_steps.size == 0:
+        return 0, 0, []
+    lost = int(np.sum(np.round(dt[long_steps] / period) - 1))
+    first = ', '.join(f'{t[i]:.6g} s' for i in long_steps[:5])
+    more = '' if long_steps.size <= 5 else f' (and {long_steps.size - 5} more)'
+    return int(long_steps.size), lost, [
+        f'{long_steps.size} gaps in the time axis (about {lost} missing samples) after '
+        f't = {first}{more}; kept, the model is simulated through them']
+
+
+def read_csv(path: str | Path) -> Measurement:
+    """Read a bench measurement in the shared CSV format.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The CSV file.
+
+    Returns
+    -------
+    Measurement
+        The trace; ``supply_pressure_pa`` is ``None`` if the metadata lacks it.
+
+    Raises
+    ------
+    MeasurementFormatError
+        The file cannot be read or is malformed; the message names the file, the line and
+        the reason.
+
+    Notes
+    -----
+    A current field that is empty or ``nan`` is a missing sample: it is kept as ``nan``,
+    counted in ``n_missing_values`` and listed in ``notes``. Every other field must be a
+    finite number. ``flow_map`` files carry no time trace and are refused here.
+    """
+    spath = str(path)
+    try:
+        raw = Path(path).read_bytes()
+    except OSError as err:
+        raise MeasurementFormatError(spath, None, f'cannot be read: {err.strerror}') from err
+    try:
+        text = raw.decode('utf-8-sig')
+    except UnicodeDecodeError as err:
+        lineno = raw[:err.start].count(b'\n') + 1
+        raise MeasurementFormatError(spath, lineno, 'is not UTF-8 text') from err
+
+    metadata: dict[str, str] = {}
+    meta_lines: dict[str, int] = {}
+    header: list[str] | None = None
+    header_line = 0
+    rows: list[list[str]] = []
+    linenos: list[int] = []
+    blank_after_data: int | None = None
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if header is None:
+            if not stripped:
+                continue
+            if stripped.startswith('#'):
+                body = stripped[1:].strip()
+                if ':' in body:
+                    key, _, value = body.partition(':')
+                    key = key.strip()
+                    if key in metadata:
+                        raise MeasurementFormatError(
+                            spath, lineno, f'metadata key {key!r} given twice '
+                            f'(first on line {meta_lines[key]})')
+                    metadata[key] = value.strip()
+                    meta_lines[key] = lineno
+                # A '#' line without 'key: value' is a free comment: kept out of the data.
+                continue
+            header = [c.strip() for c in stripped.split(',')]
+            header_line = lineno
+            continue
+        if not stripped:
+            if blank_after_data is None:
+                blank_after_data = lineno
+            continue
+        if blank_after_data is not None:
+            raise MeasurementFormatError(
+                spath, blank_after_data, 'empty line inside the data (rows follow it)')
+        if stripped.startswith('#'):
+            raise MeasurementFormatError(
+                spath, lineno, 'metadata/comment line after the header; metadata must lead')
+        rows.append(line.split(','))
+        linenos.append(lineno)
+
+    if header is None:
+        raise MeasurementFormatError(spath, None, 'has no header row and no data')
+    for key in _NUMERIC_METADATA:
+        if key in metadata:
+            _parse_float(spath, meta_lines[key], key, metadata[key], allow_missing=False)
+    experiment = metadata.get('experiment', 'unknown').strip() or 'unknown'
+    if experiment == 'flow_map' or ('t' not in header and 'duty' in header):
+        raise MeasurementFormatError(
+            spath, header_line, 'is a flow_map file (no time trace); identification needs '
+            'step or pwm traces with columns t, voltage, current')
+    if len(set(header)) != len(header):
+        dup = sorted({c for c in header if header.count(c) > 1})
+        raise MeasurementFormatError(spath, header_line, f'duplicate columns {dup}')
+    missing = [c for c in _REQUIRED_COLUMNS if c not in header]
+    if missing:
+        raise MeasurementFormatError(
+            spath, header_line, f'header lacks required column(s) {missing}; '
+            f'found {header}')
+    unknown = [c for c in header if c not in _KNOWN_COLUMNS]
+    if len(rows) < _MIN_SAMPLES:
+        raise MeasurementFormatError(
+            spath, None, f'has {len(rows)} data rows; at least {_MIN_SAMPLES} are needed')
+
+    ncol = len(header)
+    index = {c: header.index(c) for c in header}
+    data = np.empty((len(rows), ncol))
+    for r, (fields, lineno) in enumerate(zip(rows, linenos)):
+        if len(fields) != ncol:
+            raise MeasurementFormatError(
+                spath, lineno, f'expected {ncol} fields ({",".join(header)}), got {len(fields)}')
+        for c, name in enumerate(header):
+            # Only the measured signals may have holes; time and voltage define the
+            # experiment and must be there.
+            data[r, c] = _parse_float(spath, lineno, name, fields[c],
+                                      allow_missing=name not in ('t', 'voltage'))
+
+    t = data[:, index['t']]
+    _check_time_axis(spath, t, linenos)
+    current = data[:, index['current']]
+    notes: list[str] = []
+    n_missing = int(np.count_nonzero(~np.isfinite(current)))
+    if n_missing:
+        first = [linenos[i] for i in np.flatnonzero(~np.isfinite(current))[:5]]
+        notes.append(f'{n_missing} samples without a current value (lines {first}'
+                     f'{"..." if n_missing > 5 else ""}); kept and excluded from the errors')
+    if n_missing > 0.5 * len(rows):
+        raise MeasurementFormatError(
+            spath, None, f'{n_missing} of {len(rows)} current values are missing')
+    nominal = float(metadata['sample_rate_hz']) if 'sample_rate_hz' in metadata else None
+    if nominal is not None and nominal <= 0.0:
+        raise MeasurementFormatError(
+            spath, meta_lines['sample_rate_hz'], 'sample_rate_hz must be positive')
+    if nominal is not None:
+        actual = 1.0 / float(np.median(np.diff(t)))
+        if abs(actual / nominal - 1.0) > 0.05:
+            notes.append(f'sample_rate_hz says {nominal:g} Hz but the time axis has '
+                         f'{actual:.6g} Hz; the time axis is used')
+            nominal = None
+    n_gaps, _, gap_notes = _gap_notes(t, nominal)
+    notes.extend(gap_notes)
+    if unknown:
+        notes.append(f'columns {unknown} are not part of the format; ignored')
+
+    supply = None
+    if 'supply_pressure_pa' in metadata:
+        supply = float(metadata['supply_pressure_pa'])
+        if supply < _VACUUM_GAUGE_PA:
+            raise MeasurementFormatError(
+                spath, meta_lines['supply_pressure_pa'],
+                f'supply_pressure_pa = {supply:g} Pa is below vacuum (pressures are gauge)')
+    output = float(metadata.get('output_pressure_pa', 0.0))
+    position = data[:, index['position']].copy() if 'position' in index else None
+    for note in notes:
+        _LOG.info('%s: %s', spath, note)
+    return Measurement(
+        source=spath, t_s=t.copy(), voltage_v=data[:, index['voltage']].copy(),
+        current_a=current.copy(), supply_pressure_pa=supply, output_pressure_pa=output,
+        experiment=experiment, position_m=position, metadata=metadata, notes=tuple(notes),
+        n_missing_values=n_missing, n_gaps=n_gaps)
+
+
+def write_csv(path: str | Path, t_s: np.ndarray, voltage_v: np.ndarray, current_a: np.ndarray,
+              metadata: dict[str, object], *, position_m: np.ndarray | None = None,
+              precision: int = 7) -> Path:
+    """Write a trace in the shared CSV format.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        Destination file (parent directories are created).
+    t_s, voltage_v, current_a : numpy.ndarray, shape (n,)
+        Time [s], coil voltage [V] and current [A]; ``nan`` current is written empty
+        (a missing sample).
+    metadata : dict
+        Written as ``# key: value`` lines in the given order.
+    position_m : numpy.ndarray, optional
+        Spool position [m], written as column ``position``.
+    precision : int
+        Significant digits of every value.
+
+    Returns
+    -------
+    pathlib.Path
+        The written file.
+    """
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    cols = [np.asarray(t_s, float), np.asarray(voltage_v, float), np.asarray(current_a, float)]
+    names = ['t', 'voltage', 'current']
+    if position_m is not None:
+        cols.append(np.asarray(position_m, float))
+        names.append('position')
+    fmt = f'%.{precision}g'
+    lines = [f'# {k}: {v}' for k, v in metadata.items()]
+    lines.append(','.join(names))
+    for row in zip(*cols):
+        lines.append(','.join('' if not math.isfinite(v) else fmt % v for v in row))
+    out.write_text('\n'.join(lines) + '\n', encoding='utf-8')
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# rosbag2
+# --------------------------------------------------------------------------------------
+
+def _valve_typestore(connection: object) -> object:
+    """A typestore that knows ValveState: from the bag if it embeds it, else from our text."""
+    from rosbags.interfaces import MessageDefinitionFormat
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    msgdef = getattr(connection, 'msgdef', None)
+    if msgdef is not None and msgdef.format == MessageDefinitionFormat.MSG and msgdef.data:
+        types = get_types_from_msg(msgdef.data, VALVE_STATE_TYPE)
+    else:
+        types = get_types_from_msg(VALVE_STATE_MSG, VALVE_STATE_TYPE)
+    store.register(types)
+    return store
+
+
+def read_bag(path: str | Path, *, topic: str = '/valve/state',
+             valve: str | None = None) -> Measurement:
+    """Read the valve state stream of a rosbag2 bag recorded from the suite.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        Bag directory (with ``metadata.yaml``), any storage rosbags reads (MCAP, sqlite3).
+    topic : str
+        Topic of the ``valve_msgs/msg/ValveState`` messages.
+    valve : str, optional
+        ``header.frame_id`` of the valve to take when the topic carries several valves.
+
+    Returns
+    -------
+    Measurement
+        Time from ``header.stamp`` relative to the first message (the bag's receive time
+        when the stamps are all zero); ``coil_voltage``, ``coil_current``; the supply
+        pressure is the median of ``supply_pressure`` over the messages; the spool position
+        only if the messages say it is measured (``position_measured``).
+
+    Raises
+    ------
+    MeasurementFormatError
+        The bag cannot be read, lacks the topic, mixes valves without ``valve`` given,
+        has non-increasing stamps or non-finite voltages.
+
+    Notes
+    -----
+    The suite publishes its state at about 1 kHz. That is coarse for identification (the
+    spool stroke lasts under a millisecond): the fit uses what there is, the model is
+    simulated at its own step and sampled at the message times, and the voltage is held
+    between messages, so PWM edges between two messages are lost. Sequence gaps are
+    reported as missing samples.
+    """
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import TypesysError
+
+    spath = str(path)
+    try:
+        reader = Reader(Path(path))
+        reader.open()
+    except Exception as err:  # rosbags raises several unrelated types here
+        raise MeasurementFormatError(spath, None, f'cannot be opened as a rosbag2 bag: {err}'
+                                     ) from err
+    try:
+        conns = [c for c in reader.connections if c.topic == topic]
+        if not conns:
+            have = sorted({f'{c.topic} ({c.msgtype})' for c in reader.connections})
+            raise MeasurementFormatError(spath, None, f'has no topic {topic!r}; it has {have}')
+        wrong = [c.msgtype for c in conns if c.msgtype != VALVE_STATE_TYPE]
+        if wrong:
+            raise MeasurementFormatError(
+                spath, None, f'topic {topic!r} carries {wrong[0]}, not {VALVE_STATE_TYPE}')
+        try:
+            store = _valve_typestore(conns[0])
+        except TypesysError as err:
+            raise MeasurementFormatError(
+                spath, None, f'message definition of {VALVE_STATE_TYPE} unusable: {err}'
+            ) from err
+        records: list[tuple] = []
+        for index, (conn, logtime, raw) in enumerate(reader.messages(connections=conns)):
+            try:
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+            except Exception as err:  # a truncated or foreign payload
+                raise MeasurementFormatError(
+                    spath, None, f'message {index} on {topic} cannot be decoded: {err}'
+                ) from err
+            stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            records.append((msg.header.frame_id, stamp, logtime * 1e-9, int(msg.sequence),
+                            msg.coil_voltage, msg.coil_current, msg.spool_position,
+                            bool(msg.position_measured), msg.supply_pressure,
+                            msg.output_pressure, msg.pwm_frequency, msg.duty))
+    finally:
+        reader.close()
+    return _bag_records_to_measurement(spath, topic, valve, records)
+
+
+def _bag_records_to_measurement(spath: str, topic: str, valve: str | None,
+                                records: list[tuple]) -> Measurement:
+    """Turn decoded ValveState fields into a Measurement (checks and notes included)."""
+    frames = sorted({r[0] for r in records})
+    if valve is not None:
+        records = [r for r in records if r[0] == valve]
+        if not records:
+            raise MeasurementFormatError(
+                spath, None, f'no message on {topic} has frame_id {valve!r}; found {frames}')
+    elif len(frames) > 1:
+        raise MeasurementFormatError(
+            spath, None, f'{topic} carries several valves {frames}; choose one (valve=...)')
+    if len(records) < _MIN_SAMPLES:
+        raise MeasurementFormatError(
+            spath, None, f'has {len(records)} messages on {topic}; at least {_MIN_SAMPLES} '
+            'are needed')
+    arr = np.array([r[1:] for r in records], dtype=float)
+    stamps, logtimes, seq = arr[:, 0], arr[:, 1], arr[:, 2]
+    notes: list[str] = []
+    if np.all(stamps == 0.0):
+        notes.append('all header stamps are zero; the bag receive times are used')
+        stamps = logtimes
+    t = stamps - stamps[0]
+    _check_time_axis(spath, t, None)
+    voltage, current = arr[:, 3], arr[:, 4]
+    bad_v = np.flatnonzero(~np.isfinite(voltage))
+    if bad_v.size:
+        raise MeasurementFormatError(
+            spath, None, f'message {int(bad_v[0])} has a non-finite coil_voltage')
+    n_missing = int(np.count_nonzero(~np.isfinite(current)))
+    if n_missing:
+        notes.append(f'{n_missing} messages with a non-finite coil_current; kept, excluded')
+    dseq = np.diff(seq)
+    lost = int(np.sum(np.clip(dseq - 1, 0, None)))
+    n_gaps = int(np.count_nonzero(dseq > 1))
+    if lost:
+        notes.append(f'{n_gaps} sequence gaps, {lost} messages lost; kept, the model is '
+                     'simulated through them')
+    supply_all = arr[:, 7]
+    supply = float(np.median(supply_all))
+    if np.ptp(supply_all) > 0.01 * max(abs(supply), 1e3):
+        notes.append(f'supply_pressure varies {supply_all.min():.0f}..{supply_all.max():.0f} '
+                     f'Pa; the median {supply:.0f} Pa is used')
+    rate = 1.0 / float(np.median(np.diff(t)))
+    if rate < 10e3:
+        notes.append(f'state stream at {rate:.0f} Hz is coarse for identification (the '
+                     'stroke lasts under 1 ms); fitted on what there is')
+    measured = arr[:, 6].astype(bool)
+    position = arr[:, 5].copy() if np.all(measured) else None
+    metadata = {
+        'experiment': 'pwm' if np.any(np.abs(np.diff(voltage)) > 0) and
+        np.nanmax(arr[:, 9]) > 0 else 'step',
+        'valve': frames[0] if valve is None else valve,
+        'supply_pressure_pa': f'{supply:g}',
+        'output_pressure_pa': f'{float(np.median(arr[:, 8])):g}',
+        'sample_rate_hz': f'{rate:g}',
+        'topic': topic,
+    }
+    for note in notes:
+        _LOG.info('%s: %s', spath, note)
+    return Measurement(
+        source=spath, t_s=t, voltage_v=voltage.copy(), current_a=current.copy(),
+        supply_pressure_pa=supply, output_pressure_pa=float(np.median(arr[:, 8])),
+        experiment=metadata['experiment'], position_m=position, metadata=metadata,
+        notes=tuple(notes), n_missing_values=n_missing, n_gaps=n_gaps)
+
+
+def read_measurements(paths: Iterable[str | Path], *, topic: str = '/valve/state',
+                      valve: str | None = None) -> list[Measurement]:
+    """Read CSV files and bag directories (chosen by what each path is).
+
+    Parameters
+    ----------
+    paths : iterable of str or pathlib.Path
+        CSV files, bag directories, or ``.mcap``/``.db3`` files inside a bag directory.
+    topic, valve
+        Passed to :func:`read_bag`.
+
+    Returns
+    -------
+    list of Measurement
+        In the order given.
+    """
+    out = []
+    for p in paths:
+        path = Path(p)
+        if path.is_dir():
+            out.append(read_bag(path, topic=topic, valve=valve))
+        elif path.suffix in ('.mcap', '.db3') and (path.parent / 'metadata.yaml').exists():
+            out.append(read_bag(path.parent, topic=topic, valve=valve))
+        else:
+            out.append(read_csv(path))
+    return out
