@@ -1,0 +1,127 @@
+"""pneumatic_cylinder: the cylinder plant fed by the valve's mass flow, as a ROS 2 node.
+
+- subscribes ``valve/state`` (valve_msgs/ValveState): its ``mass_flow`` fills the chamber;
+- publishes ``valve/output_pressure`` (sensor_msgs/FluidPressure, absolute Pa): the chamber
+  pressure is the valve's output pressure, which sets the valve's flow regime (eq. 12);
+- publishes ``cylinder/joint_states`` (sensor_msgs/JointState, joint ``piston``): position
+  [m], velocity [m/s], effort = net pressure force on the piston [N].
+
+The plant (valve_model_pkg.pneumatics.cylinder, equations C1-C6) is advanced on every
+tick to the node's clock with the latest valve flow; the work per tick is bounded like
+the simulator's.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.time import Time
+from sensor_msgs.msg import FluidPressure, JointState
+from valve_msgs.msg import ValveState
+
+from valve_model_pkg.model.orifice import ATMOSPHERIC_PRESSURE_PA
+from valve_model_pkg.nodes.common import (PRESSURE_QOS, STATE_QOS, TOPIC_OUTPUT_PRESSURE,
+                                          TOPIC_STATE, declare_float)
+from valve_model_pkg.pneumatics.cylinder import (PARAMETER_INFO, Cylinder, CylinderParameters,
+                                                 CylinderState)
+
+TOPIC_JOINT_STATES = 'cylinder/joint_states'
+
+class CylinderNode(Node):
+    """Pneumatic cylinder plant driven by valve/state mass flow."""
+
+    def __init__(self) -> None:
+        super().__init__('pneumatic_cylinder')
+        defaults = CylinderParameters()
+        values = {}
+        for name, (text, low, high) in PARAMETER_INFO.items():
+            values[name] = declare_float(self, name, getattr(defaults, name), text, low, high)
+        self._params = dataclasses.replace(defaults, **values)
+        self._rate_hz = declare_float(self, 'rate_hz', 1000.0, 'Plant update rate [Hz]',
+                                      10.0, 5000.0)
+        pressure_rate = declare_float(self, 'pressure_publish_rate_hz', 500.0,
+                                      'Rate of valve/output_pressure [Hz]', 1.0, 5000.0)
+        y0 = declare_float(self, 'initial_position_m', 0.0, 'Initial piston position [m]',
+                           0.0, self._params.stroke_m)
+        self._max_advance_s = declare_float(self, 'max_advance_per_tick_s', 0.05,
+                                            'Most plant time integrated in one tick [s]',
+                                            1e-3, 1.0)
+        self._cylinder = Cylinder(self._params, CylinderState(position_m=y0))
+        self._mass_flow_kg_s = 0.0
+        self._rejected = 0
+        self._last: Time | None = None
+        self._pressure_pub = self.create_publisher(FluidPressure, TOPIC_OUTPUT_PRESSURE,
+                                                   PRESSURE_QOS)
+        self._joint_pub = self.create_publisher(JointState, TOPIC_JOINT_STATES, 50)
+        self.create_subscription(ValveState, TOPIC_STATE, self._on_valve, STATE_QOS)
+        self.create_timer(1.0 / self._rate_hz, self._on_tick)
+        self.create_timer(1.0 / pressure_rate, self._publish_pressure)
+        self.get_logger().info(
+            f'cylinder: bore {self._params.bore_diameter_m * 1e3:g} mm, stroke '
+            f'{self._params.stroke_m * 1e3:g} mm, mass {self._params.moving_mass_kg:g} kg, '
+            f'spring {self._params.spring_stiffness_n_per_m:g} N/m')
+
+    def _on_valve(self, msg: ValveState) -> None:
+        flow = float(msg.mass_flow)
+        if not math.isfinite(flow):
+            self._rejected += 1
+            self.get_logger().warning(f'valve/state mass_flow {flow!r} is not finite; '
+                                      'keeping the last valid flow')
+            return
+        self._mass_flow_kg_s = flow
+
+    def _on_tick(self) -> None:
+        now = self.get_clock().now()
+        if now.nanoseconds == 0:
+            return
+        if self._last is None or now < self._last:
+            self._last = now
+            return
+        dt = (now - self._last).nanoseconds * 1e-9
+        self._last = now
+        if dt > self._max_advance_s:
+            self.get_logger().warning(f'{dt * 1e3:.1f} ms since the last tick; integrating '
+                                      f'{self._max_advance_s * 1e3:.0f} ms only')
+            dt = self._max_advance_s
+        state = self._cylinder.step(dt, self._mass_flow_kg_s)
+        msg = JointState()
+        msg.header.stamp = now.to_msg()
+        msg.name = ['piston']
+        msg.position = [state.position_m]
+        msg.velocity = [state.velocity_m_s]
+        msg.effort = [(state.pressure_pa - ATMOSPHERIC_PRESSURE_PA)
+                      * self._params.piston_area_m2]
+        self._joint_pub.publish(msg)
+
+    def _publish_pressure(self) -> None:
+        msg = FluidPressure()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = 'cylinder_chamber'
+        msg.fluid_pressure = self._cylinder.state.pressure_pa
+        self._pressure_pub.publish(msg)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the node until Ctrl-C or an external shutdown."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = CylinderNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ValueError as err:
+        rclpy.logging.get_logger('pneumatic_cylinder').fatal(f'cannot start: {err}')
+        sys.exit(1)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
