@@ -1,0 +1,232 @@
+"""ADAPTER: simulate the suite's valve model under a *measured* voltage trace, in batches.
+
+The identification needs what the model's public API does not (yet) offer: the response
+to an arbitrary measured coil voltage (a pulse, a PWM train, a bench's own waveform),
+sampled at the measurement's own times, for a whole matrix of parameter vectors at once.
+``simulate_step_batch`` covers a single step from rest only.
+
+This adapter builds that from the model's compiled kernel (``model.kernel``): it runs the
+kernel's own integrator (``_advance``: fixed-step RK4, exact end-stop impacts, every
+effect of :data:`~valve_model_pkg.model.parameters.EFFECTS`) segment by segment, with the
+drive held in its "supply" phase and the supply voltage set to each segment's measured
+level, in a ``numba.prange`` loop over parameter vectors. It therefore simulates exactly
+the model that ``valve_simulate`` and ``valve_map`` use.
+
+What the model should offer natively (and this module would then shrink to a call):
+``simulate_trace_batch(raw_matrix, electronics, t_edges_s, voltages_v, t_samples_s,
+supply_pressure_pa, output_pressure_pa, h_free_s, h_stop_s) -> (current, position)``.
+
+The measured voltage is read as a zero-order hold: sample ``k``'s value applies from
+``t[k]`` to ``t[k+1]``. Consecutive samples within a tolerance (0.5 % of the largest
+magnitude) form one segment at their mean level, so a measured (slightly noisy) voltage
+column does not create an edge per sample. The valve starts at rest (closed, no current)
+at ``t = 0``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from ..model import kernel as _k
+from ..model.electronics import ElectronicsConfig
+from ..model.parameters import PARAMETER_FIELDS
+from .errors import ModelAdapterError
+from .measurements import Measurement
+
+__all__ = ['TraceSetup', 'prepare_trace', 'simulate_trace_batch', 'FIELD_INDEX']
+
+#: Column of each ValveParameters field in a raw parameter matrix.
+FIELD_INDEX = {name: i for i, name in enumerate(PARAMETER_FIELDS)}
+
+_VOLTAGE_TOLERANCE = 0.005
+# Finest output grid used when the measurement's times are not on a uniform grid.
+_MAX_GRID_DT_S = 20e-6
+
+
+@dataclass(frozen=True)
+class TraceSetup:
+    """Everything the kernel needs for one measurement, prepared once per file.
+
+    Attributes
+    ----------
+    seg_t0_s : numpy.ndarray, shape (n_seg,)
+        Start time of each constant-voltage segment [s] (the first is 0).
+    seg_v : numpy.ndarray, shape (n_seg,)
+        Voltage of each segment [V].
+    t_end_s : float
+        End of the simulation [s] (the last sample time).
+    grid_t0_s, grid_dt_s : float
+        Output grid ``grid_t0_s + k grid_dt_s`` [s].
+    n_grid : int
+        Number of grid samples.
+    index : numpy.ndarray or None, shape (n,)
+        Grid index of each measured sample when the samples lie on the grid, else None.
+    t_s : numpy.ndarray, shape (n,)
+        The measured sample times [s] (for interpolation).
+    supply_pressure_pa, output_pressure_pa : float
+        Pressures, gauge [Pa].
+    h_stop_s : float
+        Kernel step while the spool rests on a stop [s].
+    """
+
+    seg_t0_s: np.ndarray
+    seg_v: np.ndarray
+    t_end_s: float
+    grid_t0_s: float
+    grid_dt_s: float
+    n_grid: int
+    index: np.ndarray | None
+    t_s: np.ndarray
+    supply_pressure_pa: float
+    output_pressure_pa: float
+    h_stop_s: float
+
+
+def _segments(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Group the zero-order-held voltage into constant segments (see module notes)."""
+    tol = _VOLTAGE_TOLERANCE * max(float(np.max(np.abs(v))), 1e-3)
+    starts = [0]
+    lo = hi = v[0]
+    for k in range(1, v.size):
+        lo2, hi2 = min(lo, v[k]), max(hi, v[k])
+        if hi2 - lo2 > tol:
+            starts.append(k)
+            lo = hi = v[k]
+        else:
+            lo, hi = lo2, hi2
+    starts_a = np.array(starts)
+    ends = np.append(starts_a[1:], v.size)
+    levels = np.array([v[a:b].mean() for a, b in zip(starts_a, ends)])
+    t0 = t[starts_a].astype(float)
+    t0[0] = 0.0  # the valve is at rest from t = 0 under the first level
+    return t0, levels
+
+
+def prepare_trace(m: Measurement, *, h_stop_s: float | None = None) -> TraceSetup:
+    """Prepare a measurement for :func:`simulate_trace_batch`.
+
+    Parameters
+    ----------
+    m : Measurement
+        The measured trace (its voltage drives the model; its times are where the current
+        is sampled).
+    h_stop_s : float, optional
+        Kernel step while the spool rests [s]. Default: the kernel's default, or up to
+        100 us for multi-second traces, where the slow RL dynamics (tau ~ 10 ms) allow it
+        and it keeps the cost of a heating experiment down.
+
+    Raises
+    ------
+    ModelAdapterError
+        If the supply pressure is unknown.
+    """
+    if m.supply_pressure_pa is None:
+        raise ModelAdapterError(
+            f'{m.source}: no supply_pressure_pa in the metadata; the model needs it')
+    t = m.t_s
+    dt = float(np.median(np.diff(t)))
+    seg_t0, seg_v = _segments(t, m.voltage_v)
+    # Samples on a uniform grid (missing rows allowed) are read straight off the grid.
+    n_float = (t - t[0]) / dt
+    n_int = np.round(n_float)
+    on_grid = bool(np.max(np.abs(n_float - n_int)) < 1e-3) and dt <= 1e-3
+    if on_grid:
+        grid_dt, index = dt, n_int.astype(np.int64)
+        n_grid = int(index[-1]) + 1
+    else:
+        grid_dt = min(dt, _MAX_GRID_DT_S)
+        n_grid = int(math.floor((t[-1] - t[0]) / grid_dt)) + 2
+        index = None
+    if h_stop_s is None:
+        h_stop_s = _k.DEFAULT_H_STOP_S if m.duration_s < 0.5 else max(
+            _k.DEFAULT_H_STOP_S, min(100e-6, grid_dt))
+    return TraceSetup(seg_t0_s=seg_t0, seg_v=seg_v, t_end_s=float(t[-1]),
+                      grid_t0_s=float(t[0]), grid_dt_s=grid_dt, n_grid=n_grid, index=index,
+                      t_s=t, supply_pressure_pa=float(m.supply_pressure_pa),
+                      output_pressure_pa=float(m.output_pressure_pa),
+                      h_stop_s=float(h_stop_s))
+
+
+@njit(cache=True, parallel=True)
+def _trace_batch(raw: np.ndarray, e: np.ndarray, seg_t0: np.ndarray, seg_v: np.ndarray,
+                 t_end: float, p_sup: float, p_out: float, grid_t0: float, grid_dt: float,
+                 h_free: float, h_stop: float, cur: np.ndarray, pos: np.ndarray) -> None:
+    n_runs = raw.shape[0]
+    n_grid = cur.shape[1]
+    n_seg = seg_t0.shape[0]
+    for r in prange(n_runs):
+        p = _k._derive(raw[r])
+        y = np.zeros(_k.N_Y)
+        d = np.zeros(_k.N_D)
+        d[_k.D_MODE] = _k.MODE_CLOSED
+        # The drive stays in its supply phase; each segment sets the supply level, so the
+        # coil sees the measured voltage (negative levels included) and nothing else.
+        d[_k.D_PHASE] = _k.PH_SUPPLY
+        d[_k.D_MAIN_ON] = 1.0
+        d[_k.D_PSUP] = p_sup
+        d[_k.D_POUT] = p_out
+        d[_k.D_PERIOD] = np.inf
+        d[_k.D_PEND_PERIOD] = np.inf
+        d[_k.D_NEXT_BOUNDARY] = np.inf
+        d[_k.D_NEXT_FALL] = np.inf
+        d[_k.D_NEXT_TICK] = np.inf
+        d[_k.D_CHOP_OFF] = np.inf
+        d[_k.D_NEXT_SAMPLE] = grid_t0
+        d[_k.D_SAMPLE_DT] = grid_dt
+        d[_k.D_SAMPLE_T0] = grid_t0
+        out = np.zeros((n_grid, _k.N_OUT))
+        avg = np.zeros(0)
+        for s in range(n_seg):
+            d[_k.D_VS] = seg_v[s]
+            t_stop = seg_t0[s + 1] if s + 1 < n_seg else t_end + 0.5 * grid_dt
+            _k._advance(p, e, y, d, t_stop, h_free, h_stop, out, avg)
+        for k in range(n_grid):
+            cur[r, k] = out[k, _k.O_I]
+            pos[r, k] = out[k, _k.O_X]
+
+
+_E_OFF = ElectronicsConfig.off().to_vector()
+
+
+def simulate_trace_batch(raw: np.ndarray, setup: TraceSetup, *,
+                         h_free_s: float = _k.DEFAULT_H_FREE_S
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Simulate many parameter vectors under one measured voltage trace.
+
+    Parameters
+    ----------
+    raw : numpy.ndarray, shape (n_runs, len(PARAMETER_FIELDS))
+        Parameter vectors in ``PARAMETER_FIELDS`` order (``ValveParameters.to_vector``).
+    setup : TraceSetup
+        From :func:`prepare_trace`.
+    h_free_s : float
+        Kernel step while the spool moves [s].
+
+    Returns
+    -------
+    current_a, position_m : numpy.ndarray, shape (n_runs, n_samples)
+        Simulated terminal current [A] and spool position [m] at the measured times.
+    """
+    raw = np.ascontiguousarray(np.atleast_2d(raw), dtype=np.float64)
+    if raw.shape[1] != len(PARAMETER_FIELDS):
+        raise ModelAdapterError(
+            f'parameter matrix has {raw.shape[1]} columns, the model has '
+            f'{len(PARAMETER_FIELDS)} fields')
+    n = raw.shape[0]
+    cur = np.zeros((n, setup.n_grid))
+    pos = np.zeros((n, setup.n_grid))
+    _trace_batch(raw, _E_OFF, setup.seg_t0_s, setup.seg_v, setup.t_end_s,
+                 setup.supply_pressure_pa, setup.output_pressure_pa, setup.grid_t0_s,
+                 setup.grid_dt_s, float(h_free_s), setup.h_stop_s, cur, pos)
+    if setup.index is not None:
+        return cur[:, setup.index], pos[:, setup.index]
+    grid = setup.grid_t0_s + setup.grid_dt_s * np.arange(setup.n_grid)
+    ci = np.empty((n, setup.t_s.size))
+    pi = np.empty((n, setup.t_s.size))
+    for r in range(n):
+        ci[r] = np.interp(setup.t_s, grid, cur[r])
+        pi[r] = np.interp(setup.t_s, grid, pos[r])
+    return ci, pi
