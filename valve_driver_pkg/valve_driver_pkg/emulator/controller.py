@@ -1,0 +1,479 @@
+"""The controller firmware stand-in: runs the valve model and answers the CAN protocol.
+
+:class:`ControllerEmulator` is ROS-free and clock-agnostic. It can be driven
+
+* step by step from a test (``handle(msg)`` / ``poll()`` then ``step(t_s)``; the model time is
+  whatever the test says, so runs are deterministic), or
+* in real time by :meth:`ControllerEmulator.run` (or :meth:`start` in a thread), where
+  model time is the monotonic clock since start.
+
+What the firmware does (see the package README for the frame table):
+
+* ``ValveCommand``: checked (checksum, counter, ranges); a valid one sets duty and PWM
+  frequency (``Enable=0`` means duty 0); ``ClearFaults`` clears latched faults. A command
+  with a bad checksum or a frozen counter is ignored and raises a fault flag for 1 s.
+* Command watchdog: while enabled, no valid command for ``command_timeout_s`` closes the
+  valve (duty 0) and sets ``CommandTimeout`` until the next valid command.
+* ``ValvePressure``: port pressures for the model.
+* ``ValveTelemetry`` every ``1/telemetry_rate_hz`` of model time: the sampled coil current,
+  coil voltage and spool position (the controller's estimate; here the model's position).
+* ``ValveStatus`` every ``1/status_rate_hz``: command in force, supply voltage, fault flags.
+* ``EmulatorControl``: fault injection (see :class:`~valve_driver_pkg.emulator.faults`).
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from typing import Protocol
+
+import can
+
+from valve_driver_pkg.errors import FrameRejected, ProtocolEncodeError
+from valve_driver_pkg.emulator.faults import FaultInjector
+from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, PRESSURE, STATUS, TELEMETRY,
+                                             CounterCheck, CounterTracker, EmulatorFault,
+                                             ValveCodec)
+from valve_driver_pkg.protocol.error_frames import BusCondition, make_error_frame
+
+__all__ = ['StepperLike', 'EmulatorConfig', 'ControllerEmulator', 'ControllerState',
+           'UNKNOWN_INJECTED_ID']
+
+logger = logging.getLogger(__name__)
+
+#: Id of the frames the ``UNKNOWN_ID`` fault puts on the bus (outside every protocol range).
+UNKNOWN_INJECTED_ID = 0x5A5
+#: How long a command fault flag (checksum, counter, range) stays set after the event [s].
+_FLAG_HOLD_S = 1.0
+
+
+class StepperLike(Protocol):
+    """What the emulator needs of ``valve_model_pkg.model.ValveStepper``."""
+
+    def set_command(self, duty: float, pwm_frequency_hz: float) -> None: ...
+    def set_pressures(self, supply_pa: float, output_pa: float) -> None: ...
+    def advance_to(self, t_s: float) -> None: ...
+    def sample(self): ...
+    def reset(self) -> None: ...
+
+
+class ControllerState:
+    """Values of ``ValveStatus.ControllerState``."""
+
+    INIT = 0       # no command received yet
+    STANDBY = 1    # disabled or watchdog-closed
+    RUNNING = 2    # driving the valve
+    FAULT = 3      # a latched fault keeps the output off
+
+
+@dataclass(frozen=True)
+class EmulatorConfig:
+    """Firmware settings of the emulated controller.
+
+    Attributes
+    ----------
+    node_id : int
+        Node id (frame ids = DBC ids + node id).
+    telemetry_rate_hz : float
+        ``ValveTelemetry`` rate [Hz].
+    status_rate_hz : float
+        ``ValveStatus`` heartbeat rate [Hz].
+    command_timeout_s : float
+        Firmware command watchdog [s]; 0 disables it.
+    position_estimate : bool
+        Report the spool position (``PositionValid=1``); false models a controller
+        without an estimator.
+    accept_control_frames : bool
+        Obey ``EmulatorControl`` frames (fault injection over the bus).
+    supply_voltage_v : float
+        Drive supply voltage reported in the heartbeat [V].
+    overcurrent_a : float
+        Coil current above which the overcurrent fault latches [A].
+    max_burst : int
+        In real time, the most telemetry frames sent at once after a stall; beyond it the
+        frames are skipped (the counter still advances, so the host sees the loss).
+    """
+
+    node_id: int = 0
+    telemetry_rate_hz: float = 1000.0
+    status_rate_hz: float = 10.0
+    command_timeout_s: float = 0.1
+    position_estimate: bool = True
+    accept_control_frames: bool = True
+    supply_voltage_v: float = 24.0
+    overcurrent_a: float = 6.0
+    max_burst: int = 5
+
+    def __post_init__(self) -> None:
+        if not 1.0 <= self.telemetry_rate_hz <= 10_000.0:
+            raise ValueError(f'telemetry_rate_hz {self.telemetry_rate_hz!r} outside [1, 10000]')
+        if not 0.1 <= self.status_rate_hz <= 1000.0:
+            raise ValueError(f'status_rate_hz {self.status_rate_hz!r} outside [0.1, 1000]')
+        if self.command_timeout_s < 0.0:
+            raise ValueError(f'command_timeout_s {self.command_timeout_s!r} is negative')
+
+
+def _clamp(value: float, low: float, high: float) -> float:
+    return low if value < low else high if value > high else value
+
+
+class ControllerEmulator:
+    """Controller firmware on the other end of the bus, running a valve model.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        The bus to answer on (any python-can bus; not closed by the emulator).
+    stepper : StepperLike
+        The valve model (``ValveStepper`` or a test double); reset on construction.
+    config : EmulatorConfig
+    codec : ValveCodec | None
+        Codec for ``config.node_id`` (default: the shipped DBC).
+    fault_seed : int | None
+        Seed of the probabilistic fault draws.
+    """
+
+    def __init__(self, bus: can.BusABC, stepper: StepperLike,
+                 config: EmulatorConfig | None = None, codec: ValveCodec | None = None,
+                 fault_seed: int | None = None, supply_pressure_pa: float = 400_000.0,
+                 output_pressure_pa: float = 0.0) -> None:
+        self.config = config or EmulatorConfig()
+        self.codec = codec or ValveCodec(self.config.node_id)
+        self.bus = bus
+        self.stepper = stepper
+        self.faults = FaultInjector(fault_seed)
+        self._lock = threading.RLock()
+        self._telemetry_period_s = 1.0 / self.config.telemetry_rate_hz
+        self._status_period_s = 1.0 / self.config.status_rate_hz
+        self._i_lo, self._i_hi = self.codec.signal_range(TELEMETRY, 'CoilCurrent')
+        self._v_lo, self._v_hi = self.codec.signal_range(TELEMETRY, 'CoilVoltage')
+        self._x_lo, self._x_hi = self.codec.signal_range(TELEMETRY, 'SpoolPosition')
+        self._f_lo, self._f_hi = self.codec.signal_range(COMMAND, 'PwmFrequency')
+        self._model_t = 0.0
+        self._next_telemetry_k = 0
+        self._next_status_t = 0.0
+        self._telemetry_counter = 0
+        self._status_counter = 0
+        self._command_counter = CounterTracker()
+        self._control_counter = CounterTracker()
+        self._duty = 0.0
+        self._pwm_hz = 50.0
+        self._enabled = False
+        self._seen_command = False
+        self._last_command_t: float | None = None
+        self._timed_out = False
+        self._overcurrent = False
+        self._flag_until = {'checksum': -1.0, 'counter': -1.0, 'range': -1.0}
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.stats = {'commands': 0, 'commands_rejected': 0, 'telemetry_sent': 0,
+                      'telemetry_suppressed': 0, 'status_sent': 0, 'overruns': 0,
+                      'send_errors': 0, 'control_frames': 0}
+        stepper.reset()
+        stepper.set_pressures(supply_pressure_pa, output_pressure_pa)
+        stepper.set_command(0.0, self._pwm_hz)
+
+    # --- inputs ------------------------------------------------------------------------------
+    @property
+    def model_time_s(self) -> float:
+        """Model time the emulator has reached [s]."""
+        return self._model_t
+
+    def poll(self, timeout: float = 0.0) -> int:
+        """Handle every frame waiting on the bus (the first wait up to ``timeout``)."""
+        handled = 0
+        msg = self.bus.recv(timeout)
+        while msg is not None:
+            self.handle(msg)
+            handled += 1
+            msg = self.bus.recv(0.0)
+        return handled
+
+    def handle(self, msg: can.Message) -> None:
+        """Process one received frame at the current model time."""
+        if msg.is_error_frame:
+            return
+        found = self.codec.classify(msg.arbitration_id)
+        if found is None or found[1] != self.config.node_id:
+            return
+        name = found[0]
+        with self._lock:
+            if (self.faults.is_active(EmulatorFault.BUS_OFF) and name != CONTROL):
+                return   # a bus-off controller takes no part in the bus
+            try:
+                frame = self.codec.decode(msg)
+            except FrameRejected as err:
+                if name == COMMAND:
+                    self.stats['commands_rejected'] += 1
+                    key = 'checksum' if err.reason == 'checksum' else 'range'
+                    self._flag_until[key] = self._model_t + _FLAG_HOLD_S
+                logger.debug('emulator ignored a frame: %s', err)
+                return
+            if name == COMMAND:
+                self._on_command(frame.signals, frame.counter)
+            elif name == PRESSURE:
+                self.stepper.set_pressures(float(frame.signals['SupplyPressure']),
+                                           float(frame.signals['OutputPressure']))
+            elif name == CONTROL and self.config.accept_control_frames:
+                if self._control_counter.check(frame.counter) is CounterCheck.FROZEN:
+                    return
+                self.stats['control_frames'] += 1
+                self.inject(EmulatorFault(int(frame.signals['Fault'])),
+                            bool(frame.signals['Active']),
+                            float(frame.signals['Probability']),
+                            float(frame.signals['Duration']))
+
+    def _on_command(self, signals: dict, counter: int) -> None:
+        if self._command_counter.check(counter) is CounterCheck.FROZEN:
+            self.stats['commands_rejected'] += 1
+            self._flag_until['counter'] = self._model_t + _FLAG_HOLD_S
+            return
+        self.stats['commands'] += 1
+        self._seen_command = True
+        self._last_command_t = self._model_t
+        self._timed_out = False
+        if signals['ClearFaults']:
+            self._overcurrent = False
+            for key in self._flag_until:
+                self._flag_until[key] = -1.0
+        self._enabled = bool(signals['Enable'])
+        self._duty = float(signals['Duty'])
+        self._pwm_hz = float(signals['PwmFrequency'])
+        self._apply_output()
+
+    def _apply_output(self) -> None:
+        drive = self._enabled and not self._timed_out and not self._overcurrent
+        self.stepper.set_command(self._duty if drive else 0.0, self._pwm_hz)
+
+    def inject(self, fault: EmulatorFault, active: bool = True, probability: float = 1.0,
+               duration_s: float = 0.0) -> None:
+        """Switch a fault on or off now (the in-process control API).
+
+        Parameters
+        ----------
+        fault : EmulatorFault
+            ``CLEAR_ALL`` ends every fault.
+        active : bool
+            False switches ``fault`` off.
+        probability : float
+            Per-frame probability for drop/corrupt/wrong-length/unknown-id.
+        duration_s : float
+            The fault ends by itself after this much model time; 0 = until cleared.
+        """
+        with self._lock:
+            if fault is EmulatorFault.CLEAR_ALL or not active:
+                ending = (list(self.faults.snapshot()) if fault is EmulatorFault.CLEAR_ALL
+                          else [fault.name.lower()] if self.faults.is_active(fault) else [])
+                self.faults.clear(None if fault is EmulatorFault.CLEAR_ALL else fault)
+                for name in ending:
+                    self._on_fault_end(EmulatorFault[name.upper()])
+                return
+            started = not self.faults.is_active(fault)
+            self.faults.activate(fault, self._model_t, probability, duration_s)
+            logger.info('emulator: fault %s on (p=%g, %s)', fault.name.lower(), probability,
+                        f'{duration_s:g} s' if duration_s > 0 else 'until cleared')
+            if started:
+                self._on_fault_start(fault)
+
+    def _on_fault_start(self, fault: EmulatorFault) -> None:
+        if fault is EmulatorFault.BUS_OFF:
+            self._send(make_error_frame(BusCondition.BUS_OFF, time.time()))
+        elif fault is EmulatorFault.ERROR_PASSIVE:
+            self._send(make_error_frame(BusCondition.ERROR_PASSIVE, time.time()))
+        elif fault is EmulatorFault.OVERCURRENT:
+            self._overcurrent = True
+            self._apply_output()
+
+    def _on_fault_end(self, fault: EmulatorFault) -> None:
+        logger.info('emulator: fault %s off', fault.name.lower())
+        if fault is EmulatorFault.BUS_OFF:
+            self._send(make_error_frame(BusCondition.RESTARTED, time.time()))
+        elif fault is EmulatorFault.ERROR_PASSIVE:
+            self._send(make_error_frame(BusCondition.ERROR_ACTIVE, time.time()))
+
+    # --- model time --------------------------------------------------------------------------
+    def step(self, t_s: float) -> int:
+        """Advance the model to ``t_s`` and send every frame due up to then.
+
+        Returns
+        -------
+        int
+            Number of telemetry instants passed (sent, dropped or skipped).
+        """
+        with self._lock:
+            instants = 0
+            period = self._telemetry_period_s
+            due = int((t_s + 1e-12) / period) + 1 - self._next_telemetry_k
+            if due > self.config.max_burst > 0:
+                # Stalled: skip to the latest instants; the counter shows the loss.
+                skip = due - self.config.max_burst
+                self._next_telemetry_k += skip
+                self._telemetry_counter = (self._telemetry_counter + skip) & 0xF
+                self.stats['overruns'] += skip
+                instants += skip
+            while self._next_telemetry_k * period <= t_s + 1e-12:
+                t_k = self._next_telemetry_k * period
+                self._advance(t_k)
+                self._send_telemetry()
+                self._next_telemetry_k += 1
+                instants += 1
+                while self._next_status_t <= t_k + 1e-12:
+                    self._send_status()
+                    self._next_status_t += self._status_period_s
+            self._advance(t_s)
+            return instants
+
+    def _advance(self, t_s: float) -> None:
+        if t_s > self._model_t:
+            self._check_watchdog(t_s)
+            self.stepper.advance_to(t_s)
+            self._model_t = t_s
+        for fault in self.faults.expire(self._model_t):
+            self._on_fault_end(fault)
+
+    def _check_watchdog(self, t_s: float) -> None:
+        timeout = self.config.command_timeout_s
+        if (timeout > 0.0 and self._enabled and not self._timed_out
+                and self._last_command_t is not None
+                and t_s - self._last_command_t > timeout):
+            # Close at the instant the timeout elapsed, not at the next frame.
+            t_trip = max(self._model_t, self._last_command_t + timeout)
+            self.stepper.advance_to(t_trip)
+            self._model_t = t_trip
+            self._timed_out = True
+            self._apply_output()
+            logger.warning('emulator: no command for %.3f s; valve closed', timeout)
+
+    # --- outputs -----------------------------------------------------------------------------
+    def _send(self, msg: can.Message) -> bool:
+        try:
+            self.bus.send(msg)
+            return True
+        except can.CanError as err:
+            self.stats['send_errors'] += 1
+            logger.debug('emulator send failed: %s', err)
+            return False
+
+    def _silent(self) -> bool:
+        return (self.faults.is_active(EmulatorFault.SILENT)
+                or self.faults.is_active(EmulatorFault.BUS_OFF))
+
+    def _fault_active(self) -> bool:
+        return self._overcurrent or self._timed_out or any(
+            until > self._model_t for until in self._flag_until.values())
+
+    def _send_telemetry(self) -> None:
+        faults = self.faults
+        counter = self._telemetry_counter
+        if not faults.is_active(EmulatorFault.FREEZE_COUNTER):
+            self._telemetry_counter = (counter + 1) & 0xF
+        if self._silent() or faults.hits(EmulatorFault.DROP_TELEMETRY):
+            self.stats['telemetry_suppressed'] += 1
+            return
+        s = self.stepper.sample()
+        current = float(s.coil_current_a)
+        if current > self.config.overcurrent_a and not self._overcurrent:
+            self._overcurrent = True
+            self._apply_output()
+            logger.warning('emulator: overcurrent %.3f A; output off until ClearFaults', current)
+        position = float(s.spool_position_m) if self.config.position_estimate else 0.0
+        signals = {
+            'CoilCurrent': _clamp(current, self._i_lo, self._i_hi),
+            'CoilVoltage': _clamp(float(s.coil_voltage_v), self._v_lo, self._v_hi),
+            'SpoolPosition': _clamp(position, self._x_lo, self._x_hi),
+            'Enabled': int(self._enabled and not self._timed_out and not self._overcurrent),
+            'PositionValid': int(self.config.position_estimate),
+            'FaultActive': int(self._fault_active()),
+            'CommandTimeout': int(self._timed_out),
+        }
+        msg = self.codec.encode(TELEMETRY, signals, counter, timestamp=time.time())
+        if faults.hits(EmulatorFault.CORRUPT_CHECKSUM):
+            msg.data[7] ^= 0x5A
+        if faults.hits(EmulatorFault.WRONG_LENGTH):
+            msg = can.Message(arbitration_id=msg.arbitration_id, data=msg.data[:6],
+                              is_extended_id=False, timestamp=msg.timestamp)
+        if self._send(msg):
+            self.stats['telemetry_sent'] += 1
+        if faults.hits(EmulatorFault.UNKNOWN_ID):
+            self._send(can.Message(arbitration_id=UNKNOWN_INJECTED_ID, data=bytes(8),
+                                   is_extended_id=False, timestamp=time.time()))
+
+    def _send_status(self) -> None:
+        if self._silent():
+            return
+        s = self.stepper.sample()
+        t = self._model_t
+        state = (ControllerState.FAULT if self._overcurrent
+                 else ControllerState.INIT if not self._seen_command
+                 else ControllerState.RUNNING if self._enabled and not self._timed_out
+                 else ControllerState.STANDBY)
+        signals = {
+            'DutyActive': _clamp(float(s.duty), 0.0, 1.0),
+            'PwmFrequencyActive': _clamp(float(s.pwm_frequency_hz), 0.0, self._f_hi),
+            'SupplyVoltage': _clamp(self.config.supply_voltage_v, 0.0, 63.75),
+            'FaultOvercurrent': int(self._overcurrent),
+            'FaultUndervoltage': int(self.config.supply_voltage_v < 18.0),
+            'FaultCommandTimeout': int(self._timed_out),
+            'FaultCommandChecksum': int(self._flag_until['checksum'] > t),
+            'FaultCommandCounter': int(self._flag_until['counter'] > t),
+            'FaultCommandRange': int(self._flag_until['range'] > t),
+            'FaultOvertemperature': 0,
+            'FaultInternal': 0,
+            'ControllerState': state,
+        }
+        try:
+            msg = self.codec.encode(STATUS, signals, self._status_counter, timestamp=time.time())
+        except ProtocolEncodeError as err:   # a bug here must not stop the telemetry
+            logger.error('emulator: %s', err)
+            return
+        self._status_counter = (self._status_counter + 1) & 0xF
+        if self._send(msg):
+            self.stats['status_sent'] += 1
+
+    # --- real time ---------------------------------------------------------------------------
+    def run(self, stop: threading.Event | None = None, duration_s: float = 0.0,
+            clock=time.monotonic) -> None:
+        """Run in real time until ``stop`` is set (or for ``duration_s`` > 0)."""
+        stop = stop or self._stop
+        t0 = clock() - self._model_t
+        period = self._telemetry_period_s
+        while not stop.is_set():
+            now = clock() - t0
+            if duration_s > 0.0 and now >= duration_s:
+                break
+            try:
+                self.poll(0.0)
+            except can.CanError as err:
+                logger.error('emulator: bus receive failed (%s); stopping', err)
+                raise
+            self.step(now)
+            # Wait for the next telemetry instant, handling commands as they come.
+            next_t = self._next_telemetry_k * period
+            remaining = next_t - (clock() - t0)
+            if remaining > 0.0:
+                msg = self.bus.recv(remaining)
+                if msg is not None:
+                    self.handle(msg)
+
+    def start(self) -> ControllerEmulator:
+        """Run :meth:`run` in a daemon thread (in-process use); returns self."""
+        if self._thread is None:
+            self._stop.clear()
+            self._thread = threading.Thread(target=self.run, name='valve_emulator',
+                                            daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the thread started by :meth:`start`; safe to call more than once."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def __enter__(self) -> ControllerEmulator:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

@@ -1,0 +1,247 @@
+"""valve_controller_emulator: the valve controller firmware stand-in as a program.
+
+Examples::
+
+    # The bus for driver + emulator on one machine (no vcan needed): the emulator hosts a
+    # tcp_loopback hub on 127.0.0.1:29536 and answers as node 0.
+    valve_controller_emulator --interface tcp_loopback --channel 127.0.0.1:29536
+
+    # On real hardware (SocketCAN), node 3, a valve whose coil heats up:
+    valve_controller_emulator --interface socketcan --channel can0 --node-id 3 \\
+        --effect coil_heating --effect-param thermal_resistance_k_per_w=80
+
+    # Scheduled faults: go silent 2 s after start for 0.5 s; drop 10 % of telemetry from 4 s.
+    valve_controller_emulator --fault silent:2:0.5 --fault drop_telemetry:4:0:0.1
+
+Faults can also be switched at run time with ``EmulatorControl`` frames (id 0x7C0 + node
+id; see the package README), e.g. from a test with
+:func:`valve_driver_pkg.emulator.control_frame`.
+
+The program prints ``valve_controller_emulator ready: <interface> <channel> node <n>`` once
+it answers on the bus (with the real port when ``--channel`` asks for port 0) and stops
+cleanly on SIGINT/SIGTERM.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import gc
+import importlib
+import logging
+import signal
+import sys
+import threading
+
+import can
+
+from valve_driver_pkg.canbus.factory import open_bus
+from valve_driver_pkg.canbus.tcp_loopback import TcpLoopbackHub
+from valve_driver_pkg.emulator.controller import ControllerEmulator, EmulatorConfig
+from valve_driver_pkg.emulator.faults import FAULT_NAMES, parse_fault_spec
+from valve_driver_pkg.errors import BusOpenError
+
+__all__ = ['main', 'build_parser', 'make_stepper', 'apply_effects', 'EFFECT_DEMO_FRACTION']
+
+logger = logging.getLogger('valve_controller_emulator')
+
+#: An ``--effect`` given without values sets the effect's switching field to this fraction
+#: of its identification range (e.g. coil_heating: R_th = 100 K/W of (0, 200)).
+EFFECT_DEMO_FRACTION = 0.5
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command-line interface."""
+    p = argparse.ArgumentParser(prog='valve_controller_emulator',
+                                description=__doc__.split('\n')[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog=__doc__.split('\n', 2)[2])
+    bus = p.add_argument_group('bus')
+    bus.add_argument('--interface', default='tcp_loopback',
+                     help='python-can interface, or tcp_loopback (default)')
+    bus.add_argument('--channel', default='127.0.0.1:29536',
+                     help='channel (tcp_loopback: HOST:PORT, port 0 = any free port)')
+    bus.add_argument('--bitrate', type=int, default=500_000, help='bit rate [bit/s]')
+    bus.add_argument('--no-hub', action='store_true',
+                     help='tcp_loopback: join an existing hub instead of hosting one')
+    bus.add_argument('--node-id', type=int, default=0, help='node id 0..63 (default 0)')
+    fw = p.add_argument_group('firmware')
+    fw.add_argument('--telemetry-rate-hz', type=float, default=1000.0)
+    fw.add_argument('--status-rate-hz', type=float, default=10.0)
+    fw.add_argument('--command-timeout-s', type=float, default=0.1,
+                    help='firmware watchdog: no valid command this long closes the valve '
+                         '(0 = off)')
+    fw.add_argument('--no-position-estimate', action='store_true',
+                    help='report PositionValid=0 (a controller without an estimator)')
+    fw.add_argument('--no-control-frames', action='store_true',
+                    help='ignore EmulatorControl (fault injection) frames')
+    model = p.add_argument_group('valve model')
+    model.add_argument('--params-file', default='',
+                       help='valve parameter YAML (default: valve_model_pkg config/valve.yaml)')
+    model.add_argument('--supply-voltage-v', type=float, default=24.0)
+    model.add_argument('--no-current-control', action='store_true',
+                       help='no current-control chopper (bare PWM voltage)')
+    model.add_argument('--no-capacitor', action='store_true',
+                       help='no negative release voltage from the capacitor')
+    model.add_argument('--supply-pressure-pa', type=float, default=400_000.0,
+                       help='supply pressure, gauge [Pa], until a ValvePressure frame arrives')
+    model.add_argument('--output-pressure-pa', type=float, default=0.0,
+                       help='output pressure, gauge [Pa], until a ValvePressure frame arrives')
+    model.add_argument('--effect', action='append', default=[], metavar='NAME',
+                       help='switch on a physical effect the nominal model lacks '
+                            '(repeatable): magnetic_saturation, eddy_current, '
+                            'coulomb_friction, coil_heating, leakage_inductance, '
+                            'end_stop_bounce')
+    model.add_argument('--effect-param', action='append', default=[], metavar='FIELD=VALUE',
+                       help='value of an effect parameter (repeatable), e.g. '
+                            'thermal_resistance_k_per_w=80')
+    model.add_argument('--stepper', default='valve_model_pkg.model:ValveStepper',
+                       help=argparse.SUPPRESS)   # module:callable, for tests
+    faults = p.add_argument_group('faults')
+    faults.add_argument('--fault', action='append', default=[],
+                        metavar='NAME[:START_S[:DURATION_S[:PROBABILITY]]]',
+                        help='schedule a fault (repeatable); names: '
+                             + ', '.join(sorted(FAULT_NAMES)))
+    faults.add_argument('--seed', type=int, default=None, help='seed of the fault draws')
+    p.add_argument('--duration-s', type=float, default=0.0,
+                   help='stop after this long (0 = until SIGINT/SIGTERM)')
+    p.add_argument('--log-level', default='info', choices=('debug', 'info', 'warning', 'error'))
+    return p
+
+
+def apply_effects(params, effects: list[str], values: list[str]):
+    """Return ``params`` with the named effects switched on.
+
+    Parameters
+    ----------
+    params : ValveParameters
+    effects : list of str
+        Effect names (``valve_model_pkg.model.parameters.EFFECTS``).
+    values : list of str
+        ``FIELD=VALUE`` items; a field of a named effect without a value gets
+        :data:`EFFECT_DEMO_FRACTION` of its identification range (switching field only).
+
+    Raises
+    ------
+    ValueError
+        Unknown effect or field, a bad number, or a field of an effect not named.
+    """
+    from valve_model_pkg.model.parameters import EFFECTS
+
+    changes: dict[str, float] = {}
+    for item in values:
+        field, sep, text = item.partition('=')
+        if not sep:
+            raise ValueError(f'--effect-param {item!r}: expected FIELD=VALUE')
+        try:
+            changes[field.strip()] = float(text)
+        except ValueError as err:
+            raise ValueError(f'--effect-param {item!r}: {text!r} is not a number') from err
+    named_fields: set[str] = set()
+    for name in effects:
+        if name not in EFFECTS:
+            raise ValueError(f'unknown effect {name!r}; expected one of {", ".join(EFFECTS)}')
+        spec = EFFECTS[name]
+        named_fields.update(spec.fields)
+        switch = spec.fields[0]
+        if switch not in changes:
+            low, high = spec.bounds[switch]
+            changes[switch] = low + EFFECT_DEMO_FRACTION * (high - low)
+    unknown = sorted(set(changes) - named_fields)
+    if unknown:
+        raise ValueError(f'--effect-param {", ".join(unknown)}: not a parameter of the '
+                         f'effects named with --effect ({", ".join(effects) or "none"})')
+    return params.replace(**changes) if changes else params
+
+
+def make_stepper(args: argparse.Namespace):
+    """Build the valve model from the arguments (parameters, effects, electronics)."""
+    module_name, _, attr = args.stepper.partition(':')
+    factory = getattr(importlib.import_module(module_name), attr)
+    if args.stepper != 'valve_model_pkg.model:ValveStepper':
+        return factory(None, None, supply_voltage_v=args.supply_voltage_v)
+    from valve_model_pkg.model import ElectronicsConfig, load_parameters
+
+    params = load_parameters(args.params_file or None)
+    params = apply_effects(params, args.effect, args.effect_param)
+    electronics = dataclasses.replace(ElectronicsConfig(),
+                                      current_control=not args.no_current_control,
+                                      capacitor=not args.no_capacitor)
+    active = params.active_effects() if hasattr(params, 'active_effects') else ()
+    logger.info('valve model: %s; effects: %s', args.params_file or 'default parameters',
+                ', '.join(active) or 'none (the nominal model)')
+    return factory(params, electronics, supply_voltage_v=args.supply_voltage_v)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 on a clean stop)."""
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=getattr(logging, args.log_level.upper()),
+                        format='[%(name)s] %(levelname)s: %(message)s')
+    try:
+        scheduled = [parse_fault_spec(text) for text in args.fault]
+        config = EmulatorConfig(node_id=args.node_id, telemetry_rate_hz=args.telemetry_rate_hz,
+                                status_rate_hz=args.status_rate_hz,
+                                command_timeout_s=args.command_timeout_s,
+                                position_estimate=not args.no_position_estimate,
+                                accept_control_frames=not args.no_control_frames,
+                                supply_voltage_v=args.supply_voltage_v)
+        stepper = make_stepper(args)
+    except (ValueError, OSError, ImportError, AttributeError) as err:
+        logger.error('cannot start: %s', err)
+        return 2
+
+    hub = None
+    bus = None
+    channel = args.channel
+    try:
+        if args.interface == 'tcp_loopback' and not args.no_hub:
+            hub = TcpLoopbackHub(channel).start()
+            channel = hub.channel
+        bus = open_bus(args.interface, channel, args.bitrate, connect_timeout=5.0)
+    except (BusOpenError, OSError, ValueError) as err:
+        logger.error('cannot open the bus: %s', err)
+        if hub is not None:
+            hub.close()
+        return 1
+
+    stop = threading.Event()
+
+    def _on_signal(signum: int, _frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    code = 0
+    try:
+        emulator = ControllerEmulator(bus, stepper, config, fault_seed=args.seed,
+                                      supply_pressure_pa=args.supply_pressure_pa,
+                                      output_pressure_pa=args.output_pressure_pa)
+        timers = []
+        for fault, start_s, duration_s, probability in scheduled:
+            timer = threading.Timer(start_s, emulator.inject,
+                                    kwargs={'fault': fault, 'probability': probability,
+                                            'duration_s': duration_s})
+            timer.daemon = True
+            timers.append(timer)
+        gc.collect()
+        gc.freeze()   # keep start-up objects out of the collector: fewer pauses at 1 kHz
+        print(f'valve_controller_emulator ready: {args.interface} {channel} '
+              f'node {args.node_id}', flush=True)
+        for timer in timers:
+            timer.start()
+        emulator.run(stop, duration_s=args.duration_s)
+        for timer in timers:
+            timer.cancel()
+        logger.info('stopped: %s', emulator.stats)
+    except can.CanError as err:
+        logger.error('bus failed: %s', err)
+        code = 1
+    finally:
+        bus.shutdown()
+        if hub is not None:
+            hub.close()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())
