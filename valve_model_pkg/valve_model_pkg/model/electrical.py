@@ -1,0 +1,95 @@
+"""Coil electrical state equation: eqs. (5) and (7), with the optional electrical effects.
+
+Circuit (terminal voltage V, terminal current i)::
+
+    V --[ R(T) ]--+--[ L_leak ]--[ L(x), saturating ]--+
+                  |                                    |
+                  +------------[ R_e = 1/G_e ]---------+
+
+The inductive branch carries the magnetising current i_m, the state of the model; the
+eddy-loss resistor R_e shunts the whole inductive branch (this keeps the model at three
+mechanical/electrical states, with no stiff extra state). With G_e = 0, L_leak = 0 and no
+saturation the equation is the paper's eq. (7) exactly:
+
+    di/dt = (V - R i) / L - 2 mu_r L x_dot i / (N^2 A_e mu_c).
+
+``coil_heating`` raises R = R_0 (1 + alpha dT) with copper alpha = 0.00393 1/K, and dT
+obeys tau_th d(dT)/dt = R_th P - dT with the copper loss P = R i^2.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .magnetics import _flux_partials, _inductance, _inductance_slope, _coefficients
+from .parameters import ValveParameters
+
+__all__ = ['COPPER_ALPHA_PER_K', 'coil_resistance', 'current_derivative']
+
+#: Temperature coefficient of copper resistance, 1/K.
+COPPER_ALPHA_PER_K = 0.00393
+
+
+@njit(cache=True)
+def _resistance(r_0: float, d_temp: float) -> float:
+    return r_0 * (1.0 + COPPER_ALPHA_PER_K * d_temp)
+
+
+@njit(cache=True)
+def _current_derivative(v: float, i_m: float, x_dot: float, ind: float, slope: float,
+                        r: float, g_e: float, l_leak: float, beta: float
+                        ) -> tuple[float, float]:
+    """Return (di_m/dt, terminal current) for terminal voltage ``v``."""
+    # KVL, eq. (5): V = R i + d lambda_total / dt, with i = i_m + G_e v_branch
+    v_branch = (v - r * i_m) / (1.0 + r * g_e)
+    dl_di, dl_dx = _flux_partials(i_m, ind, slope, beta)
+    # eq. (7) generalised: the motional EMF dl_dx * x_dot is eq. (6)'s i dL/dt
+    di = (v_branch - dl_dx * x_dot) / (l_leak + dl_di)
+    return di, i_m + g_e * v_branch
+
+
+@njit(cache=True)
+def _temperature_derivative(d_temp: float, i_t: float, r: float, r_th: float,
+                            tau_th: float) -> float:
+    return (r_th * r * i_t * i_t - d_temp) / tau_th
+
+
+def coil_resistance(params: ValveParameters, temperature_rise_k: float = 0.0) -> float:
+    """Coil resistance in ohm at ``temperature_rise_k`` above the reference temperature."""
+    return float(params.coil_resistance_ohm * (1.0 + COPPER_ALPHA_PER_K * temperature_rise_k))
+
+
+def current_derivative(params: ValveParameters, voltage_v: float, current_a: float,
+                       position_m: float, velocity_m_s: float,
+                       temperature_rise_k: float = 0.0) -> tuple[float, float]:
+    """Time derivative of the magnetising current, eq. (7) (with the enabled effects).
+
+    Parameters
+    ----------
+    params : ValveParameters
+    voltage_v : float
+        Terminal voltage V in V.
+    current_a : float
+        Magnetising current i_m in A (equals the terminal current without eddy currents).
+    position_m, velocity_m_s : float
+        Spool position x (m) and velocity x_dot (m/s).
+    temperature_rise_k : float
+        Coil temperature above the reference, K (coil_heating).
+
+    Returns
+    -------
+    tuple of float
+        (di_m/dt in A/s, terminal current in A).
+    """
+    k_l, l_0, b_2 = _coefficients(params)
+    ind = _inductance(position_m, k_l, l_0, b_2)
+    slope = _inductance_slope(ind, k_l, b_2)
+    r = _resistance(params.coil_resistance_ohm, temperature_rise_k)
+    di, i_t = _current_derivative(voltage_v, current_a, velocity_m_s, ind, slope, r,
+                                  params.eddy_conductance_s, params.leakage_inductance_h,
+                                  params.saturation_coefficient_per_a)
+    return float(di), float(i_t)
+
+
+# keep numpy imported for type checkers that resolve the annotations above
+_ = np

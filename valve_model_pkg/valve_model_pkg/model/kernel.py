@@ -1,0 +1,754 @@
+"""Compiled integrator of the valve model (numba, ``cache=True``).
+
+Method
+------
+Classical fixed-step Runge-Kutta 4 on the hybrid system, with every discontinuity handled
+exactly instead of being smeared by a step:
+
+* **Scheduled edges** (main PWM rising/falling edges and period starts, chopper switch-off,
+  controller ticks, output sample times) are known in advance, so every step is shortened
+  to land exactly on the next one; the interval up to it is split into equal steps no
+  longer than ``h_free`` (spool moving) or ``h_stop`` (spool held). Between edges the
+  right-hand side is smooth, so RK4 keeps its 4th order.
+* **End-stop impacts** (x reaches 0 or x_max) are located inside the step on the cubic
+  Hermite interpolant of x (x and x_dot at both ends are known), the step is redone up to
+  the impact, x is set onto the stop and the velocity to 0 (plastic, the paper) or to
+  -e x_dot (``end_stop_bounce``).
+* **Leaving a stop** (the net force changes sign) and, with Coulomb friction, velocity
+  reversals are located by regula falsi (Illinois) on redone steps.
+* While the spool rests on a stop, x and x_dot are frozen and only the coil (and
+  temperature) states are integrated: L is constant there, the dynamics are a slow RL
+  circuit (tau = L/R ~ 7-11 ms), so steps of ``h_stop`` = 50 us are ~1e-9 accurate and
+  the chopper edges, not accuracy, set the step.
+
+Why not an adaptive solver: the drive is a train of scheduled discontinuities (20 kHz
+chopper), which make adaptive controllers reject and shrink steps at every edge; landing
+on them with a fixed-step RK4 is cheaper and has no tolerance tuning. The convergence test
+(halving both step sizes) checks the result.
+
+Data layout (all float64 arrays so the compiled code caches and runs in ``prange``):
+``p`` derived parameters (``_derive``), ``e`` electronics (``electronics.E_*``), ``y``
+the continuous state ``[i_m, x, x_dot, dT, q]`` (q = integral of x, for period averages),
+``d`` the discrete drive/mode state (``D_*``).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from . import electronics as _el
+from .electrical import _current_derivative, _resistance, _temperature_derivative
+from .magnetics import MU_0, _force, _inductance, _inductance_slope
+from .mechanics import (
+    MODE_CLOSED, MODE_FREE, MODE_OPEN, MODE_STUCK, SETTLE_SPEED_M_S,
+    _acceleration, _active_force, _leave_margin, _pressure_force,
+)
+from .parameters import PARAMETER_FIELDS
+
+__all__ = [
+    'DEFAULT_H_FREE_S', 'DEFAULT_H_STOP_S', 'N_OUT', 'N_Y', 'N_D',
+    'derive_parameters', 'new_drive_state', 'advance', 'step_batch', 'pwm_batch',
+]
+
+#: Default RK4 step while the spool moves, s.
+DEFAULT_H_FREE_S = 5.0e-6
+#: Default RK4 step while the spool rests on a stop, s.
+DEFAULT_H_STOP_S = 5.0e-5
+
+_F = {name: n for n, name in enumerate(PARAMETER_FIELDS)}
+_R_MASS = _F['spool_mass_kg']
+_R_K = _F['spring_stiffness_n_per_m']
+_R_N = _F['coil_turns']
+_R_A1 = _F['area_a1_m2']
+_R_A2 = _F['area_a2_m2']
+_R_A3 = _F['area_a3_m2']
+_R_A4 = _F['area_a4_m2']
+_R_LC = _F['core_length_m']
+_R_R = _F['coil_resistance_ohm']
+_R_XMAX = _F['stroke_m']
+_R_AE = _F['core_area_m2']
+_R_DELTA = _F['spring_pretension_m']
+_R_XT = _F['total_air_gap_m']
+_R_B = _F['damping_n_s_per_m']
+_R_MUR = _F['relative_permeability']
+_R_BETA = _F['saturation_coefficient_per_a']
+_R_GE = _F['eddy_conductance_s']
+_R_FC = _F['coulomb_friction_n']
+_R_RTH = _F['thermal_resistance_k_per_w']
+_R_TAUTH = _F['thermal_time_constant_s']
+_R_LLEAK = _F['leakage_inductance_h']
+_R_E = _F['restitution_coefficient']
+N_RAW = len(PARAMETER_FIELDS)
+
+# Derived parameter vector.
+P_M = 0
+P_K = 1
+P_KL = 2       # N^2 A_e mu_c, eq. (4) numerator
+P_L0 = 3       # l_c + 2 mu_r x_t
+P_B2 = 4       # 2 mu_r
+P_R = 5
+P_XMAX = 6
+P_DELTA = 7
+P_B = 8
+P_A1 = 9
+P_A2 = 10
+P_A3 = 11
+P_A4 = 12
+P_BETA = 13
+P_GE = 14
+P_FC = 15
+P_RTH = 16
+P_TAUTH = 17
+P_LLEAK = 18
+P_E = 19
+N_P = 20
+
+# Continuous state.
+Y_I = 0
+Y_X = 1
+Y_V = 2
+Y_DT = 3
+Y_Q = 4
+N_Y = 5
+
+# Drive phases (what the driver applies to the coil).
+PH_OFF = 0        # main PWM low: capacitor pulse or 0 V
+PH_SUPPLY = 1     # supply voltage (bare coil high phase, boost, chopper on)
+PH_FREEWHEEL = 2  # chopper off: 0 V
+
+# Discrete state.
+D_T = 0
+D_MODE = 1
+D_PHASE = 2
+D_VS = 3
+D_PSUP = 4
+D_POUT = 5
+D_DUTY = 6
+D_PERIOD = 7
+D_PEND_DUTY = 8
+D_PEND_PERIOD = 9
+D_NEXT_BOUNDARY = 10
+D_NEXT_FALL = 11
+D_NEXT_TICK = 12
+D_CHOP_OFF = 13
+D_MAIN_ON = 14
+D_BOOST = 15
+D_T_ON = 16
+D_T_OFF = 17
+D_VC_ON = 18
+D_VC_OFF = 19
+D_IMAX = 20
+D_DIPPED = 21
+D_IPREV = 22
+D_PI_INT = 23
+D_PER_START = 24
+D_Q_START = 25
+D_XAVG = 26
+D_PER_RUNNING = 27
+D_NEXT_SAMPLE = 28
+D_SAMPLE_IDX = 29
+D_AVG_IDX = 30
+D_CHOP_DUTY = 31
+D_BOOST_END = 32
+D_N_STEPS = 33
+D_SAMPLE_DT = 34
+D_PREV_PERIOD = 35
+D_SAMPLE_T0 = 36
+N_D = 40
+
+# Output channels of recorded samples.
+O_V = 0
+O_I = 1
+O_X = 2
+O_XDOT = 3
+O_DT = 4
+O_MODE = 5
+N_OUT = 6
+
+_EPS_T = 1e-12  # events closer than 1 ps count as simultaneous
+_INF = np.inf
+
+
+@njit(cache=True)
+def _derive(raw: np.ndarray) -> np.ndarray:
+    """Derived parameter vector ``P_*`` from a raw vector in PARAMETER_FIELDS order."""
+    p = np.empty(N_P)
+    mu_r = raw[_R_MUR]
+    p[P_M] = raw[_R_MASS]
+    p[P_K] = raw[_R_K]
+    p[P_KL] = raw[_R_N] ** 2 * raw[_R_AE] * mu_r * MU_0
+    p[P_L0] = raw[_R_LC] + 2.0 * mu_r * raw[_R_XT]
+    p[P_B2] = 2.0 * mu_r
+    p[P_R] = raw[_R_R]
+    p[P_XMAX] = raw[_R_XMAX]
+    p[P_DELTA] = raw[_R_DELTA]
+    p[P_B] = raw[_R_B]
+    p[P_A1] = raw[_R_A1]
+    p[P_A2] = raw[_R_A2]
+    p[P_A3] = raw[_R_A3]
+    p[P_A4] = raw[_R_A4]
+    p[P_BETA] = raw[_R_BETA]
+    p[P_GE] = raw[_R_GE]
+    p[P_FC] = raw[_R_FC]
+    p[P_RTH] = raw[_R_RTH]
+    p[P_TAUTH] = raw[_R_TAUTH]
+    p[P_LLEAK] = raw[_R_LLEAK]
+    p[P_E] = raw[_R_E]
+    return p
+
+
+def derive_parameters(raw: np.ndarray) -> np.ndarray:
+    """Python entry to :func:`_derive` (raw vector in PARAMETER_FIELDS order)."""
+    return _derive(np.ascontiguousarray(raw, dtype=np.float64))
+
+
+# --------------------------------------------------------------------------------------
+# Right-hand side
+# --------------------------------------------------------------------------------------
+@njit(cache=True)
+def _voltage(t: float, phase: int, d: np.ndarray, e: np.ndarray) -> float:
+    """Coil terminal voltage applied by the driver at time t (phase fixed between edges)."""
+    if phase == PH_SUPPLY:
+        return d[D_VS]
+    if phase == PH_FREEWHEEL:
+        return 0.0
+    vc = d[D_VC_OFF]
+    if vc == 0.0:
+        return 0.0
+    # capacitor as a first-order low-pass with initial value (Section 4)
+    return -vc * math.exp(-(t - d[D_T_OFF]) / e[_el.E_CAP_DISCHARGE_S])
+
+
+@njit(cache=True)
+def _rhs(t: float, i_m: float, x: float, v: float, d_temp: float, mode: int, phase: int,
+         f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray
+         ) -> tuple[float, float, float, float, float]:
+    ind = _inductance(x, p[P_KL], p[P_L0], p[P_B2])
+    slope = _inductance_slope(ind, p[P_KL], p[P_B2])
+    r = _resistance(p[P_R], d_temp)
+    volt = _voltage(t, phase, d, e)
+    moving = mode == MODE_FREE
+    x_dot = v if moving else 0.0
+    di, i_t = _current_derivative(volt, i_m, x_dot, ind, slope, r, p[P_GE], p[P_LLEAK],
+                                  p[P_BETA])
+    if phase == PH_OFF and i_m <= 0.0 and di < 0.0 and e[_el.E_BLOCK_REVERSE] != 0.0:
+        di = 0.0  # the driver's diode blocks reverse current
+    ddt = _temperature_derivative(d_temp, i_t, r, p[P_RTH], p[P_TAUTH])
+    if moving:
+        f_a = _active_force(_force(i_m, slope, p[P_BETA]), p[P_K], x, p[P_DELTA], f_prs)
+        dv = _acceleration(f_a, v, p[P_B], p[P_FC], p[P_M])  # eq. (11)
+        return di, v, dv, ddt, x
+    return di, 0.0, 0.0, ddt, x
+
+
+@njit(cache=True)
+def _rk4(t: float, h: float, y0: float, y1: float, y2: float, y3: float, y4: float,
+         mode: int, phase: int, f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray
+         ) -> tuple[float, float, float, float, float]:
+    a0, a1, a2, a3, a4 = _rhs(t, y0, y1, y2, y3, mode, phase, f_prs, p, d, e)
+    hh = 0.5 * h
+    b0, b1, b2, b3, b4 = _rhs(t + hh, y0 + hh * a0, y1 + hh * a1, y2 + hh * a2,
+                              y3 + hh * a3, mode, phase, f_prs, p, d, e)
+    c0, c1, c2, c3, c4 = _rhs(t + hh, y0 + hh * b0, y1 + hh * b1, y2 + hh * b2,
+                              y3 + hh * b3, mode, phase, f_prs, p, d, e)
+    g0, g1, g2, g3, g4 = _rhs(t + h, y0 + h * c0, y1 + h * c1, y2 + h * c2,
+                              y3 + h * c3, mode, phase, f_prs, p, d, e)
+    s = h / 6.0
+    return (y0 + s * (a0 + 2.0 * (b0 + c0) + g0),
+            y1 + s * (a1 + 2.0 * (b1 + c1) + g1),
+            y2 + s * (a2 + 2.0 * (b2 + c2) + g2),
+            y3 + s * (a3 + 2.0 * (b3 + c3) + g3),
+            y4 + s * (a4 + 2.0 * (b4 + c4) + g4))
+
+
+@njit(cache=True)
+def _terminal_current(t: float, y: np.ndarray, phase: int, p: np.ndarray, d: np.ndarray,
+                      e: np.ndarray) -> float:
+    if p[P_GE] == 0.0:
+        return y[Y_I]
+    r = _resistance(p[P_R], y[Y_DT])
+    volt = _voltage(t, phase, d, e)
+    return y[Y_I] + p[P_GE] * (volt - r * y[Y_I]) / (1.0 + r * p[P_GE])
+
+
+@njit(cache=True)
+def _f_active(i_m: float, x: float, f_prs: float, p: np.ndarray) -> float:
+    ind = _inductance(x, p[P_KL], p[P_L0], p[P_B2])
+    slope = _inductance_slope(ind, p[P_KL], p[P_B2])
+    return _active_force(_force(i_m, slope, p[P_BETA]), p[P_K], x, p[P_DELTA], f_prs)
+
+
+@njit(cache=True)
+def _hermite(s: float, h: float, x0: float, v0: float, x1: float, v1: float) -> float:
+    s2 = s * s
+    s3 = s2 * s
+    return ((2.0 * s3 - 3.0 * s2 + 1.0) * x0 + (s3 - 2.0 * s2 + s) * h * v0
+            + (-2.0 * s3 + 3.0 * s2) * x1 + (s3 - s2) * h * v1)
+
+
+@njit(cache=True)
+def _crossing(h: float, x0: float, v0: float, x1: float, v1: float, xb: float) -> float:
+    """Fraction s in (0, 1] of the first crossing of level xb by the Hermite interpolant."""
+    sgn1 = 1.0 if x1 - xb > 0.0 else -1.0
+    lo = 0.0
+    hi = 1.0
+    # scan for the first sub-interval whose right end is beyond xb (x0 may sit on xb)
+    for k in range(1, 17):
+        s = k / 16.0
+        if (_hermite(s, h, x0, v0, x1, v1) - xb) * sgn1 > 0.0:
+            hi = s
+            lo = (k - 1) / 16.0
+            break
+    for _ in range(48):
+        mid = 0.5 * (lo + hi)
+        if (_hermite(mid, h, x0, v0, x1, v1) - xb) * sgn1 > 0.0:
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+# --------------------------------------------------------------------------------------
+# Discrete events of the drive electronics
+# --------------------------------------------------------------------------------------
+@njit(cache=True)
+def _rising_edge(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
+                 e: np.ndarray) -> None:
+    i_t = _terminal_current(t, y, int(d[D_PHASE]), p, d, e)
+    d[D_MAIN_ON] = 1.0
+    if e[_el.E_CAPACITOR] != 0.0:
+        # what is left of the capacitor voltage from the last pulse
+        d[D_VC_ON] = d[D_VC_OFF] * math.exp(-(t - d[D_T_OFF]) / e[_el.E_CAP_DISCHARGE_S])
+    else:
+        d[D_VC_ON] = 0.0
+    d[D_T_ON] = t
+    d[D_PHASE] = PH_SUPPLY
+    d[D_CHOP_OFF] = _INF
+    if e[_el.E_CURRENT_CONTROL] != 0.0:
+        d[D_BOOST] = 1.0
+        d[D_IMAX] = i_t
+        d[D_IPREV] = i_t
+        d[D_DIPPED] = 0.0
+        d[D_NEXT_TICK] = t  # controller ticks aligned with the rising edge
+    else:
+        d[D_BOOST] = 0.0
+        d[D_NEXT_TICK] = _INF
+
+
+@njit(cache=True)
+def _falling_edge(t: float, d: np.ndarray, e: np.ndarray) -> None:
+    d[D_MAIN_ON] = 0.0
+    if e[_el.E_CAPACITOR] != 0.0:
+        vcap = e[_el.E_CAP_V]
+        d[D_VC_OFF] = vcap + (d[D_VC_ON] - vcap) * math.exp(
+            -(t - d[D_T_ON]) / e[_el.E_CAP_CHARGE_S])
+    else:
+        d[D_VC_OFF] = 0.0
+    d[D_T_OFF] = t
+    d[D_PHASE] = PH_OFF
+    d[D_NEXT_TICK] = _INF
+    d[D_CHOP_OFF] = _INF
+    d[D_BOOST] = 0.0
+
+
+@njit(cache=True)
+def _controller_tick(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
+                     e: np.ndarray) -> None:
+    """Sampled current controller: boost end detection, then the PI chopper duty."""
+    period = 1.0 / e[_el.E_CHOPPER_HZ]
+    i_t = _terminal_current(t, y, int(d[D_PHASE]), p, d, e)
+    if d[D_BOOST] != 0.0:
+        end = t - d[D_T_ON] >= e[_el.E_BOOST_MAX_S] - _EPS_T
+        if e[_el.E_DIP_DETECTION] != 0.0:
+            if i_t > d[D_IMAX]:
+                d[D_IMAX] = i_t
+            elif d[D_IMAX] - i_t >= e[_el.E_DIP_A]:
+                d[D_DIPPED] = 1.0
+            if d[D_DIPPED] != 0.0 and i_t > d[D_IPREV]:
+                end = True  # current rises again after the dip: end of stroke
+            d[D_IPREV] = i_t
+        if not end:
+            d[D_NEXT_TICK] = t + period
+            return
+        d[D_BOOST] = 0.0
+        d[D_BOOST_END] = t
+        ff = e[_el.E_HOLD_A] * _resistance(p[P_R], y[Y_DT]) / d[D_VS] if d[D_VS] > 0 else 1.0
+        d[D_PI_INT] = min(1.0, max(0.0, ff))
+    err = e[_el.E_HOLD_A] - i_t
+    integ = d[D_PI_INT] + e[_el.E_KI] * err * period
+    integ = min(1.0, max(0.0, integ))  # clamping anti-windup
+    d[D_PI_INT] = integ
+    u = min(1.0, max(0.0, e[_el.E_KP] * err + integ))
+    d[D_CHOP_DUTY] = u
+    if u <= 0.0:
+        d[D_PHASE] = PH_FREEWHEEL
+        d[D_CHOP_OFF] = _INF
+    elif u >= 1.0:
+        d[D_PHASE] = PH_SUPPLY
+        d[D_CHOP_OFF] = _INF
+    else:
+        d[D_PHASE] = PH_SUPPLY
+        d[D_CHOP_OFF] = t + u * period
+    d[D_NEXT_TICK] = t + period
+
+
+@njit(cache=True)
+def _period_boundary(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
+                     e: np.ndarray, avg_out: np.ndarray) -> None:
+    if d[D_PER_RUNNING] != 0.0:
+        avg = (y[Y_Q] - d[D_Q_START]) / (t - d[D_PER_START])
+        d[D_XAVG] = avg
+        k = int(d[D_AVG_IDX])
+        if k < avg_out.shape[0]:
+            avg_out[k] = avg
+        d[D_AVG_IDX] = k + 1.0
+    # a pending command takes effect only here: no pulse is ever cut short
+    d[D_PREV_PERIOD] = d[D_PERIOD]
+    d[D_DUTY] = d[D_PEND_DUTY]
+    d[D_PERIOD] = d[D_PEND_PERIOD]
+    d[D_PER_START] = t
+    d[D_Q_START] = y[Y_Q]
+    d[D_PER_RUNNING] = 1.0
+    duty = d[D_DUTY]
+    if duty > 0.0:
+        if d[D_MAIN_ON] == 0.0:
+            _rising_edge(t, y, p, d, e)
+        d[D_NEXT_FALL] = t + duty * d[D_PERIOD] if duty < 1.0 else _INF
+    else:
+        if d[D_MAIN_ON] != 0.0:
+            _falling_edge(t, d, e)
+        d[D_NEXT_FALL] = _INF
+    d[D_NEXT_BOUNDARY] = t + d[D_PERIOD]
+
+
+@njit(cache=True)
+def _record(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray, e: np.ndarray,
+            out: np.ndarray) -> None:
+    k = int(d[D_SAMPLE_IDX])
+    if k < out.shape[0]:
+        phase = int(d[D_PHASE])
+        out[k, O_V] = _voltage(t, phase, d, e)
+        out[k, O_I] = _terminal_current(t, y, phase, p, d, e)
+        out[k, O_X] = y[Y_X]
+        out[k, O_XDOT] = y[Y_V]
+        out[k, O_DT] = y[Y_DT]
+        out[k, O_MODE] = d[D_MODE]
+    d[D_SAMPLE_IDX] = k + 1.0
+    if k + 1 >= out.shape[0]:
+        d[D_NEXT_SAMPLE] = _INF
+    else:
+        # from the first sample time, so long runs do not accumulate rounding
+        d[D_NEXT_SAMPLE] = d[D_SAMPLE_T0] + (k + 1) * d[D_SAMPLE_DT]
+
+
+@njit(cache=True)
+def _process_events(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray, e: np.ndarray,
+                    out: np.ndarray, avg_out: np.ndarray) -> None:
+    lim = t + _EPS_T
+    if d[D_NEXT_BOUNDARY] <= lim:
+        _period_boundary(t, y, p, d, e, avg_out)
+    if d[D_NEXT_FALL] <= lim:
+        d[D_NEXT_FALL] = _INF
+        _falling_edge(t, d, e)
+    if d[D_CHOP_OFF] <= lim:
+        d[D_CHOP_OFF] = _INF
+        d[D_PHASE] = PH_FREEWHEEL
+    if d[D_NEXT_TICK] <= lim:
+        _controller_tick(t, y, p, d, e)
+    if d[D_NEXT_SAMPLE] <= lim:
+        _record(t, y, p, d, e, out)
+
+
+# --------------------------------------------------------------------------------------
+# Main loop
+# --------------------------------------------------------------------------------------
+@njit(cache=True)
+def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: float,
+             h_free: float, h_stop: float, out: np.ndarray, avg_out: np.ndarray) -> None:
+    xmax = p[P_XMAX]
+    f_prs = _pressure_force(p[P_A1], p[P_A2], p[P_A3], p[P_A4], d[D_PSUP], d[D_POUT])
+    f_c = p[P_FC]
+    while True:
+        t = d[D_T]
+        t_ev = min(d[D_NEXT_BOUNDARY], d[D_NEXT_FALL], d[D_NEXT_TICK], d[D_CHOP_OFF],
+                   d[D_NEXT_SAMPLE])
+        if t_ev <= t + _EPS_T:
+            _process_events(t, y, p, d, e, out, avg_out)
+            continue
+        if t >= t_end - _EPS_T:
+            break
+        target = min(t_ev, t_end)
+        mode = int(d[D_MODE])
+        phase = int(d[D_PHASE])
+        if mode != MODE_FREE:
+            xs = y[Y_X]
+            if _leave_margin(mode, _f_active(y[Y_I], xs, f_prs, p), f_c) > 0.0:
+                d[D_MODE] = MODE_FREE
+                continue
+        hmax = h_free if mode == MODE_FREE else h_stop
+        span = target - t
+        n = math.ceil(span / hmax - 1e-9)
+        h = span / n if n > 1 else span
+        t_new = target if n <= 1 else t + h
+        h = t_new - t
+        y0, y1, y2, y3, y4 = y[0], y[1], y[2], y[3], y[4]
+        z0, z1, z2, z3, z4 = _rk4(t, h, y0, y1, y2, y3, y4, mode, phase, f_prs, p, d, e)
+        d[D_N_STEPS] += 1.0
+        if mode == MODE_FREE:
+            # --- end-stop impacts and (with friction) velocity reversals inside the step
+            s_hit = 2.0
+            xb = 0.0
+            if z1 < 0.0:
+                xb = 0.0
+                s_hit = _crossing(h, y1, y2, z1, z2, 0.0)
+            elif z1 > xmax:
+                xb = xmax
+                s_hit = _crossing(h, y1, y2, z1, z2, xmax)
+            s_rev = 2.0
+            if f_c > 0.0 and y2 != 0.0 and (z2 == 0.0 or (z2 > 0.0) != (y2 > 0.0)):
+                s_rev = y2 / (y2 - z2)
+            if s_hit <= 1.0 and s_hit <= s_rev:
+                hs = s_hit * h
+                if hs > 1e-11:
+                    z0, z1, z2, z3, z4 = _rk4(t, hs, y0, y1, y2, y3, y4, mode, phase,
+                                              f_prs, p, d, e)
+                    d[D_N_STEPS] += 1.0
+                else:
+                    hs = 0.0
+                    z0, z1, z2, z3, z4 = y0, y1, y2, y3, y4
+                t_new = t + hs
+                z1 = xb
+                # an impact: plastic (paper) or bounce with restitution e
+                v_imp = z2
+                if (p[P_E] > 0.0 and abs(v_imp) > SETTLE_SPEED_M_S and hs > 0.0):
+                    z2 = -p[P_E] * v_imp
+                else:
+                    z2 = 0.0
+                    d[D_MODE] = MODE_CLOSED if xb == 0.0 else MODE_OPEN
+            elif s_rev <= 1.0:
+                # regula falsi on v(t) = 0 with redone steps
+                lo = 0.0
+                hi = h
+                v_lo = y2
+                v_hi = z2
+                hs = h * s_rev
+                for _ in range(30):
+                    z0, z1, z2, z3, z4 = _rk4(t, hs, y0, y1, y2, y3, y4, mode, phase,
+                                              f_prs, p, d, e)
+                    d[D_N_STEPS] += 1.0
+                    if abs(z2) < 1e-9 or hi - lo < 1e-12:
+                        break
+                    if (z2 > 0.0) == (v_lo > 0.0):
+                        lo = hs
+                        v_lo = z2
+                    else:
+                        hi = hs
+                        v_hi = z2
+                    hs = lo + (hi - lo) * v_lo / (v_lo - v_hi)
+                t_new = t + hs
+                z2 = 0.0
+                if abs(_f_active(z0, z1, f_prs, p)) <= f_c:
+                    d[D_MODE] = MODE_STUCK
+        else:
+            # --- leaving a stop (or static friction): the held force margin turns positive
+            g1 = _leave_margin(mode, _f_active(z0, y1, f_prs, p), f_c)
+            if g1 > 0.0:
+                g0 = _leave_margin(mode, _f_active(y0, y1, f_prs, p), f_c)
+                lo = 0.0
+                hi = h
+                g_lo = g0
+                g_hi = g1
+                side = 0
+                for _ in range(40):
+                    if hi - lo < 1e-10:
+                        break
+                    hs = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
+                    w0, _w1, _w2, _w3, _w4 = _rk4(t, hs, y0, y1, y2, y3, y4, mode, phase,
+                                                  f_prs, p, d, e)
+                    d[D_N_STEPS] += 1.0
+                    g = _leave_margin(mode, _f_active(w0, y1, f_prs, p), f_c)
+                    if g > 0.0:
+                        hi = hs
+                        g_hi = g
+                        if side == 1:
+                            g_lo *= 0.5  # Illinois modification
+                        side = 1
+                    else:
+                        lo = hs
+                        g_lo = g
+                        if side == -1:
+                            g_hi *= 0.5
+                        side = -1
+                    if abs(g) < 1e-9:
+                        break
+                if hi < h:
+                    z0, z1, z2, z3, z4 = _rk4(t, hi, y0, y1, y2, y3, y4, mode, phase,
+                                              f_prs, p, d, e)
+                    d[D_N_STEPS] += 1.0
+                    t_new = t + hi
+                d[D_MODE] = MODE_FREE
+        if phase == PH_OFF and z0 < 0.0 and e[_el.E_BLOCK_REVERSE] != 0.0:
+            z0 = 0.0
+        y[0] = z0
+        y[1] = z1
+        y[2] = z2
+        y[3] = z3
+        y[4] = z4
+        d[D_T] = t_new
+
+
+def new_drive_state(supply_voltage_v: float, duty: float, period_s: float,
+                    first_period_start_s: float = 0.0, supply_pressure_pa: float = 0.0,
+                    output_pressure_pa: float = 0.0, sample_dt_s: float = np.inf,
+                    first_sample_s: float = 0.0) -> np.ndarray:
+    """Initial discrete state: valve closed at rest, capacitor empty, PWM not yet started.
+
+    The first main PWM period starts at ``first_period_start_s`` with (duty, period_s).
+    Samples are recorded at ``first_sample_s + k * sample_dt_s`` (none if inf).
+    """
+    d = np.zeros(N_D)
+    d[D_MODE] = MODE_CLOSED
+    d[D_PHASE] = PH_OFF
+    d[D_VS] = supply_voltage_v
+    d[D_PSUP] = supply_pressure_pa
+    d[D_POUT] = output_pressure_pa
+    d[D_DUTY] = 0.0
+    d[D_PERIOD] = period_s
+    d[D_PEND_DUTY] = duty
+    d[D_PEND_PERIOD] = period_s
+    d[D_NEXT_BOUNDARY] = first_period_start_s
+    d[D_NEXT_FALL] = np.inf
+    d[D_NEXT_TICK] = np.inf
+    d[D_CHOP_OFF] = np.inf
+    d[D_NEXT_SAMPLE] = first_sample_s if np.isfinite(sample_dt_s) else np.inf
+    d[D_SAMPLE_DT] = sample_dt_s
+    d[D_SAMPLE_T0] = first_sample_s
+    d[D_BOOST_END] = np.nan
+    return d
+
+
+def advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: float,
+            h_free: float = DEFAULT_H_FREE_S, h_stop: float = DEFAULT_H_STOP_S,
+            out: np.ndarray | None = None, avg_out: np.ndarray | None = None) -> None:
+    """Integrate in place from ``d[D_T]`` to ``t_end`` (s); records into ``out``/``avg_out``.
+
+    Parameters
+    ----------
+    p : numpy.ndarray, shape (N_P,)
+        Derived parameters (:func:`derive_parameters`).
+    e : numpy.ndarray, shape (N_E,)
+        ``ElectronicsConfig.to_vector()``.
+    y : numpy.ndarray, shape (N_Y,)
+        Continuous state [i_m (A), x (m), x_dot (m/s), dT (K), q (m s)], updated in place.
+    d : numpy.ndarray, shape (N_D,)
+        Discrete state (:func:`new_drive_state`), updated in place.
+    t_end : float
+        End time, s.
+    h_free, h_stop : float
+        Maximum RK4 step with the spool moving / held, s.
+    out : numpy.ndarray, shape (n_samples, N_OUT), optional
+        Sample buffer (columns V, i, x, x_dot, dT, mode).
+    avg_out : numpy.ndarray, shape (n_periods,), optional
+        Receives the period-average position of each completed main PWM period, m.
+    """
+    if out is None:
+        out = np.zeros((0, N_OUT))
+    if avg_out is None:
+        avg_out = np.zeros(0)
+    _advance(p, e, y, d, float(t_end), float(h_free), float(h_stop), out, avg_out)
+
+
+# --------------------------------------------------------------------------------------
+# Batch kernels (numba prange over runs)
+# --------------------------------------------------------------------------------------
+@njit(cache=True, parallel=True)
+def _step_batch(raw: np.ndarray, e: np.ndarray, voltage: np.ndarray, p_sup: np.ndarray,
+                p_out: np.ndarray, duration: float, step_time: float, sample_dt: float,
+                h_free: float, h_stop: float, cur: np.ndarray, pos: np.ndarray) -> None:
+    n_runs = raw.shape[0]
+    n_s = cur.shape[1]
+    for r in prange(n_runs):
+        p = _derive(raw[r])
+        y = np.zeros(N_Y)
+        d = np.zeros(N_D)
+        d[D_MODE] = MODE_CLOSED
+        d[D_PHASE] = PH_OFF
+        d[D_VS] = voltage[r]
+        d[D_PSUP] = p_sup[r]
+        d[D_POUT] = p_out[r]
+        big = 2.0 * duration + 1.0
+        d[D_PERIOD] = big
+        d[D_PEND_DUTY] = 1.0
+        d[D_PEND_PERIOD] = big
+        d[D_NEXT_BOUNDARY] = step_time
+        d[D_NEXT_FALL] = _INF
+        d[D_NEXT_TICK] = _INF
+        d[D_CHOP_OFF] = _INF
+        d[D_NEXT_SAMPLE] = 0.0
+        d[D_SAMPLE_DT] = sample_dt
+        out = np.zeros((n_s, N_OUT))
+        avg = np.zeros(0)
+        _advance(p, e, y, d, duration, h_free, h_stop, out, avg)
+        for k in range(n_s):
+            cur[r, k] = out[k, O_I]
+            pos[r, k] = out[k, O_X]
+
+
+def step_batch(raw: np.ndarray, e: np.ndarray, voltage: np.ndarray, p_sup: np.ndarray,
+               p_out: np.ndarray, duration: float, step_time: float, sample_dt: float,
+               n_samples: int, h_free: float = DEFAULT_H_FREE_S,
+               h_stop: float = DEFAULT_H_STOP_S) -> tuple[np.ndarray, np.ndarray]:
+    """Voltage-step responses of many parameter vectors in parallel (see simulation.py)."""
+    n = raw.shape[0]
+    cur = np.zeros((n, n_samples))
+    pos = np.zeros((n, n_samples))
+    _step_batch(np.ascontiguousarray(raw, np.float64), e, voltage, p_sup, p_out,
+                float(duration), float(step_time), float(sample_dt), float(h_free),
+                float(h_stop), cur, pos)
+    return cur, pos
+
+
+@njit(cache=True, parallel=True)
+def _pwm_batch(raw: np.ndarray, e: np.ndarray, supply_v: np.ndarray, duty: np.ndarray,
+               period: np.ndarray, p_sup: np.ndarray, p_out: np.ndarray,
+               h_free: float, h_stop: float, avg: np.ndarray) -> None:
+    n_runs = raw.shape[0]
+    n_per = avg.shape[1]
+    for r in prange(n_runs):
+        p = _derive(raw[r])
+        y = np.zeros(N_Y)
+        d = np.zeros(N_D)
+        d[D_MODE] = MODE_CLOSED
+        d[D_PHASE] = PH_OFF
+        d[D_VS] = supply_v[r]
+        d[D_PSUP] = p_sup[r]
+        d[D_POUT] = p_out[r]
+        d[D_PERIOD] = period[r]
+        d[D_PEND_DUTY] = duty[r]
+        d[D_PEND_PERIOD] = period[r]
+        d[D_NEXT_BOUNDARY] = 0.0
+        d[D_NEXT_FALL] = _INF
+        d[D_NEXT_TICK] = _INF
+        d[D_CHOP_OFF] = _INF
+        d[D_NEXT_SAMPLE] = _INF
+        d[D_SAMPLE_DT] = _INF
+        out = np.zeros((0, N_OUT))
+        row = np.zeros(n_per)
+        # one period past the last so the boundary that closes it is processed
+        _advance(p, e, y, d, n_per * period[r] + 1e-9, h_free, h_stop, out, row)
+        for k in range(n_per):
+            avg[r, k] = row[k]
+
+
+def pwm_batch(raw: np.ndarray, e: np.ndarray, supply_v: np.ndarray, duty: np.ndarray,
+              period: np.ndarray, p_sup: np.ndarray, p_out: np.ndarray, n_periods: int,
+              h_free: float = DEFAULT_H_FREE_S, h_stop: float = DEFAULT_H_STOP_S
+              ) -> np.ndarray:
+    """Per-period average positions (n_runs, n_periods) of many PWM runs in parallel."""
+    n = raw.shape[0]
+    avg = np.zeros((n, n_periods))
+    _pwm_batch(np.ascontiguousarray(raw, np.float64), e, supply_v, duty, period, p_sup,
+               p_out, float(h_free), float(h_stop), avg)
+    return avg
