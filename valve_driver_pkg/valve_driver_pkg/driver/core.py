@@ -20,10 +20,12 @@ What is measured and what is derived (see the package README):
 coil current/voltage  measured: ``ValveTelemetry``, quantised 0.2 mA / 10 mV
 spool position        measured: the controller's estimate (``PositionValid``), 10 nm
 spool velocity        derived: difference of consecutive positions / telemetry period
-position average      derived: trapezoidal moving average over one PWM period
+position average      measured: ``ValvePeriod`` (the controller's average over the last
+                      complete PWM period); derived if the controller sends none: the
+                      driver's trapezoidal moving average of the telemetry positions
 mass flow             derived: eq. (12) (``orifice_mass_flow``) from the average position
-duty, PWM frequency   the command in force: last sent, duty 0 when the controller reports
-                      its output off (``Enabled=0``)
+duty, PWM frequency   measured: in force at the controller (``ValvePeriod``); without it the
+                      last command sent (duty 0 while the controller reports ``Enabled=0``)
 pressures             the driver's inputs (parameters or pressure topics), also sent to
                       the controller in ``ValvePressure``
 ====================  ==================================================================
@@ -44,9 +46,9 @@ import can
 from valve_driver_pkg.canbus.factory import open_bus
 from valve_driver_pkg.driver.averaging import PeriodAverager
 from valve_driver_pkg.errors import BusOpenError, FrameRejected, ProtocolEncodeError
-from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, PRESSURE, STATUS, TELEMETRY,
-                                             CounterCheck, CounterTracker, RejectReason,
-                                             ValveCodec)
+from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, PERIOD, PRESSURE, STATUS,
+                                             TELEMETRY, CounterCheck, CounterTracker,
+                                             RejectReason, ValveCodec)
 from valve_driver_pkg.protocol.error_frames import BusCondition, parse_error_frame
 
 __all__ = ['DriverConfig', 'CanDriverCore', 'StateSample', 'CommandResult', 'Level',
@@ -255,6 +257,9 @@ class CanDriverCore:
         self._last_position: float | None = None
         self._averager = PeriodAverager(1.0 / self._pwm_hz)
         self._controller_enabled = False
+        self._period_counter = CounterTracker()
+        self._period: tuple[float, float, float, float] | None = None   # avg, duty, f, mono
+        self._period_fresh_s = 0.5
         self._last_status: dict | None = None
         self._last_status_mono: float | None = None
         self._bus_condition = BusCondition.ERROR_ACTIVE
@@ -308,6 +313,7 @@ class CanDriverCore:
             self._bus_failed = False
             self._telemetry_counter.reset()
             self._status_counter.reset()
+            self._period_counter.reset()
 
     def _close_bus(self) -> None:
         with self._lock:
@@ -472,8 +478,18 @@ class CanDriverCore:
             return
         if frame.name == TELEMETRY:
             self._on_telemetry(frame.signals, frame.counter, receive_perf)
+        elif frame.name == PERIOD:
+            self._on_period(frame.signals, frame.counter)
         elif frame.name == STATUS:
             self._on_status(frame.signals, frame.counter)
+
+    def _on_period(self, signals: dict, counter: int) -> None:
+        if self._period_counter.check(counter) is CounterCheck.FROZEN:
+            self._reject(RejectReason.COUNTER_FROZEN.value,
+                         f'ValvePeriod counter stuck at {counter}')
+            return
+        self._period = (float(signals['PositionAverage']), float(signals['DutyActive']),
+                        float(signals['PwmFrequencyActive']), time.monotonic())
 
     def _on_error_frame(self, msg: can.Message) -> None:
         info = parse_error_frame(msg)
@@ -560,6 +576,10 @@ class CanDriverCore:
         average = self._averager.add(t, position)
         enabled = bool(signals['Enabled'])
         self._controller_enabled = enabled
+        duty = duty_cmd if enabled else 0.0
+        period = self._period
+        if period is not None and now - period[3] <= self._period_fresh_s:
+            average, duty, pwm_hz = period[0], period[1], period[2] or pwm_hz
         flow = self._mass_flow(average, supply, output) if self._mass_flow else 0.0
         on_state = self._on_state
         if on_state is not None and self._active:
@@ -567,7 +587,7 @@ class CanDriverCore:
                 stamp_s=time.time(), coil_voltage_v=float(signals['CoilVoltage']),
                 coil_current_a=float(signals['CoilCurrent']), spool_position_m=position,
                 spool_velocity_m_s=velocity, position_avg_m=average, mass_flow_kg_s=flow,
-                duty=duty_cmd if enabled else 0.0, pwm_frequency_hz=pwm_hz,
+                duty=duty, pwm_frequency_hz=pwm_hz,
                 supply_pressure_pa=supply, output_pressure_pa=output,
                 position_measured=bool(signals['PositionValid']),
                 receive_perf_s=receive_perf))
@@ -651,6 +671,7 @@ class CanDriverCore:
             self._bus_failed = False
             self._telemetry_counter.reset()
             self._status_counter.reset()
+            self._period_counter.reset()
 
     def _check_telemetry(self, now: float, timeout: float) -> None:
         last = self._last_valid_telemetry
@@ -819,7 +840,10 @@ class CanDriverCore:
                                f'{self._last_reject or "counter jump"}')
         else:
             tel = StatusReport('telemetry', Level.OK, f'{self._telemetry_rate_hz:.0f} Hz')
+        period = self._period
         tel.values = {'age_s': age, 'timeout_s': limit,
+                      'average_source': 'controller' if period is not None and
+                      now - period[3] <= self._period_fresh_s else 'driver',
                       'lost_after_s': self._lost_after_s,
                       'rate_hz': self._telemetry_rate_hz,
                       **{k: c[k] for k in ('telemetry_frames', 'telemetry_losses',

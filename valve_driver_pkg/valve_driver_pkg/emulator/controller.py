@@ -17,6 +17,10 @@ What the firmware does (see the package README for the frame table):
 * ``ValvePressure``: port pressures for the model.
 * ``ValveTelemetry`` every ``1/telemetry_rate_hz`` of model time: the sampled coil current,
   coil voltage and spool position (the controller's estimate; here the model's position).
+* ``ValvePeriod`` just before the telemetry frame of an instant at which the position
+  averaged over the last complete PWM period, or the duty/frequency in force, changed
+  (i.e. once per PWM period), and at least every 0.1 s: what a firmware computes at its
+  internal rate, here the model's own period average.
 * ``ValveStatus`` every ``1/status_rate_hz``: command in force, supply voltage, fault flags.
 * ``EmulatorControl``: fault injection (see :class:`~valve_driver_pkg.emulator.faults`).
 """
@@ -32,9 +36,9 @@ import can
 
 from valve_driver_pkg.errors import FrameRejected, ProtocolEncodeError
 from valve_driver_pkg.emulator.faults import FaultInjector
-from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, PRESSURE, STATUS, TELEMETRY,
-                                             CounterCheck, CounterTracker, EmulatorFault,
-                                             ValveCodec)
+from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, PERIOD, PRESSURE, STATUS,
+                                             TELEMETRY, CounterCheck, CounterTracker,
+                                             EmulatorFault, ValveCodec)
 from valve_driver_pkg.protocol.error_frames import BusCondition, make_error_frame
 
 __all__ = ['StepperLike', 'EmulatorConfig', 'ControllerEmulator', 'ControllerState',
@@ -46,6 +50,10 @@ logger = logging.getLogger(__name__)
 UNKNOWN_INJECTED_ID = 0x5A5
 #: How long a command fault flag (checksum, counter, range) stays set after the event [s].
 _FLAG_HOLD_S = 1.0
+#: ValvePeriod is repeated at least this often even when nothing changed [s].
+_PERIOD_REFRESH_S = 0.1
+#: Lowest gauge pressure the model accepts [Pa] (lower values are clamped).
+_MIN_PRESSURE_PA = -1.0e5
 
 
 class StepperLike(Protocol):
@@ -155,6 +163,9 @@ class ControllerEmulator:
         self._next_status_t = 0.0
         self._telemetry_counter = 0
         self._status_counter = 0
+        self._period_counter = 0
+        self._period_sent: tuple[int, int, int] | None = None
+        self._period_sent_t = -1.0
         self._command_counter = CounterTracker()
         self._control_counter = CounterTracker()
         self._duty = 0.0
@@ -213,8 +224,12 @@ class ControllerEmulator:
             if name == COMMAND:
                 self._on_command(frame.signals, frame.counter)
             elif name == PRESSURE:
-                self.stepper.set_pressures(float(frame.signals['SupplyPressure']),
-                                           float(frame.signals['OutputPressure']))
+                supply = max(float(frame.signals['SupplyPressure']), _MIN_PRESSURE_PA)
+                output = max(float(frame.signals['OutputPressure']), _MIN_PRESSURE_PA)
+                try:
+                    self.stepper.set_pressures(supply, output)
+                except ValueError as err:   # the model refused: keep the last pressures
+                    logger.warning('emulator: pressures not applied: %s', err)
             elif name == CONTROL and self.config.accept_control_frames:
                 if self._control_counter.check(frame.counter) is CounterCheck.FROZEN:
                     return
@@ -244,7 +259,12 @@ class ControllerEmulator:
 
     def _apply_output(self) -> None:
         drive = self._enabled and not self._timed_out and not self._overcurrent
-        self.stepper.set_command(self._duty if drive else 0.0, self._pwm_hz)
+        try:
+            self.stepper.set_command(self._duty if drive else 0.0, self._pwm_hz)
+        except ValueError as err:   # the model refused the command: close the valve
+            self._flag_until['range'] = self._model_t + _FLAG_HOLD_S
+            logger.warning('emulator: command not applied (%s); valve closed', err)
+            self.stepper.set_command(0.0, self._pwm_hz if self._pwm_hz > 0 else 50.0)
 
     def inject(self, fault: EmulatorFault, active: bool = True, probability: float = 1.0,
                duration_s: float = 0.0) -> None:
@@ -378,6 +398,7 @@ class ControllerEmulator:
             self._apply_output()
             logger.warning('emulator: overcurrent %.3f A; output off until ClearFaults', current)
         position = float(s.spool_position_m) if self.config.position_estimate else 0.0
+        self._send_period(s)
         signals = {
             'CoilCurrent': _clamp(current, self._i_lo, self._i_hi),
             'CoilVoltage': _clamp(float(s.coil_voltage_v), self._v_lo, self._v_hi),
@@ -398,6 +419,20 @@ class ControllerEmulator:
         if faults.hits(EmulatorFault.UNKNOWN_ID):
             self._send(can.Message(arbitration_id=UNKNOWN_INJECTED_ID, data=bytes(8),
                                    is_extended_id=False, timestamp=time.time()))
+
+    def _send_period(self, s) -> None:
+        average = _clamp(float(s.position_avg_m), self._x_lo, self._x_hi)
+        duty = _clamp(float(s.duty), 0.0, 1.0)
+        freq = _clamp(float(s.pwm_frequency_hz), 0.0, self._f_hi)
+        key = (round(average / 1e-8), round(duty / 1e-4), round(freq / 0.1))
+        if key == self._period_sent and self._model_t - self._period_sent_t < _PERIOD_REFRESH_S:
+            return
+        msg = self.codec.encode(PERIOD, {'PositionAverage': average, 'DutyActive': duty,
+                                         'PwmFrequencyActive': freq},
+                                self._period_counter, timestamp=time.time())
+        self._period_counter = (self._period_counter + 1) & 0xF
+        if self._send(msg):
+            self._period_sent, self._period_sent_t = key, self._model_t
 
     def _send_status(self) -> None:
         if self._silent():

@@ -1,14 +1,14 @@
 """ROS-free CAN protocol of the valve controller: DBC file, cantools codec, checksums."""
-from valve_driver_pkg.protocol.codec import (CONTROL, COMMAND, PRESSURE, STATUS, TELEMETRY,
-                                             CounterCheck, CounterTracker, DecodedFrame,
-                                             EmulatorFault, RejectReason, ValveCodec, crc8,
-                                             default_dbc_path)
+from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, PERIOD, PRESSURE, STATUS,
+                                             TELEMETRY, CounterCheck, CounterTracker,
+                                             DecodedFrame, EmulatorFault, RejectReason,
+                                             ValveCodec, crc8, default_dbc_path)
 from valve_driver_pkg.protocol.error_frames import (BusCondition, ErrorFrameInfo,
                                                     make_error_frame, parse_error_frame)
 
 __all__ = [
-    'COMMAND', 'TELEMETRY', 'PRESSURE', 'STATUS', 'CONTROL', 'ValveCodec', 'DecodedFrame',
-    'RejectReason', 'CounterTracker', 'CounterCheck', 'EmulatorFault', 'crc8',
+    'COMMAND', 'TELEMETRY', 'PERIOD', 'PRESSURE', 'STATUS', 'CONTROL', 'ValveCodec',
+    'DecodedFrame', 'RejectReason', 'CounterTracker', 'CounterCheck', 'EmulatorFault', 'crc8',
     'default_dbc_path', 'BusCondition', 'ErrorFrameInfo', 'make_error_frame',
     'parse_error_frame',
 ]

@@ -29,17 +29,18 @@ from cantools.database.errors import EncodeError
 from valve_driver_pkg.errors import DbcError, FrameRejected, ProtocolEncodeError
 
 __all__ = [
-    'COMMAND', 'TELEMETRY', 'PRESSURE', 'STATUS', 'CONTROL', 'MESSAGE_NAMES', 'MAX_NODE_ID',
-    'FRAME_LENGTH', 'RejectReason', 'EmulatorFault', 'DecodedFrame', 'ValveCodec',
+    'COMMAND', 'TELEMETRY', 'PERIOD', 'PRESSURE', 'STATUS', 'CONTROL', 'MESSAGE_NAMES',
+    'MAX_NODE_ID', 'FRAME_LENGTH', 'RejectReason', 'EmulatorFault', 'DecodedFrame', 'ValveCodec',
     'CounterCheck', 'CounterTracker', 'crc8', 'default_dbc_path',
 ]
 
 COMMAND = 'ValveCommand'          # host -> controller, 100 Hz + on change
 TELEMETRY = 'ValveTelemetry'      # controller -> host, 1 kHz
+PERIOD = 'ValvePeriod'            # controller -> host, per PWM period / on change + 10 Hz
 PRESSURE = 'ValvePressure'        # host -> controller, 10 Hz + on change
 STATUS = 'ValveStatus'            # controller -> host, 10 Hz heartbeat
 CONTROL = 'EmulatorControl'       # tester -> emulator, fault injection (test/demo only)
-MESSAGE_NAMES = (COMMAND, TELEMETRY, PRESSURE, STATUS, CONTROL)
+MESSAGE_NAMES = (COMMAND, TELEMETRY, PERIOD, PRESSURE, STATUS, CONTROL)
 
 #: Highest node id: every message reserves 64 consecutive ids.
 MAX_NODE_ID = 63
