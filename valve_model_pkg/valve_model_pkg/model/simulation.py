@@ -14,6 +14,7 @@ import numpy as np
 from . import kernel as _k
 from .averaging import moving_average
 from .electronics import ElectronicsConfig
+from .mechanics import MODE_CLOSED, MODE_OPEN
 from .orifice import orifice_mass_flow
 from .parameters import PARAMETER_FIELDS, ParameterError, ValveParameters
 
@@ -270,21 +271,22 @@ def simulate_pwm(params: ValveParameters, electronics: ElectronicsConfig | None 
                 period, 'pwm')
 
 
-def step_metrics(result: SimulationResult, move_threshold_m: float = 1e-9) -> StepMetrics:
+def step_metrics(result: SimulationResult) -> StepMetrics:
     """Start of motion, end of stroke and the local current peak of a step response.
 
-    The stroke end is the first sample at the open stop (within 1e-9 relative); the peak is
-    the largest current sample between the start of motion and the stroke end.
+    The start of motion is the first sample at which the spool has left the closed stop
+    (mechanical mode, exact to one sample); the stroke end is the first sample on the open
+    stop; the peak is the largest current sample between the two.
     """
-    t, x, i = result.t_s, result.position_m, result.current_a
-    moving = np.nonzero(x > move_threshold_m)[0]
-    if len(moving) == 0:
+    t, i, mode = result.t_s, result.current_a, result.mode
+    left = np.nonzero(mode != MODE_CLOSED)[0]
+    if len(left) == 0:
         return StepMetrics(np.nan, np.nan, np.nan, np.nan, float(i[-1]))
-    k0 = int(moving[0])
-    at_open = np.nonzero(x >= result.params.stroke_m * (1.0 - 1e-9))[0]
+    k0 = int(left[0])
+    at_open = np.nonzero(mode[k0:] == MODE_OPEN)[0]
     if len(at_open) == 0:
         return StepMetrics(float(t[k0]), np.nan, np.nan, np.nan, float(i[-1]))
-    k1 = int(at_open[0])
+    k1 = k0 + int(at_open[0])
     kp = k0 + int(np.argmax(i[k0:k1 + 1]))
     return StepMetrics(float(t[k0]), float(t[k1]), float(i[kp]), float(t[kp]), float(i[-1]))
 
