@@ -313,8 +313,17 @@ class ControllerEmulator:
             self._send(make_error_frame(BusCondition.ERROR_ACTIVE, time.time()))
 
     # --- model time --------------------------------------------------------------------------
-    def step(self, t_s: float) -> int:
+    def step(self, t_s: float, max_burst: int = 0) -> int:
         """Advance the model to ``t_s`` and send every frame due up to then.
+
+        Parameters
+        ----------
+        t_s : float
+            Model time to reach [s].
+        max_burst : int
+            If more telemetry instants than this are due (a stall in real time), only the
+            last ``max_burst`` are sent; the skipped ones still advance the counter. 0 = send
+            all (deterministic stepping).
 
         Returns
         -------
@@ -325,9 +334,9 @@ class ControllerEmulator:
             instants = 0
             period = self._telemetry_period_s
             due = int((t_s + 1e-12) / period) + 1 - self._next_telemetry_k
-            if due > self.config.max_burst > 0:
+            if due > max_burst > 0:
                 # Stalled: skip to the latest instants; the counter shows the loss.
-                skip = due - self.config.max_burst
+                skip = due - max_burst
                 self._next_telemetry_k += skip
                 self._telemetry_counter = (self._telemetry_counter + skip) & 0xF
                 self.stats['overruns'] += skip
@@ -482,7 +491,7 @@ class ControllerEmulator:
             except can.CanError as err:
                 logger.error('emulator: bus receive failed (%s); stopping', err)
                 raise
-            self.step(now)
+            self.step(now, self.config.max_burst)
             # Wait for the next telemetry instant, handling commands as they come.
             next_t = self._next_telemetry_k * period
             remaining = next_t - (clock() - t0)

@@ -165,7 +165,7 @@ def make_stepper(args: argparse.Namespace):
     params = apply_effects(params, args.effect, args.effect_param)
     electronics = dataclasses.replace(ElectronicsConfig(),
                                       current_control=not args.no_current_control,
-                                      capacitor=not args.no_capacitor)
+                                      negative_voltage=not args.no_capacitor)
     active = params.active_effects() if hasattr(params, 'active_effects') else ()
     logger.info('valve model: %s; effects: %s', args.params_file or 'default parameters',
                 ', '.join(active) or 'none (the nominal model)')
