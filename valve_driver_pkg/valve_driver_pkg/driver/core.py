@@ -269,7 +269,8 @@ class CanDriverCore:
         self._rate_window = (time.monotonic(), 0)
         self._telemetry_rate_hz = 0.0
         self.counters: dict[str, int] = {
-            'telemetry_frames': 0, 'status_frames': 0, 'rejected_total': 0,
+            'telemetry_frames': 0, 'period_frames': 0, 'status_frames': 0, 'host_frames': 0,
+            'rejected_total': 0,
             **{f'rejected_{r.value}': 0 for r in RejectReason},
             'counter_jumps': 0, 'frames_lost': 0, 'other_node_frames': 0,
             'error_frames': 0, 'error_passive_events': 0, 'bus_off_events': 0,
@@ -470,7 +471,8 @@ class CanDriverCore:
             self.counters['other_node_frames'] += 1   # another valve on the same bus
             return
         if found is not None and found[0] in (COMMAND, PRESSURE, CONTROL):
-            return   # host/tester frames of our node (another host or a test tool)
+            self.counters['host_frames'] += 1   # another host or a test tool: not for us
+            return
         try:
             frame = self.codec.decode(msg)
         except FrameRejected as err:
@@ -488,6 +490,7 @@ class CanDriverCore:
             self._reject(RejectReason.COUNTER_FROZEN.value,
                          f'ValvePeriod counter stuck at {counter}')
             return
+        self.counters['period_frames'] += 1
         self._period = (float(signals['PositionAverage']), float(signals['DutyActive']),
                         float(signals['PwmFrequencyActive']), time.monotonic())
 
@@ -827,9 +830,11 @@ class CanDriverCore:
             frozen = self._frozen_run >= cfg.frozen_counter_limit
             why = (f'counter frozen at {self._telemetry_counter.last}' if frozen
                    else 'no valid ValveTelemetry')
+            detail = f'; recent rejections: {", ".join(rejected_recent)}' \
+                if rejected_recent else ''
             tel = StatusReport('telemetry', Level.ERROR,
                                f'telemetry stopped: {why} for {age * 1e3:.1f} ms '
-                               f'(limit {limit * 1e3:.2f} ms)')
+                               f'(limit {limit * 1e3:.2f} ms){detail}')
         elif self._frozen_run >= cfg.frozen_counter_limit:
             tel = StatusReport('telemetry', Level.ERROR,
                                f'counter frozen at {self._telemetry_counter.last}')

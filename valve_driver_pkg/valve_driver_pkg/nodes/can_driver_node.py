@@ -298,6 +298,10 @@ def _mass_flow_function(params_file: str):
 
 def main(args: list[str] | None = None) -> None:
     """Run the driver until Ctrl-C or an external shutdown."""
+    # A driver thread waiting for the GIL waits up to the switch interval (5 ms by default),
+    # longer than the 1 ms telemetry period the loss detection works with; 0.5 ms keeps the
+    # telemetry timeout (2.5 periods) honest.
+    sys.setswitchinterval(0.0005)
     rclpy.init(args=args)
     node = None
     code = 0

@@ -1,0 +1,405 @@
+"""The CAN driver core with the controller emulator on python-can's virtual bus.
+
+* equivalence: duty command -> frame -> emulator -> telemetry -> valve state equals what the
+  simulator computes (a ValveStepper fed the same commands) within the protocol's
+  quantisation (deterministic: the emulator's model time is stepped by the test);
+* each fault and its documented reaction (real time, emulator in a thread);
+* command clamping, the duty watchdog, lifecycle of the bus, recovery of a lost bus;
+* fuzz: random frames into the receive path; nothing escapes, every frame is counted.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+import sys
+import threading
+import time
+
+import can
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from valve_driver_pkg.canbus import TcpLoopbackBus, TcpLoopbackHub
+from valve_driver_pkg.driver import CanDriverCore, DriverConfig, Level, StateSample
+from valve_driver_pkg.emulator import ControllerEmulator, EmulatorConfig, EmulatorFault
+from valve_driver_pkg.errors import BusOpenError
+from valve_driver_pkg.protocol import COMMAND, ValveCodec
+from valve_model_pkg.model import (ElectronicsConfig, ValveStepper, load_parameters,
+                                   orifice_mass_flow)
+
+PARAMS = load_parameters()
+PERIOD_S = 0.001
+_channels = itertools.count()
+
+
+def mass_flow(x: float, supply: float, output: float) -> float:
+    return float(orifice_mass_flow(x, supply, output, PARAMS))
+
+
+def wait_for(predicate, timeout: float = 2.0, what: str = 'condition') -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f'timed out waiting for {what}')
+        time.sleep(0.002)
+
+
+@pytest.fixture(autouse=True)
+def no_open_virtual_channels():
+    """Every test closes the virtual buses it opened; GIL hand-off as in the programs."""
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(0.0005)   # what valve_can_driver and the emulator set (README)
+    yield
+    sys.setswitchinterval(interval)
+    from can.interfaces import virtual
+    assert not virtual.channels, f'virtual channels left open: {list(virtual.channels)}'
+
+
+class LiveRig:
+    """Driver core + emulator running in real time on a private virtual channel."""
+
+    def __init__(self, emulator: dict | None = None, **driver) -> None:
+        self.channel = f'core_test_{next(_channels)}'
+        self.emu_bus = can.Bus(interface='virtual', channel=self.channel)
+        self.emu = ControllerEmulator(self.emu_bus, ValveStepper(PARAMS, ElectronicsConfig()),
+                                      EmulatorConfig(**(emulator or {})), fault_seed=3)
+        self.states: list[StateSample] = []
+        self.level_changes: list[tuple[float, dict]] = []
+        driver.setdefault('command_timeout_s', 0.0)
+        self.core = CanDriverCore(DriverConfig(interface='virtual', channel=self.channel,
+                                               **driver),
+                                  mass_flow=mass_flow, on_state=self.states.append,
+                                  on_diagnostics_changed=self._on_diag)
+        self.emu.start()
+        self.core.open()
+        self.core.activate()
+        wait_for(lambda: self.level('telemetry') is Level.OK, what='telemetry OK')
+
+    def _on_diag(self) -> None:
+        self.level_changes.append((time.monotonic(), self.levels()))
+
+    def levels(self) -> dict:
+        return {r.name: r.level for r in self.core.report()}
+
+    def level(self, name: str) -> Level:
+        return self.levels()[name]
+
+    def status(self, name: str):
+        return next(r for r in self.core.report() if r.name == name)
+
+    def close(self) -> None:
+        self.core.close()
+        self.emu.stop()
+        self.emu_bus.shutdown()
+
+
+@pytest.fixture
+def live():
+    rig = LiveRig()
+    yield rig
+    rig.close()
+
+
+# --- equivalence with the simulator ------------------------------------------------------------
+def test_valve_state_matches_the_simulator_within_quantisation() -> None:
+    channel = f'core_test_{next(_channels)}'
+    emu_bus = can.Bus(interface='virtual', channel=channel)
+    emu = ControllerEmulator(emu_bus, ValveStepper(PARAMS, ElectronicsConfig()),
+                             EmulatorConfig(command_timeout_s=0.0))
+    reference = ValveStepper(PARAMS, ElectronicsConfig())   # what valve_simulator runs
+    reference.set_pressures(400_000.0, 0.0)
+    states: list[StateSample] = []
+    arrived = threading.Condition()
+
+    def on_state(sample: StateSample) -> None:
+        with arrived:
+            states.append(sample)
+            arrived.notify()
+
+    core = CanDriverCore(DriverConfig(interface='virtual', channel=channel,
+                                      command_timeout_s=0.0),
+                         mass_flow=mass_flow, on_state=on_state)
+    core.open()
+    core.activate()
+    expected = []
+    k = 0
+    try:
+        for duty, freq, duration_s in [(0.25, 50.0, 0.1), (0.5, 50.0, 0.1), (0.75, 100.0, 0.08),
+                                       (0.3333, 40.0, 0.1), (0.0, 50.0, 0.05)]:
+            core.set_command(duty, freq)
+            deadline = time.monotonic() + 2.0
+            while not (emu._enabled and emu._duty == pytest.approx(duty, abs=1e-9)
+                       and emu._pwm_hz == pytest.approx(freq)):
+                assert time.monotonic() < deadline, 'command frame did not arrive'
+                emu.poll(0.01)
+            reference.set_command(duty, freq)
+            for _ in range(round(duration_s / PERIOD_S)):
+                t = k * PERIOD_S
+                emu.step(t)
+                reference.advance_to(t)
+                expected.append(reference.sample())
+                k += 1
+                with arrived:
+                    assert arrived.wait_for(lambda: len(states) >= len(expected), 2.0)
+                emu.poll(0.0)
+    finally:
+        core.close()
+        emu_bus.shutdown()
+    assert len(states) == len(expected) == 430
+    # Quantisation of the protocol (DBC scale / 2) plus float rounding.
+    tolerances = {'coil_current_a': 1e-4 + 1e-9, 'coil_voltage_v': 0.005 + 1e-9,
+                  'spool_position_m': 5e-9 + 1e-13, 'position_avg_m': 5e-9 + 1e-13,
+                  'duty': 5e-5, 'pwm_frequency_hz': 0.05, 'supply_pressure_pa': 25.0,
+                  'output_pressure_pa': 25.0,
+                  'mass_flow_kg_s': mass_flow(5e-9, 400_000.0, 0.0) + 1e-12}
+    for field, tol in tolerances.items():
+        ref_field = 'mass_flow_kg_s' if field == 'mass_flow_kg_s' else field
+        worst = max(abs(getattr(s, field) - getattr(r, ref_field))
+                    for s, r in zip(states, expected))
+        assert worst <= tol, f'{field}: worst difference {worst!r} > {tol!r}'
+    assert all(s.position_measured for s in states)
+    assert max(s.coil_current_a for s in states) > 0.5      # the valve really switched
+
+
+# --- faults and reactions ------------------------------------------------------------------------
+def test_telemetry_stop_is_an_error_within_three_periods_and_recovers(live) -> None:
+    live.emu.inject(EmulatorFault.SILENT, duration_s=0.1)
+    wait_for(lambda: live.level('telemetry') is Level.ERROR, what='telemetry ERROR')
+    values = live.status('telemetry').values
+    # ERROR within 3 periods of the first missing frame (due 1 period after the last one).
+    assert values['lost_after_s'] <= 4 * PERIOD_S, values['lost_after_s']
+    assert 'telemetry stopped' in live.status('telemetry').message
+    wait_for(lambda: live.level('telemetry') is not Level.ERROR, 1.0, 'telemetry back')
+    count = len(live.states)
+    wait_for(lambda: len(live.states) > count + 20, what='states flowing again')
+
+
+def test_counter_jumps_are_counted(live) -> None:
+    live.emu.inject(EmulatorFault.DROP_TELEMETRY, probability=0.2, duration_s=0.2)
+    wait_for(lambda: live.core.counters['frames_lost'] > 10, what='lost frames')
+    assert live.core.counters['counter_jumps'] > 5
+    wait_for(lambda: live.level('telemetry') is Level.WARN, what='WARN')
+    assert 'counter jumps' in live.status('telemetry').message
+
+
+def test_checksum_failures_are_rejected_and_counted(live) -> None:
+    live.emu.inject(EmulatorFault.CORRUPT_CHECKSUM, probability=0.3, duration_s=0.2)
+    wait_for(lambda: live.core.counters['rejected_checksum'] > 10, what='checksum rejects')
+    status = live.status('telemetry')
+    assert status.level >= Level.WARN and 'checksum' in status.message
+    assert status.values['rejected_total'] >= status.values['rejected_checksum']
+
+
+def test_frozen_counter_is_an_error(live) -> None:
+    live.emu.inject(EmulatorFault.FREEZE_COUNTER)
+    wait_for(lambda: live.level('telemetry') is Level.ERROR, what='ERROR')
+    assert live.core.counters['rejected_counter_frozen'] >= 3
+    wait_for(lambda: 'frozen' in live.status('telemetry').message, what='frozen message')
+    live.emu.inject(EmulatorFault.FREEZE_COUNTER, active=False)
+    wait_for(lambda: live.level('telemetry') is not Level.ERROR, what='recovery')
+
+
+def test_wrong_lengths_and_unknown_ids_are_rejected_and_counted(live) -> None:
+    live.emu.inject(EmulatorFault.WRONG_LENGTH, probability=0.2, duration_s=0.1)
+    live.emu.inject(EmulatorFault.UNKNOWN_ID, probability=0.5, duration_s=0.1)
+    wait_for(lambda: live.core.counters['rejected_wrong_length'] > 5
+             and live.core.counters['rejected_unknown_id'] > 5, what='rejections')
+    assert live.level('CAN bus') is Level.WARN
+    assert live.status('telemetry').values['rejected_wrong_length'] > 5
+
+
+def test_error_passive_is_a_warning_until_error_active(live) -> None:
+    live.emu.inject(EmulatorFault.ERROR_PASSIVE)
+    wait_for(lambda: live.level('CAN bus') is Level.WARN, what='WARN')
+    assert 'error passive' in live.status('CAN bus').message
+    live.emu.inject(EmulatorFault.ERROR_PASSIVE, active=False)
+    wait_for(lambda: live.status('CAN bus').values['condition'] == 'error_active',
+             what='error active')
+    assert live.core.counters['error_passive_events'] == 1
+
+
+def test_bus_off_is_an_error_and_the_driver_recovers(live) -> None:
+    live.emu.inject(EmulatorFault.BUS_OFF, duration_s=0.15)
+    wait_for(lambda: live.level('CAN bus') is Level.ERROR, what='bus ERROR')
+    assert 'bus-off' in live.status('CAN bus').message
+    wait_for(lambda: live.level('CAN bus') is Level.OK, 1.0, what='bus OK')
+    wait_for(lambda: live.level('telemetry') is not Level.ERROR, what='telemetry back')
+    assert live.core.counters['bus_off_events'] == 1
+    assert live.core.counters['bus_recoveries'] >= 1
+
+
+def test_controller_fault_is_reported() -> None:
+    rig = LiveRig()
+    try:
+        rig.core.set_command(0.5, 50.0)
+        rig.emu.inject(EmulatorFault.OVERCURRENT)
+        wait_for(lambda: rig.level('controller') is Level.ERROR, what='controller ERROR')
+        assert 'Overcurrent' in rig.status('controller').message
+    finally:
+        rig.close()
+
+
+# --- commands ------------------------------------------------------------------------------------
+@pytest.mark.parametrize('duty, freq, accepted, sent, clamped', [
+    (0.5, 50.0, True, (0.5, 50.0), False),
+    (1.5, 50.0, True, (1.0, 50.0), True),
+    (-0.2, 50.0, True, (0.0, 50.0), True),
+    (0.5, 5000.0, True, (0.5, 1000.0), True),
+    (0.5, 0.01, True, (0.5, 0.1), True),
+    (0.5, 0.0, True, (0.5, 50.0), False),           # 0 keeps the frequency in force
+    (math.nan, 50.0, False, (0.0, 50.0), False),
+    (math.inf, 50.0, False, (0.0, 50.0), False),
+    (0.5, -10.0, False, (0.0, 50.0), False),
+    (0.5, math.nan, False, (0.0, 50.0), False),
+])
+def test_commands_are_clamped_or_rejected_never_sent_raw(live, duty, freq, accepted, sent,
+                                                         clamped) -> None:
+    result = live.core.set_command(duty, freq)
+    assert (result.accepted, result.clamped) == (accepted, clamped)
+    assert live.core.command == pytest.approx(sent)
+    wait_for(lambda: (live.emu._duty, live.emu._pwm_hz) == pytest.approx(sent),
+             what='command at the controller')
+    counters = live.core.counters
+    assert counters['commands_clamped'] == int(clamped)
+    assert counters['commands_rejected'] == int(not accepted)
+    if clamped or not accepted:
+        assert live.level('commands') is Level.WARN
+        assert 'clamped' in result.message or 'rejected' in result.message
+
+
+def test_watchdog_commands_duty_zero() -> None:
+    rig = LiveRig(command_timeout_s=0.1)
+    try:
+        rig.core.set_command(0.6, 50.0)
+        wait_for(lambda: rig.emu._duty == pytest.approx(0.6), what='duty at controller')
+        wait_for(lambda: rig.level('commands') is Level.WARN, 1.0, 'watchdog')
+        assert rig.core.command == (0.0, 50.0)
+        assert 'watchdog' in rig.status('commands').message
+        wait_for(lambda: rig.emu._duty == 0.0, what='duty 0 at the controller')
+        assert rig.core.counters['watchdog_trips'] == 1
+        rig.core.set_command(0.4, 50.0)                  # a new command releases it
+        wait_for(lambda: rig.emu._duty == pytest.approx(0.4), what='released')
+    finally:
+        rig.close()
+
+
+def test_deactivate_commands_duty_zero_and_disables(live) -> None:
+    live.core.set_command(0.7, 50.0)
+    wait_for(lambda: live.emu._duty == pytest.approx(0.7), what='duty at controller')
+    assert live.core.deactivate()
+    wait_for(lambda: live.emu._duty == 0.0 and not live.emu._enabled, what='disabled')
+    sent = live.core.counters['command_frames_sent']
+    time.sleep(0.05)
+    assert live.core.counters['command_frames_sent'] == sent      # traffic stopped
+    count = len(live.states)
+    time.sleep(0.02)
+    assert len(live.states) == count                               # no states while inactive
+
+
+def test_pressures_reach_the_controller(live) -> None:
+    assert live.core.set_pressures(250_000.0, 30_000.0)
+    assert not live.core.set_pressures(math.nan, None)
+    wait_for(lambda: live.emu.stepper.sample().supply_pressure_pa == 250_000.0,
+             what='pressure at the controller')
+    wait_for(lambda: live.states[-1].supply_pressure_pa == 250_000.0, what='state pressure')
+    assert live.states[-1].output_pressure_pa == 30_000.0
+
+
+# --- bus lifecycle -------------------------------------------------------------------------------
+def test_close_is_idempotent_and_open_failure_is_clean() -> None:
+    core = CanDriverCore(DriverConfig(interface='tcp_loopback', channel='127.0.0.1:1',
+                                      open_timeout_s=0.1))
+    with pytest.raises(BusOpenError, match='tcp_loopback:127.0.0.1:1'):
+        core.open()
+    assert not core.is_open
+    core.close()
+    core.close()
+    core = CanDriverCore(DriverConfig(interface='virtual', channel='core_close'))
+    core.open()
+    core.close()
+    core.close()
+    assert [r.level for r in core.report()] == [Level.STALE] * 4
+
+
+def test_driver_reopens_a_lost_bus_and_recovers() -> None:
+    hub = TcpLoopbackHub('127.0.0.1:0').start()
+    port = hub.port
+    emu_bus = TcpLoopbackBus(hub.channel)
+    emu = ControllerEmulator(emu_bus, ValveStepper(PARAMS, ElectronicsConfig()),
+                             EmulatorConfig(command_timeout_s=0.0)).start()
+    states: list = []
+    core = CanDriverCore(DriverConfig(interface='tcp_loopback', channel=hub.channel,
+                                      reopen_period_s=0.05, command_timeout_s=0.0),
+                         on_state=states.append)
+    try:
+        core.open()
+        core.activate()
+        wait_for(lambda: len(states) > 50, what='states')
+        emu.stop()
+        emu_bus.shutdown()
+        hub.close()                                          # the bus goes away
+        wait_for(lambda: core.report()[0].level is Level.ERROR, what='bus ERROR')
+        assert 'bus failed' in core.report()[0].message
+        hub = TcpLoopbackHub(f'127.0.0.1:{port}').start()   # ... and comes back
+        emu_bus = TcpLoopbackBus(hub.channel)
+        emu = ControllerEmulator(emu_bus, ValveStepper(PARAMS, ElectronicsConfig()),
+                                 EmulatorConfig(command_timeout_s=0.0)).start()
+        count = len(states)
+        wait_for(lambda: len(states) > count + 50, 3.0, 'states after the bus returned')
+        assert core.report()[0].level is Level.OK
+        assert core.counters['bus_reopens'] >= 1 and core.counters['bus_failures'] == 1
+    finally:
+        core.close()
+        emu.stop()
+        emu_bus.shutdown()
+        hub.close()
+
+
+# --- fuzz ----------------------------------------------------------------------------------------
+_CLASSIFIED = ('telemetry_frames', 'period_frames', 'status_frames', 'host_frames',
+               'rejected_total', 'other_node_frames', 'error_frames')
+_fuzz_codec = ValveCodec(0)
+
+
+def _maybe_valid(data: bytes, arbitration_id: int) -> bytes:
+    """Half the frames get a correct checksum, so the decoder's deeper checks are reached."""
+    if len(data) == 8 and data[0] & 1:
+        from valve_driver_pkg.protocol.codec import frame_checksum
+        data = data[:7] + bytes([frame_checksum(arbitration_id, data)])
+    return data
+
+
+fuzz_frames = st.builds(
+    lambda arbitration_id, data, ext, remote, error, fd: can.Message(
+        arbitration_id=arbitration_id, data=_maybe_valid(data, arbitration_id),
+        is_extended_id=ext, is_remote_frame=remote and not error and not fd,
+        is_error_frame=error, is_fd=fd, check=False),
+    arbitration_id=st.one_of(st.sampled_from([0x100, 0x140, 0x141, 0x180, 0x300, 0x700,
+                                              0x7C0, 0x040, 0x004, 0x100 | 0x40]),
+                             st.integers(0, 0x7FF)),
+    data=st.one_of(st.binary(min_size=8, max_size=8), st.binary(max_size=64)),
+    ext=st.booleans(), remote=st.booleans(), error=st.integers(0, 9).map(lambda n: n == 0),
+    fd=st.integers(0, 9).map(lambda n: n == 0))
+
+
+@pytest.fixture(scope='module')
+def fuzz_core():
+    core = CanDriverCore(DriverConfig(interface='virtual', channel='core_fuzz'),
+                         mass_flow=mass_flow, on_state=lambda s: None)
+    core._active = True   # states are built and handed on (no bus traffic needed)
+    yield core
+
+
+@settings(max_examples=600, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(fuzz_frames, min_size=1, max_size=20))
+def test_fuzz_receive_path_never_raises_and_counts_every_frame(fuzz_core, frames) -> None:
+    before = sum(fuzz_core.counters[k] for k in _CLASSIFIED)
+    for msg in frames:
+        fuzz_core._on_frame(msg)          # raises into the test if anything escapes
+    after = sum(fuzz_core.counters[k] for k in _CLASSIFIED)
+    assert after - before == len(frames)
+    assert fuzz_core.counters['internal_errors'] == 0
+    for report in fuzz_core.report():
+        assert report.level in tuple(Level)
