@@ -15,7 +15,7 @@ from valve_model_pkg.model import (
 )
 from valve_model_pkg.model import kernel as K
 from valve_model_pkg.model.magnetics import MU_0, inductance, magnetic_force
-from valve_model_pkg.model.mechanics import MODE_CLOSED, MODE_FREE, MODE_OPEN, MODE_STUCK
+from valve_model_pkg.model.mechanics import MODE_CLOSED, MODE_FREE, MODE_STUCK
 
 P = ValveParameters()
 L0 = float(inductance(P, 0.0))

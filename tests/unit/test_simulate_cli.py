@@ -74,7 +74,7 @@ def test_pwm_writes_duty_and_mass_flow(tmp_path: Path) -> None:
     assert meta['experiment'] == 'pwm' and float(meta['pwm_frequency_hz']) == 50.0
     assert np.all(data[:, 4] == 0.4)
     assert data[:, 5].max() > 0.0 and data[:, 5].min() >= 0.0
-    t, i, x = data[:, 0], data[:, 2], data[:, 3]
+    t, i = data[:, 0], data[:, 2]
     hold = (t > 0.046) & (t < 0.048)
     np.testing.assert_allclose(i[hold], 0.5, rtol=0.05)
     assert data[:, 1].min() < -20.0  # the capacitor pulse

@@ -18,10 +18,9 @@ obeys tau_th d(dT)/dt = R_th P - dT with the copper loss P = R i^2.
 """
 from __future__ import annotations
 
-import numpy as np
 from numba import njit
 
-from .magnetics import _flux_partials, _inductance, _inductance_slope, _coefficients
+from .magnetics import _coefficients, _flux_partials, _inductance, _inductance_slope
 from .parameters import ValveParameters
 
 __all__ = ['COPPER_ALPHA_PER_K', 'coil_resistance', 'current_derivative']
@@ -89,7 +88,3 @@ def current_derivative(params: ValveParameters, voltage_v: float, current_a: flo
                                   params.eddy_conductance_s, params.leakage_inductance_h,
                                   params.saturation_coefficient_per_a)
     return float(di), float(i_t)
-
-
-# keep numpy imported for type checkers that resolve the annotations above
-_ = np
