@@ -26,6 +26,12 @@ chopper), which make adaptive controllers reject and shrink steps at every edge;
 on them with a fixed-step RK4 is cheaper and has no tolerance tuning. The convergence test
 (halving both step sizes) checks the result.
 
+Compilation: every function is ``njit(cache=True)``; the machine code is cached in
+``__pycache__`` next to this file, so only the first process on a machine compiles
+(about 13 s for everything incl. the parallel batches); later processes load it in about
+1 s. The ``D_*``/``P_*``/``O_*`` layouts below are also used by
+``identification/model_adapter.py``: change them together.
+
 Data layout (all float64 arrays so the compiled code caches and runs in ``prange``):
 ``p`` derived parameters (``_derive``), ``e`` electronics (``electronics.E_*``), ``y``
 the continuous state ``[i_m, x, x_dot, dT, q]`` (q = integral of x, for period averages),
