@@ -188,8 +188,8 @@ def test_telemetry_stop_is_an_error_within_three_periods_and_recovers(live) -> N
 
 def test_counter_jumps_are_counted(live) -> None:
     live.emu.inject(EmulatorFault.DROP_TELEMETRY, probability=0.2, duration_s=0.2)
-    wait_for(lambda: live.core.counters['frames_lost'] > 10, what='lost frames')
-    assert live.core.counters['counter_jumps'] > 5
+    wait_for(lambda: live.core.counters['counter_jumps'] > 5, what='counter jumps')
+    assert live.core.counters['frames_lost'] >= live.core.counters['counter_jumps']
     wait_for(lambda: live.level('telemetry') is Level.WARN, what='WARN')
     assert 'counter jumps' in live.status('telemetry').message
 
