@@ -138,8 +138,11 @@ class BagWriter:
         self.fsync = bool(fsync)
         self.compression = compression
         self._clock = clock
-        self._writer = _Rosbag2Writer(self.path, version=BAG_VERSION,
-                                      storage_plugin=StoragePlugin.MCAP)
+        try:
+            self._writer = _Rosbag2Writer(self.path, version=BAG_VERSION,
+                                          storage_plugin=StoragePlugin.MCAP)
+        except WriterError as err:
+            raise BagWriteError(f'cannot create bag {self.path}: {err}') from err
         if compression == 'zstd':
             self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         for key, value in (custom_data or {}).items():
