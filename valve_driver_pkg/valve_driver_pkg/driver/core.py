@@ -56,6 +56,9 @@ __all__ = ['DriverConfig', 'CanDriverCore', 'StateSample', 'CommandResult', 'Lev
 
 logger = logging.getLogger(__name__)
 
+#: Telemetry losses are logged at most this often (the diagnostics count every one) [s].
+_LOG_INTERVAL_S = 5.0
+
 #: ``f(position_avg_m, supply_pa, output_pa) -> kg/s`` (gauge pressures).
 MassFlowFunction = Callable[[float, float, float], float]
 
@@ -253,6 +256,8 @@ class CanDriverCore:
         self._open_mono = 0.0
         self._telemetry_lost = True
         self._lost_after_s = 0.0
+        self._last_loss_log = -math.inf
+        self._losses_logged = 0
         self._last_sample_t = 0.0
         self._last_position: float | None = None
         self._averager = PeriodAverager(1.0 / self._pwm_hz)
@@ -562,7 +567,8 @@ class CanDriverCore:
             self.counters['bus_recoveries'] += 1
         if was_lost:
             self._telemetry_lost = False
-            logger.info('telemetry is back')
+            if self._losses_logged == self.counters['telemetry_losses']:
+                logger.info('telemetry is back')   # only after a loss that was logged
             self._check_levels()
         t = self._last_sample_t + steps * period
         self._last_sample_t = t
@@ -683,8 +689,14 @@ class CanDriverCore:
             self._telemetry_lost = True
             self._lost_after_s = now - reference
             self.counters['telemetry_losses'] += 1
-            logger.error('telemetry lost: no valid ValveTelemetry for %.2f ms (limit %.2f ms)',
-                         self._lost_after_s * 1e3, timeout * 1e3)
+            if now - self._last_loss_log >= _LOG_INTERVAL_S:
+                suppressed = self.counters['telemetry_losses'] - self._losses_logged - 1
+                logger.error('telemetry lost: no valid ValveTelemetry for %.2f ms (limit %.2f '
+                             'ms)%s', self._lost_after_s * 1e3, timeout * 1e3,
+                             f'; {suppressed} more losses since the last message'
+                             if suppressed > 0 else '')
+                self._last_loss_log = now
+                self._losses_logged = self.counters['telemetry_losses']
             self._check_levels()
 
     def _check_watchdog(self, now: float) -> None:
