@@ -88,7 +88,7 @@ class ValveSimulatorNode(Node):
         path = params_file or str(default_parameters_path())
         self._params = load_parameters(path)  # refuses a bad file with the field and value
         electronics = dataclasses.replace(ElectronicsConfig(), current_control=current_control,
-                                          capacitor=capacitor)
+                                          negative_voltage=capacitor)
         self._stepper = ValveStepper(self._params, electronics, supply_voltage_v=supply_voltage)
         self._stepper.set_command(duty, pwm_hz)
         self._stepper.set_pressures(supply_pa, output_pa)
@@ -106,6 +106,8 @@ class ValveSimulatorNode(Node):
         self._t0: Time | None = None          # ROS time at model time 0
         self._last_now_ns: int | None = None
         self._last_tick_wall: float | None = None
+        self._next_sample = 0             # index of the next sample-grid instant
+        self._late_samples = 0            # samples published by a tick after their time
         self._sequence = 0
         self._ticks = 0
         self._behind_ticks = 0
@@ -171,6 +173,13 @@ class ValveSimulatorNode(Node):
 
     # --- real-time loop -------------------------------------------------------------------
     def _on_tick(self) -> None:
+        """Advance the model to the clock, publishing every sample-grid instant passed.
+
+        States are published on an exact grid of model time (one per 1/publish_rate_hz),
+        stamped with the ROS time of that instant. A tick that comes late publishes the
+        grid points it missed, so the stream stays complete and evenly stamped even when
+        the executor is held up; the late tick itself is reported in diagnostics.
+        """
         wall_start = time.monotonic()
         now = self.get_clock().now()
         now_ns = now.nanoseconds
@@ -181,6 +190,7 @@ class ValveSimulatorNode(Node):
                 self.get_logger().warning('clock went backwards; restarting the model')
                 self._stepper.reset()
             self._t0 = now
+            self._next_sample = 0
         self._last_now_ns = now_ns
         target_s = (now - self._t0).nanoseconds * 1e-9
 
@@ -192,27 +202,37 @@ class ValveSimulatorNode(Node):
                                       f'(period {self._period_s * 1e3:.3g} ms)')
         self._last_tick_wall = wall_start
 
-        lag = target_s - self._stepper.sample().t_s
+        lag = target_s - self._next_sample * self._period_s
         if lag > self._max_advance_s:
-            # Bound the work of this callback: integrate max_advance, skip the rest.
-            self._stepper.advance_to(self._stepper.sample().t_s + self._max_advance_s)
-            skipped = target_s - self._stepper.sample().t_s
+            # Bound the work of this callback: skip the grid points beyond max_advance and
+            # move the model on to the clock without integrating the gap.
+            skip = int((lag - self._max_advance_s) / self._period_s) + 1
+            skipped = skip * self._period_s
             self._skipped_model_s += skipped
-            # Model time runs on from here: ROS time t0 + skipped maps to the model's now.
             self._t0 = Time(nanoseconds=self._t0.nanoseconds + int(round(skipped * 1e9)),
                             clock_type=self._t0.clock_type)
+            target_s -= skipped
             behind_reasons.append(f'model {lag * 1e3:.1f} ms behind the clock; '
                                   f'{skipped * 1e3:.1f} ms skipped without integration')
-        elif lag > 0.0:
-            self._stepper.advance_to(target_s)
+        published = 0
+        while self._next_sample * self._period_s <= target_s + 1e-12:
+            t_sample = self._next_sample * self._period_s
+            self._stepper.advance_to(t_sample)
+            stamp = Time(nanoseconds=self._t0.nanoseconds + int(round(t_sample * 1e9)),
+                         clock_type=self._t0.clock_type)
+            self._publish_state(stamp)
+            self._next_sample += 1
+            published += 1
+        if published > 1:
+            self._late_samples += published - 1
 
-        self._publish_state(now)
         compute = time.monotonic() - wall_start
         self._max_tick_compute_s = max(self._max_tick_compute_s, compute)
-        if compute > self._period_s:
-            behind_reasons.append(f'tick took {compute * 1e3:.2f} ms, longer than the period')
+        if compute > self._period_s * max(1, published):
+            behind_reasons.append(f'tick took {compute * 1e3:.2f} ms for {published} '
+                                  'sample(s), longer than their period')
         self._ticks += 1
-        self._window_ticks += 1
+        self._window_ticks += published
         if behind_reasons:
             self._behind_ticks += 1
             self._last_behind_reason = '; '.join(behind_reasons)
@@ -260,8 +280,10 @@ class ValveSimulatorNode(Node):
                                   message=text, hardware_id=self._frame_id)
         status.values = key_values(
             ticks=self._ticks, ticks_behind=self._behind_ticks,
+            late_samples=self._late_samples,
             skipped_model_time_s=self._skipped_model_s,
             achieved_rate_hz=self._achieved_rate_hz, target_rate_hz=self._rate_hz,
+            samples_published=self._sequence,
             max_tick_compute_s=self._max_tick_compute_s,
             rejected_commands=self._rejected_commands,
             last_rejection=self._last_reject_reason, model_time_s=s.t_s,
