@@ -1,0 +1,187 @@
+"""valve_recorder as its own process: no loss at 1 kHz, SIGINT/SIGTERM close, SIGKILL recovery."""
+from __future__ import annotations
+
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import MessageDefinitionFormat, QosReliability
+
+from valve_model_pkg.nodes import common
+from valve_model_pkg.nodes.probe import StateProbe
+from valve_model_pkg.recording import SUITE_TOPICS, load_bag, sequence_gaps
+
+pytestmark = pytest.mark.node
+
+STATE = '/valve/state'
+DUTY = '/valve/duty_command'
+RECORDER_STATUS = 'valve_recorder: bag writer'
+
+
+class RecorderDiagnostics:
+    """The latest key/values of the recorder's diagnostics, seen from the test process."""
+
+    def __init__(self, node) -> None:  # noqa: ANN001 - an rclpy node
+        self.values: dict[str, str] = {}
+        node.create_subscription(DiagnosticArray, common.TOPIC_DIAGNOSTICS, self._on, 50)
+
+    def _on(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name == RECORDER_STATUS:
+                self.values = {kv.key: kv.value for kv in status.values}
+
+    def count(self, key: str) -> int:
+        return int(self.values.get(key, '0'))
+
+
+def _log(proc) -> str:  # noqa: ANN001 - a NodeProcess, also after stop()
+    return proc.log_path.read_text(errors='replace')
+
+
+def _start_recorder(start_node, bag: Path, *params: str):
+    args = []
+    for p in ('flush_period_s:=0.5', 'diagnostics_period_s:=0.2') + params:
+        args += ['-p', p]
+    return start_node('valve_recorder', '-o', str(bag), '--ros-args', *args)
+
+
+def _start_and_match(start_node, ros, bag: Path, *params: str):
+    """valve_simulator at 1 kHz and the recorder, both matched with the test's probe."""
+    sim = start_node('valve_simulator', '--ros-args', '-p', 'publish_rate_hz:=1000.0')
+    rec = _start_recorder(start_node, bag, *params)
+    probe = ros.add(StateProbe('test_probe'))
+    diag = RecorderDiagnostics(probe)
+    ros.wait_for(lambda: probe.count > 10, 30.0, 'valve/state from the simulator')
+    ros.wait_for(lambda: diag.count(f'count {STATE}') > 10, 30.0,
+                 f'the recorder receiving valve/state\n{rec.output[-2000:]}')
+    # the command publisher matched with the simulator and the recorder (DDS-level count)
+    ros.wait_for(lambda: probe._cmd_pub.get_subscription_count() >= 2, 30.0,
+                 'the duty command subscriptions of simulator and recorder')
+    return sim, rec, probe, diag
+
+
+def _state_and_duties(bag: Path) -> tuple[np.ndarray, np.ndarray, list[float], dict]:
+    with AnyReader([bag]) as reader:  # types from the definitions embedded in the bag only
+        conns = {c.topic: c for c in reader.connections}
+        seq, stamps, duties = [], [], []
+        wanted = [conns[t] for t in (STATE, DUTY) if t in conns]
+        for conn, _, raw in reader.messages(connections=wanted):
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == STATE:
+                seq.append(msg.sequence)
+                stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+            else:
+                duties.append(msg.duty)
+    return np.array(seq), np.array(stamps, dtype=np.int64), duties, conns
+
+
+def test_suite_topic_table_matches_the_nodes_contract() -> None:
+    contract = {
+        common.TOPIC_STATE: 'valve_msgs/msg/ValveState',
+        common.TOPIC_DUTY_COMMAND: 'valve_msgs/msg/DutyCommand',
+        common.TOPIC_FLOW_COMMAND: 'valve_msgs/msg/FlowCommand',
+        common.TOPIC_SUPPLY_PRESSURE: 'sensor_msgs/msg/FluidPressure',
+        common.TOPIC_OUTPUT_PRESSURE: 'sensor_msgs/msg/FluidPressure',
+        common.TOPIC_FLOW_STATUS: 'valve_msgs/msg/FlowToDutyStatus',
+        common.TOPIC_DIAGNOSTICS: 'diagnostic_msgs/msg/DiagnosticArray',
+    }
+    for topic, msgtype in contract.items():
+        assert SUITE_TOPICS[topic] == msgtype, topic
+
+
+def test_records_1khz_state_and_every_command_without_loss(start_node, ros, tmp_path):
+    bag = tmp_path / 'bag'
+    sim, rec, probe, _ = _start_and_match(start_node, ros, bag)
+    sent = []
+    for i in range(30):  # 3 s of 10 Hz duty commands while the state runs at 1 kHz
+        duty = round(0.1 + 0.02 * i, 3)
+        probe.command(duty, 50.0)
+        sent.append(duty)
+        ros.spin_for(0.1)
+    ros.spin_for(0.5)
+    assert rec.stop() == 0, _log(rec)[-3000:]
+    assert sim.alive()
+
+    assert (bag / 'metadata.yaml').is_file()
+    seq, stamps, duties, conns = _state_and_duties(bag)
+    # every state message from the first recorded to the last, none lost
+    assert len(seq) > 2500, _log(rec)[-2000:]
+    assert np.all(np.diff(seq) == 1), f'sequence gaps: {sequence_gaps(seq)}'
+    assert len(seq) == seq[-1] - seq[0] + 1
+    steps = np.diff(stamps)
+    assert np.all(steps > 0)
+    assert np.median(steps) == pytest.approx(1_000_000, rel=0.1)
+    # every command, in order
+    assert duties == pytest.approx(sent)
+    # what ros2 bag play and Foxglove need
+    state = conns[STATE]
+    assert state.msgdef.format == MessageDefinitionFormat.MSG
+    assert state.ext.offered_qos_profiles[0].reliability == QosReliability.RELIABLE
+    assert conns[DUTY].ext.offered_qos_profiles[0].reliability == QosReliability.RELIABLE
+    meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert meta['version'] == 9 and meta['storage_identifier'] == 'mcap'
+    # the numpy loader sees the same
+    data = load_bag(bag, topics=[STATE])
+    np.testing.assert_array_equal(data[STATE]['sequence'], seq)
+    assert 'closed' in _log(rec) and '0 messages lost before the recorder' in _log(rec)
+
+
+def test_a_killed_recorder_leaves_a_bag_recoverable_to_its_last_flush(start_node, ros,
+                                                                       tmp_path):
+    bag = tmp_path / 'bag'
+    _, rec, probe, diag = _start_and_match(start_node, ros, bag)
+    sent = []
+    for i in range(15):
+        sent.append(round(0.05 * (i + 1), 3))
+        probe.command(sent[-1], 50.0)
+        ros.spin_for(0.2)
+    flushed_before_kill = diag.count('flushed')
+    last_seen = probe.window().last
+    os.killpg(rec.proc.pid, signal.SIGKILL)
+    rec.proc.wait(timeout=10)
+    assert flushed_before_kill > 1000
+    assert not (bag / 'metadata.yaml').exists()
+
+    recover = start_node('valve_recorder', '--recover', str(bag), '-o', str(tmp_path / 'fixed'))
+    assert recover.proc.wait(timeout=60) == 0, recover.output
+    assert 'recovered' in recover.output
+    seq, stamps, duties, conns = _state_and_duties(tmp_path / 'fixed')
+    total = sum(c.msgcount for c in conns.values())
+    assert total >= flushed_before_kill  # everything reported flushed is there
+    assert np.all(np.diff(seq) == 1), f'sequence gaps: {sequence_gaps(seq)}'
+    assert np.all(np.diff(stamps) > 0)
+    assert len(duties) >= 5 and duties == pytest.approx(sent[:len(duties)])
+    # the loss window: what the probe saw last vs. the last recovered state
+    last_ns = last_seen.header.stamp.sec * 1_000_000_000 + last_seen.header.stamp.nanosec
+    assert (last_ns - stamps[-1]) * 1e-9 < 2.0
+    # the killed bag itself is readable up to the same point
+    killed = load_bag(bag, topics=[STATE])
+    np.testing.assert_array_equal(killed[STATE]['sequence'], seq)
+
+
+def test_sigterm_closes_the_bag_and_bad_arguments_fail(start_node, tmp_path):
+    bag = tmp_path / 'bag'
+    rec = _start_recorder(start_node, bag)
+    deadline = time.monotonic() + 30.0
+    while 'recording' not in rec.output and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert rec.alive(), rec.output
+    time.sleep(1.0)  # its own diagnostics get recorded
+    os.killpg(rec.proc.pid, signal.SIGTERM)
+    assert rec.proc.wait(timeout=20) == 0, rec.output
+    assert (bag / 'metadata.yaml').is_file()
+    assert '/diagnostics' in load_bag(bag)
+
+    again = _start_recorder(start_node, bag)  # the bag exists: refused, never overwritten
+    assert again.proc.wait(timeout=60) == 1
+    assert 'exists' in again.output
+    bad = start_node('valve_recorder', '-o', str(tmp_path / 'b2'), 'x:nope_msgs/msg/Nope')
+    assert bad.proc.wait(timeout=60) == 1
+    assert 'nope_msgs/msg/Nope' in bad.output
+    assert not (tmp_path / 'b2').exists()
