@@ -201,6 +201,12 @@ class CanDriverNode(Node):
         self._release()
         return TransitionCallbackReturn.SUCCESS
 
+    def close_driver(self) -> None:
+        """Command duty 0 if active, then close the bus (process exit, e.g. Ctrl-C)."""
+        if self._core is not None and self._core.is_active:
+            self._core.deactivate()
+        self._release()
+
     def _release(self) -> None:
         """Close the bus and drop the ROS entities; safe to call more than once."""
         core, self._core = self._core, None
@@ -262,7 +268,15 @@ class CanDriverNode(Node):
         msg.output_pressure = s.output_pressure_pa
         msg.source = ValveState.SOURCE_CAN
         msg.position_measured = s.position_measured
-        pub.publish(msg)
+        self._publish(pub, msg)
+
+    def _publish(self, pub, msg) -> None:
+        """Publish from a driver thread; quiet once rclpy is shutting down (Ctrl-C)."""
+        try:
+            pub.publish(msg)
+        except Exception:   # noqa: BLE001 - rclpy raises RCLError from its private module
+            if self.context.ok():
+                raise
 
     def _publish_diagnostics(self) -> None:
         core, pub = self._core, self._diag_pub
@@ -276,7 +290,7 @@ class CanDriverNode(Node):
                                       message=report.message, hardware_id=self._hardware_id)
             status.values = [KeyValue(key=k, value=_text(v)) for k, v in report.values.items()]
             array.status.append(status)
-        pub.publish(array)
+        self._publish(pub, array)
 
 
 def _text(value: object) -> str:
@@ -323,7 +337,7 @@ def main(args: list[str] | None = None) -> None:
         code = 1
     finally:
         if node is not None:
-            node._release()
+            node.close_driver()
             node.destroy_node()
         rclpy.try_shutdown()
     if code:
