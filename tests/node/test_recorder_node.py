@@ -132,8 +132,8 @@ def test_records_1khz_state_and_every_command_without_loss(start_node, ros, tmp_
     assert 'closed' in _log(rec) and '0 messages lost before the recorder' in _log(rec)
 
 
-def test_a_killed_recorder_leaves_a_bag_recoverable_to_its_last_flush(start_node, ros,
-                                                                       tmp_path):
+def test_a_killed_recorder_leaves_a_bag_recoverable_to_its_last_flush(
+        start_node, ros, tmp_path):
     bag = tmp_path / 'bag'
     _, rec, probe, diag = _start_and_match(start_node, ros, bag)
     sent = []
