@@ -235,6 +235,8 @@ class CanDriverCore:
         self._duty = 0.0
         self._pwm_hz = min(max(config.pwm_frequency_hz, self._f_min), self._f_max)
         self._command_dirty = False
+        self._command_gen = 0          # +1 per change; a send clears "dirty" only if unchanged
+        self._pressure_gen = 0
         self._last_command_mono: float | None = None
         self._watchdog_tripped = False
         self._tx_counter = 0
@@ -341,8 +343,8 @@ class CanDriverCore:
             self._watchdog_tripped = False
             self._active = True
             self._send_disable = False
-            self._command_dirty = True
-            self._pressure_dirty = True
+            self._mark_command_dirty()
+            self._mark_pressure_dirty()
             self._wake.notify()
 
     def deactivate(self, timeout_s: float = 0.2) -> bool:
@@ -378,6 +380,14 @@ class CanDriverCore:
             self._io_thread.join(timeout=2.0)
         self._io_thread = None
         self._close_bus()
+
+    def _mark_command_dirty(self) -> None:
+        self._command_dirty = True
+        self._command_gen += 1
+
+    def _mark_pressure_dirty(self) -> None:
+        self._pressure_dirty = True
+        self._pressure_gen += 1
 
     @property
     def is_open(self) -> bool:
@@ -427,7 +437,7 @@ class CanDriverCore:
             if self._watchdog_tripped:
                 logger.info('duty commands are back; watchdog released')
             self._watchdog_tripped = False
-            self._command_dirty = True
+            self._mark_command_dirty()
             self._wake.notify()
             return CommandResult(True, duty, freq, bool(notes), '; '.join(notes))
 
@@ -442,7 +452,7 @@ class CanDriverCore:
                 self._supply_pa = float(supply_pa)
             if output_pa is not None:
                 self._output_pa = float(output_pa)
-            self._pressure_dirty = True
+            self._mark_pressure_dirty()
             self._wake.notify()
             return True
 
@@ -663,8 +673,8 @@ class CanDriverCore:
             return
         logger.info('CAN bus %s:%s reopened', self.config.interface, self.config.channel)
         with self._wake:
-            self._command_dirty = True
-            self._pressure_dirty = True
+            self._mark_command_dirty()
+            self._mark_pressure_dirty()
         self._check_levels()
 
     def _open_bus_quick(self) -> None:
@@ -707,7 +717,7 @@ class CanDriverCore:
                     and now - self._last_command_mono > limit):
                 self._watchdog_tripped = True
                 self.counters['watchdog_trips'] += 1
-                self._command_dirty = True
+                self._mark_command_dirty()
                 logger.warning('watchdog: no duty command for %.3f s; valve commanded closed',
                                limit)
                 trip = True
@@ -724,11 +734,13 @@ class CanDriverCore:
                                                or now >= self._next_command_t)))
             send_pressure = self._active and (self._pressure_dirty
                                               or now >= self._next_pressure_t)
-            enable = self._active and not self._send_disable
+            disabling = self._send_disable
+            enable = self._active and not disabling
             duty = 0.0 if (self._watchdog_tripped or not enable) else self._duty
             freq = self._pwm_hz
             supply = min(max(self._supply_pa, self._p_lo), self._p_hi)
             output = min(max(self._output_pa, self._p_lo), self._p_hi)
+            command_gen, pressure_gen = self._command_gen, self._pressure_gen
             if not self._active and not self._send_disable:
                 self._next_command_t = self._next_pressure_t = now + 0.05
         if bus is None or self._bus_failed:
@@ -739,13 +751,14 @@ class CanDriverCore:
                               self._tx_counter)
             with self._wake:
                 self._tx_counter = (self._tx_counter + 1) & 0xF
-                self._command_dirty = False
+                if self._command_gen == command_gen:   # else a newer command is waiting
+                    self._command_dirty = False
                 self._next_command_t = now + command_period
                 if sent:
                     self.counters['command_frames_sent'] += 1
                     self._last_sent_duty = duty
                     self._sent_enable = enable
-                if self._send_disable:
+                if disabling:   # only the frame built as "disable" completes deactivate()
                     self._send_disable = False
                     self._wake.notify_all()
         if send_pressure:
@@ -754,7 +767,8 @@ class CanDriverCore:
                               self._pressure_counter)
             with self._wake:
                 self._pressure_counter = (self._pressure_counter + 1) & 0xF
-                self._pressure_dirty = False
+                if self._pressure_gen == pressure_gen:
+                    self._pressure_dirty = False
                 self._next_pressure_t = now + pressure_period
                 if sent:
                     self.counters['pressure_frames_sent'] += 1

@@ -39,7 +39,7 @@ from valve_msgs.msg import DutyCommand, ValveState
 from valve_driver_pkg.driver.core import CanDriverCore, DriverConfig, StateSample
 from valve_driver_pkg.errors import ValveDriverError
 
-__all__ = ['CanDriverNode', 'main']
+__all__ = ['CanDriverNode', 'main', 'state_message']
 
 # The suite's topic contract (valve_model_pkg.nodes.common holds the same names; they are
 # repeated here so the driver does not pull in the simulator's node helpers).
@@ -251,23 +251,9 @@ class CanDriverNode(Node):
         pub = self._state_pub
         if pub is None:
             return
-        msg = ValveState()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = self._frame_id
-        msg.sequence = self._sequence
+        msg = state_message(s, self.get_clock().now().to_msg(), self._frame_id,
+                            self._sequence)
         self._sequence += 1
-        msg.coil_voltage = s.coil_voltage_v
-        msg.coil_current = s.coil_current_a
-        msg.spool_position = s.spool_position_m
-        msg.spool_velocity = s.spool_velocity_m_s
-        msg.spool_position_avg = s.position_avg_m
-        msg.mass_flow = s.mass_flow_kg_s
-        msg.duty = s.duty
-        msg.pwm_frequency = s.pwm_frequency_hz
-        msg.supply_pressure = s.supply_pressure_pa
-        msg.output_pressure = s.output_pressure_pa
-        msg.source = ValveState.SOURCE_CAN
-        msg.position_measured = s.position_measured
         self._publish(pub, msg)
 
     def _publish(self, pub, msg) -> None:
@@ -291,6 +277,27 @@ class CanDriverNode(Node):
             status.values = [KeyValue(key=k, value=_text(v)) for k, v in report.values.items()]
             array.status.append(status)
         self._publish(pub, array)
+
+
+def state_message(s: StateSample, stamp, frame_id: str, sequence: int) -> ValveState:
+    """The valve_msgs/ValveState for one driver sample (``stamp``: builtin_interfaces/Time)."""
+    msg = ValveState()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.sequence = sequence
+    msg.coil_voltage = s.coil_voltage_v
+    msg.coil_current = s.coil_current_a
+    msg.spool_position = s.spool_position_m
+    msg.spool_velocity = s.spool_velocity_m_s
+    msg.spool_position_avg = s.position_avg_m
+    msg.mass_flow = s.mass_flow_kg_s
+    msg.duty = s.duty
+    msg.pwm_frequency = s.pwm_frequency_hz
+    msg.supply_pressure = s.supply_pressure_pa
+    msg.output_pressure = s.output_pressure_pa
+    msg.source = ValveState.SOURCE_CAN
+    msg.position_measured = s.position_measured
+    return msg
 
 
 def _text(value: object) -> str:
