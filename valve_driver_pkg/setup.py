@@ -26,5 +26,9 @@ setup(
             'valve_can_driver = valve_driver_pkg.nodes.can_driver_node:main',
             'valve_controller_emulator = valve_driver_pkg.emulator.emulator_main:main',
         ],
+        # python-can finds the loopback bus by name: can.Bus(interface='tcp_loopback', ...)
+        'can.interface': [
+            'tcp_loopback = valve_driver_pkg.canbus.tcp_loopback:TcpLoopbackBus',
+        ],
     },
 )
