@@ -104,26 +104,33 @@ class _Counter:
         return cost
 
 
-def _initial_simplex(center: np.ndarray, step: float) -> np.ndarray:
-    """Simplex of n+1 vertices around ``center``, stepping inwards at the bounds."""
-    n = center.size
-    simplex = np.repeat(center[None, :], n + 1, axis=0)
-    for j in range(n):
+def _initial_simplex(center: np.ndarray, step: float, free: np.ndarray) -> np.ndarray:
+    """Simplex around ``center`` stepping along the ``free`` dimensions (inwards at bounds).
+
+    Coordinates not in ``free`` are the same in every vertex, and Nelder-Mead's moves
+    (affine combinations of vertices) keep them so: that is how a profile search holds a
+    parameter fixed per simplex.
+    """
+    simplex = np.repeat(center[None, :], free.size + 1, axis=0)
+    for k, j in enumerate(free):
         s = step if center[j] + step <= 1.0 else -step
-        simplex[j + 1, j] = center[j] + s
+        simplex[k + 1, j] = center[j] + s
     return simplex
 
 
 def _nelder_mead_lockstep(fun: _Counter, starts: np.ndarray, settings: SearchSettings,
-                          progress: Callable[[str], None] | None, label: str
+                          progress: Callable[[str], None] | None, label: str,
+                          free: np.ndarray | None = None
                           ) -> tuple[np.ndarray, np.ndarray, int]:
     """Run one Nelder-Mead per start in lock step; return (vertices, costs, iterations)."""
-    k, n = starts.shape
+    k, dim = starts.shape
+    free = np.arange(dim) if free is None else np.asarray(free)
+    n = free.size
     # Adaptive coefficients (Gao & Han 2012) behave better than the classic ones in 8+ dims.
     alpha, gamma = 1.0, 1.0 + 2.0 / n
     rho, sigma = 0.75 - 1.0 / (2.0 * n), 1.0 - 1.0 / n
-    simp = np.stack([_initial_simplex(s, settings.initial_step) for s in starts])
-    cost = fun(simp.reshape(-1, n)).reshape(k, n + 1)
+    simp = np.stack([_initial_simplex(s, settings.initial_step, free) for s in starts])
+    cost = fun(simp.reshape(-1, dim)).reshape(k, n + 1)
     active = np.ones(k, dtype=bool)
     best_seen = cost.min(axis=1)
     last_gain = np.zeros(k, dtype=int)
@@ -188,7 +195,7 @@ def _nelder_mead_lockstep(fun: _Counter, starts: np.ndarray, settings: SearchSet
         if shrink.any():
             sidx = idx[shrink]
             pts = simp[sidx, :1, :] + sigma * (simp[sidx, 1:, :] - simp[sidx, :1, :])
-            fs = fun(pts.reshape(-1, n)).reshape(sidx.size, n)
+            fs = fun(pts.reshape(-1, dim)).reshape(sidx.size, n)
             simp[sidx, 1:, :] = pts
             cost[sidx, 1:] = fs
     order = np.argsort(cost, axis=1)
@@ -218,7 +225,7 @@ def _pick_starts(u: np.ndarray, cost: np.ndarray, k: int, min_distance: float) -
 
 def direct_search(fun: BatchObjective, u0: np.ndarray, settings: SearchSettings = SearchSettings(),
                   *, progress: Callable[[str], None] | None = None,
-                  label: str = 'search') -> SearchResult:
+                  label: str = 'search', fixed: np.ndarray | None = None) -> SearchResult:
     """Minimise a batch objective over the unit box.
 
     Parameters
@@ -226,28 +233,34 @@ def direct_search(fun: BatchObjective, u0: np.ndarray, settings: SearchSettings 
     fun : callable
         ``fun(U) -> costs`` for ``U`` of shape (m, n) in ``[0, 1]^n``; returns shape (m,),
         ``inf`` for infeasible points.
-    u0 : numpy.ndarray, shape (n,)
-        Start point (e.g. the measured values); always one of the candidates.
+    u0 : numpy.ndarray, shape (n,) or (k, n)
+        Start point(s) (e.g. the measured values); always among the candidates. Without
+        a global stage, one simplex runs from each.
     settings : SearchSettings
         Effort.
     progress : callable, optional
         Receives one-line progress messages.
     label : str
         Prefix of the progress messages.
+    fixed : numpy.ndarray of int, optional
+        Dimensions held at their start values in the first (lock-step) stage: a profile
+        search, e.g. one simplex per trial value of an effect parameter. The restarts
+        then free every dimension.
 
     Returns
     -------
     SearchResult
         Best point, its cost, the number of evaluations.
     """
-    u0 = np.clip(np.asarray(u0, dtype=float), 0.0, 1.0)
+    u_starts = np.clip(np.atleast_2d(np.asarray(u0, dtype=float)), 0.0, 1.0)
+    u0 = u_starts[0]
     n = u0.size
     counter = _Counter(fun, progress)
     history: list[float] = []
     if settings.global_samples > 0:
         m = 2 ** int(math.ceil(math.log2(max(settings.global_samples, 2))))
         sob = qmc.Sobol(n, scramble=True, seed=settings.seed).random(m)
-        cand = np.vstack([u0[None, :], sob])
+        cand = np.vstack([u_starts, sob])
         ccost = counter(cand)
         if progress:
             progress(f'{label}: global stage, {cand.shape[0]} points, best cost '
@@ -255,9 +268,11 @@ def direct_search(fun: BatchObjective, u0: np.ndarray, settings: SearchSettings 
         starts = _pick_starts(cand, ccost, settings.starts, min_distance=0.15)
         history.append(float(np.min(ccost)))
     else:
-        starts = u0[None, :]
+        starts = u_starts
         ccost = None
-    simp, cost, iters = _nelder_mead_lockstep(counter, starts, settings, progress, label)
+    free = None if fixed is None else np.setdiff1d(np.arange(n), np.asarray(fixed))
+    simp, cost, iters = _nelder_mead_lockstep(counter, starts, settings, progress, label,
+                                              free)
     best_s = int(np.argmin(cost[:, 0]))
     best_u, best_c = simp[best_s, 0].copy(), float(cost[best_s, 0])
     history.append(best_c)

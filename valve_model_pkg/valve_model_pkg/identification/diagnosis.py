@@ -1,0 +1,320 @@
+"""Closing the loop: trace the residual to an effect the model lacks, or to none.
+
+Three steps after the baseline fit:
+
+1. **Signatures.** For each effect of the model's registry
+   (:data:`~valve_model_pkg.model.parameters.EFFECTS`) the current is simulated with the
+   effect switched on at a moderate probe value; the difference to the baseline is the
+   effect's *signature*. The part of it that the baseline parameters can imitate (their
+   Jacobian) is projected out, and the residual is correlated with what is left. A large
+   positive correlation says "this effect's fingerprint is in the residual". This is a
+   score test; it ranks the candidates and is reported as evidence.
+2. **Refits.** The leading candidates (by default all six, they are cheap) are refitted:
+   the eight baseline parameters plus the effect's one or two, by the same direct search
+   started from the baseline optimum with a few values of the effect.
+3. **Selection.** An effect is kept only if it pays for its extra parameters twice:
+
+   * on the fit data, the Bayesian information criterion of a Laplace (absolute-error)
+     likelihood, ``dBIC = sum_f 2 n_f ln(MAE_aug,f / MAE_base,f) + p ln(n)``, is below
+     ``-10`` (strong evidence);
+   * on the validation data (a hold-out experiment the fit never saw), the same
+     criterion with the validation files is below ``-10``, i.e. the validation error
+     falls by more than the extra parameters buy, and by at least 2 % in absolute error.
+
+   Among the kept candidates the one with the largest validation gain wins. It is
+   *claimed* only if it also explains the residual's structure: at least half of the
+   validation residual's energy beyond the noise must go. Otherwise the answer is
+   ``none`` with the residual's structure reported as unexplained: an effect outside the
+   list may be at work, and a listed one is not claimed with confidence it lacks.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..model.parameters import EFFECTS, ValveParameters
+from .problem import FIELD_INDEX, FitData, ParameterSpace, effect_space, unit_objective
+from .search import SearchSettings, direct_search
+from .sensitivity import noise_std
+
+__all__ = ['CandidateResult', 'Diagnosis', 'score_signatures', 'refit_effect', 'select',
+           'DBIC_THRESHOLD', 'MIN_VALIDATION_GAIN']
+
+#: Strong evidence on the BIC scale (Kass & Raftery: > 10).
+DBIC_THRESHOLD = -10.0
+#: Smallest relative fall of the validation mean absolute error worth an effect.
+MIN_VALIDATION_GAIN = 0.02
+#: Share of the validation residual's structured energy the effect must explain.
+MIN_EXPLAINED = 0.5
+#: Structured residual RMS (beyond noise), relative to the noise, that counts as structure.
+STRUCTURE_FRACTION = 0.3
+
+# Probe values for the signatures: a moderate amount of each effect, as a fraction of the
+# registry's range for the first field of each effect (heating keeps its time constant).
+_PROBE_FRACTION = 0.15
+# Trial amounts of the profile stage of a refit, as fractions of the registry's range.
+_PROFILE_FRACTIONS = (0.02, 0.08, 0.2, 0.4, 0.7)
+
+
+@dataclass
+class CandidateResult:
+    """One candidate effect: its signature score, its refit, its verdict."""
+
+    effect: str
+    fields: tuple[str, ...]
+    signature_correlation: float = math.nan
+    signature_amplitude: float = math.nan
+    refitted: bool = False
+    parameters: dict[str, float] = field(default_factory=dict)
+    params: ValveParameters | None = None
+    fit_cost: float = math.nan
+    val_cost: float = math.nan
+    fit_gain: float = math.nan
+    val_gain: float = math.nan
+    dbic_fit: float = math.nan
+    dbic_val: float = math.nan
+    structure_explained: float = math.nan
+    kept: bool = False
+    reason: str = ''
+
+    def to_json(self) -> dict[str, object]:
+        def f(x: float) -> float | None:
+            return None if x is None or (isinstance(x, float) and not math.isfinite(x)) \
+                else x
+        return {
+            'effect': self.effect,
+            'extra_parameters': {k: f(v) for k, v in self.parameters.items()},
+            'signature_correlation': f(self.signature_correlation),
+            'refitted': self.refitted,
+            'fit_error_reduction_pct': f(100.0 * self.fit_gain),
+            'validation_error_reduction_pct': f(100.0 * self.val_gain),
+            'delta_bic_fit': f(self.dbic_fit),
+            'delta_bic_validation': f(self.dbic_val),
+            'structure_explained_pct': f(100.0 * self.structure_explained),
+            'kept': self.kept,
+            'reason': self.reason,
+        }
+
+
+@dataclass
+class Diagnosis:
+    """Outcome of the effect selection."""
+
+    effect: str
+    confidence: str
+    candidates: list[CandidateResult]
+    evidence: list[str]
+    numbers: dict[str, object]
+    params: ValveParameters
+    unexplained_structure: bool
+
+
+def _stack(data: FitData, arrays: list[np.ndarray]) -> np.ndarray:
+    """Valid samples of all files, each scaled so every file weighs the same (as the cost)."""
+    out = []
+    for a, w, T, valid in zip(arrays, data.weights, data.durations, data.valid):
+        out.append(a[valid] * np.sqrt(w[valid] / T))
+    return np.concatenate(out)
+
+
+def _probe(params: ValveParameters, effect: str, fraction: float) -> ValveParameters:
+    spec = EFFECTS[effect]
+    name = spec.fields[0]
+    lo, hi = spec.bounds[name]
+    return params.replace(**{name: spec.neutral[name] + fraction * (hi - lo)})
+
+
+def score_signatures(space: ParameterSpace, data: FitData, params: ValveParameters,
+                     residuals: list[np.ndarray]) -> dict[str, tuple[float, float]]:
+    """Correlation of the residual with each effect's signature, baseline part removed.
+
+    Returns
+    -------
+    dict
+        effect -> (correlation in [-1, 1], amplitude); the amplitude is the multiple of
+        the probe signature that best fits the residual (negative = the wrong sign, the
+        effect cannot produce it).
+    """
+    base = params.to_vector()
+    n = space.size
+    rows = [base]
+    for j, name in enumerate(space.names):
+        v = base[FIELD_INDEX[name]]
+        for sgn in (1.0, -1.0):
+            r = base.copy()
+            r[FIELD_INDEX[name]] = v * math.exp(sgn * 0.01)
+            rows.append(r)
+    effects = list(EFFECTS)
+    for eff in effects:
+        rows.append(_probe(params, eff, _PROBE_FRACTION).to_vector())
+    raw = np.array(rows)
+    ok = space.feasible(raw)
+    raw[~ok] = base
+    sims = [c for c, _ in data.simulate(raw)]
+    res = _stack(data, [np.where(np.isfinite(r), r, 0.0) for r in residuals])
+    cols = []
+    for j in range(n):
+        cols.append(_stack(data, [(c[1 + 2 * j] - c[2 + 2 * j]) / 0.02 for c in sims]))
+    jac = np.column_stack(cols)
+    out = {}
+    for k, eff in enumerate(effects):
+        sig = _stack(data, [c[1 + 2 * n + k] - c[0] for c in sims])
+        coef, *_ = np.linalg.lstsq(jac, sig, rcond=None)
+        perp = sig - jac @ coef
+        nrm = float(np.linalg.norm(perp)) * float(np.linalg.norm(res))
+        if nrm == 0.0:
+            out[eff] = (0.0, 0.0)
+            continue
+        dot = float(perp @ res)
+        out[eff] = (dot / nrm, dot / float(perp @ perp))
+    return out
+
+
+def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, effect: str,
+                 settings: SearchSettings, progress: Callable[[str], None] | None = None
+                 ) -> tuple[ValveParameters, float, ParameterSpace]:
+    """Refit the baseline parameters plus one effect's, from the baseline optimum.
+
+    Returns
+    -------
+    params, cost, space
+        The refitted parameters, their cost on ``data`` and the extended space.
+    """
+    ext = effect_space(space, effect)
+    u_base = ext.to_unit(params)
+    first = ext.names.index(EFFECTS[effect].fields[0])
+    # Profile first: one simplex per trial amount of the effect, the effect held there
+    # while the baseline parameters adapt (they trade off strongly against most effects,
+    # so a joint simplex started at the baseline optimum tends to stall near it). The
+    # restarts then free the effect too.
+    starts = []
+    for frac in _PROFILE_FRACTIONS:
+        u = u_base.copy()
+        u[first] = frac
+        starts.append(u)
+    fun = unit_objective(ext, data)
+    res = direct_search(fun, np.array(starts), settings, progress=progress,
+                        label=f'refit {effect}', fixed=np.array([first]))
+    return ext.params(res.u), res.cost, ext
+
+
+def _dbic(base_mae: dict[str, float], aug_mae: dict[str, float], counts: dict[str, int],
+          p: int) -> float:
+    """Laplace-likelihood BIC difference (augmented minus baseline), per-file MAEs."""
+    total = sum(counts.values())
+    d = 0.0
+    for name, n in counts.items():
+        b, a = base_mae[name], aug_mae[name]
+        if b > 0 and a > 0:
+            d += 2.0 * n * math.log(a / b)
+    return d + p * math.log(max(total, 2))
+
+
+def _structured_energy(data: FitData, params: ValveParameters) -> float:
+    """Mean over files of the residual energy beyond the noise [A^2]."""
+    vals = []
+    for r in data.residuals(params):
+        ok = np.isfinite(r)
+        s = noise_std(r)
+        vals.append(max(float(np.mean(r[ok] ** 2)) - s ** 2, 0.0))
+    return float(np.mean(vals))
+
+
+def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
+           baseline: ValveParameters) -> Diagnosis:
+    """Apply the keep rule (module notes) and decide the diagnosis."""
+    counts_fit = {m.name: int(v.sum()) for m, v in zip(fit.measurements, fit.valid)}
+    base_fit = fit.errors(baseline)
+    base_val = val.errors(baseline) if val is not None else None
+    counts_val = ({m.name: int(v.sum()) for m, v in zip(val.measurements, val.valid)}
+                  if val is not None else {})
+    struct_base = _structured_energy(val if val is not None else fit, baseline)
+    for c in candidates:
+        if not c.refitted or c.params is None:
+            c.reason = 'not refitted (signature too weak)'
+            continue
+        p = len(c.fields)
+        aug_fit = fit.errors(c.params)
+        c.fit_cost = sum(aug_fit.mae_per_file.values())
+        c.fit_gain = 1.0 - c.fit_cost / sum(base_fit.mae_per_file.values())
+        c.dbic_fit = _dbic(base_fit.mae_per_file, aug_fit.mae_per_file, counts_fit, p)
+        if val is not None and base_val is not None:
+            aug_val = val.errors(c.params)
+            c.val_cost = sum(aug_val.mae_per_file.values())
+            c.val_gain = 1.0 - c.val_cost / sum(base_val.mae_per_file.values())
+            c.dbic_val = _dbic(base_val.mae_per_file, aug_val.mae_per_file, counts_val, p)
+        struct_aug = _structured_energy(val if val is not None else fit, c.params)
+        c.structure_explained = (1.0 - struct_aug / struct_base) if struct_base > 0 else 0.0
+        reasons = []
+        if not c.dbic_fit < DBIC_THRESHOLD:
+            reasons.append(f'fit dBIC {c.dbic_fit:.1f} not below {DBIC_THRESHOLD:g}')
+        if val is not None:
+            if not c.dbic_val < DBIC_THRESHOLD:
+                reasons.append(f'validation dBIC {c.dbic_val:.1f} not below '
+                               f'{DBIC_THRESHOLD:g}')
+            if not c.val_gain >= MIN_VALIDATION_GAIN:
+                reasons.append(f'validation error falls {100 * c.val_gain:.2f} %, less than '
+                               f'{100 * MIN_VALIDATION_GAIN:g} %')
+        c.kept = not reasons
+        c.reason = 'pays for its parameters on fit and validation data' if c.kept else \
+            '; '.join(reasons)
+    ranked = sorted(candidates, key=lambda c: -(c.val_gain if math.isfinite(c.val_gain)
+                                                else c.fit_gain if math.isfinite(c.fit_gain)
+                                                else -math.inf))
+    kept = [c for c in ranked if c.kept]
+    evidence: list[str] = []
+    numbers: dict[str, object] = {
+        'baseline_validation_structured_rms_a': math.sqrt(struct_base),
+        'rule': (f'keep if dBIC(fit) < {DBIC_THRESHOLD:g} and dBIC(validation) < '
+                 f'{DBIC_THRESHOLD:g} and validation MAE falls >= '
+                 f'{100 * MIN_VALIDATION_GAIN:g} %; claim if it also removes >= '
+                 f'{100 * MIN_EXPLAINED:g} % of the validation residual energy beyond noise'),
+    }
+    sigma = float(np.median([noise_std(r) for r in (val if val is not None else fit
+                                                    ).residuals(baseline)]))
+    structured = math.sqrt(struct_base) > STRUCTURE_FRACTION * sigma
+    numbers['baseline_noise_std_a'] = sigma
+    unexplained = structured
+    if not kept:
+        effect, params = 'none', baseline
+        confidence = 'low' if structured else 'high'
+        evidence.append('no candidate effect pays for its extra parameters on both the fit '
+                        'and the validation data')
+        if structured:
+            evidence.append(
+                f'but the baseline residual is structured ({1e3 * math.sqrt(struct_base):.2f} '
+                f'mA RMS beyond {1e3 * sigma:.2f} mA noise): something the candidate list '
+                'does not hold is at work; see the residual analysis')
+        best = ranked[0] if ranked else None
+        if best is not None and math.isfinite(best.val_gain):
+            evidence.append(f'best candidate {best.effect}: validation error '
+                            f'{100 * best.val_gain:+.2f} % ({best.reason})')
+    else:
+        best = kept[0]
+        if best.structure_explained < MIN_EXPLAINED:
+            effect, confidence, params = 'none', 'low', baseline
+            evidence.append(
+                f'{best.effect} lowers the validation error by {100 * best.val_gain:.1f} % '
+                f'but removes only {100 * best.structure_explained:.0f} % of the residual '
+                'structure: not claimed; the residual points to an effect outside the '
+                'candidate list')
+        else:
+            effect, params = best.effect, best.params
+            runner = kept[1] if len(kept) > 1 else None
+            close = runner is not None and runner.val_gain > 0.8 * best.val_gain
+            confidence = 'medium' if close or best.structure_explained < 0.7 else 'high'
+            evidence.append(
+                f'{best.effect} lowers the validation error by {100 * best.val_gain:.1f} % '
+                f'(fit {100 * best.fit_gain:.1f} %), dBIC fit {best.dbic_fit:.0f}, '
+                f'validation {best.dbic_val:.0f}, and removes '
+                f'{100 * best.structure_explained:.0f} % of the residual structure')
+            if runner is not None:
+                evidence.append(f'runner-up {runner.effect}: validation '
+                                f'{100 * runner.val_gain:.1f} %')
+            unexplained = best.structure_explained < 0.9
+    return Diagnosis(effect=effect, confidence=confidence, candidates=ranked,
+                     evidence=evidence, numbers=numbers, params=params,
+                     unexplained_structure=bool(unexplained))

@@ -1,0 +1,265 @@
+"""Write the identification's outcome: report.json, report.md with PNG plots, params.yaml.
+
+``report.json`` layout (the contract ``valve_identify`` is checked against)::
+
+    {
+      "baseline":  {"parameters": {...}, "fit": {"iae", "rmse", "nrmse_pct", ...},
+                    "validation": {...} | null, "residual": {...}, "sensitivity": {...}},
+      "augmented": {... the same, for the model with the selected effect (== baseline
+                    when the effect is "none")},
+      "diagnosis": {"effect": "<name>|none", "confidence": "high|medium|low",
+                    "evidence": [...], "numbers": {...}, "candidates": [...ranked...],
+                    "unexplained_structure": bool},
+      "files": {...}, "timings_s": {...}, "units": {...}
+    }
+
+``iae`` is in A s, ``rmse`` in A, ``nrmse_pct`` in % of the measured current's range;
+parameters are SI with the names of ``ValveParameters``. ``params.yaml`` is the full
+parameter set in the nested form ``load_parameters`` reads, so ``valve_simulate`` and
+``valve_map`` use the identified (and augmented) model directly.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..model.parameters import EFFECTS, ValveParameters
+from .pipeline import Identification, Stage
+from .problem import IDENTIFIED_FIELDS, PAPER_SYMBOLS, TABLE2_MEASURED
+from .sensitivity import equivalent_gap_m
+
+__all__ = ['write_report', 'report_dict']
+
+
+def _clean(x: object) -> object:
+    """JSON-safe: non-finite floats become null, numpy scalars plain numbers."""
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        v = float(x)
+        return v if math.isfinite(v) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def _parameters(p: ValveParameters) -> dict[str, float]:
+    out = {n: getattr(p, n) for n in IDENTIFIED_FIELDS}
+    for spec in EFFECTS.values():
+        for f in spec.fields:
+            out[f] = getattr(p, f)
+    out['equivalent_gap_m'] = equivalent_gap_m(p)
+    return out
+
+
+def _stage_dict(s: Stage) -> dict[str, object]:
+    return {
+        'parameters': _parameters(s.params),
+        'active_effects': list(s.params.active_effects()),
+        'fit': s.fit.to_json(),
+        'validation': s.validation.to_json() if s.validation else None,
+        'iae': s.fit.iae, 'rmse': s.fit.rmse, 'nrmse_pct': s.fit.nrmse_pct,
+        'residual': {'fit': s.residual_fit.to_json(),
+                     'validation': s.residual_validation.to_json()
+                     if s.residual_validation else None},
+        'sensitivity': s.sensitivity.to_json() if s.sensitivity else None,
+    }
+
+
+def report_dict(ident: Identification) -> dict[str, object]:
+    """The content of report.json."""
+    d = ident.diagnosis
+    diag = None
+    if d is not None:
+        diag = {
+            'effect': d.effect,
+            'confidence': d.confidence,
+            'unexplained_structure': d.unexplained_structure,
+            'evidence': d.evidence,
+            'numbers': d.numbers,
+            'residual_dominant_phase': ident.baseline.residual_fit.dominant_phase,
+            'candidates': [c.to_json() for c in d.candidates],
+        }
+    return _clean({
+        'baseline': _stage_dict(ident.baseline),
+        'augmented': _stage_dict(ident.augmented),
+        'diagnosis': diag,
+        'start_parameters': _parameters(ident.start),
+        'table2_measured': TABLE2_MEASURED,
+        'search_bounds': {b.name: [b.low, b.high] for b in ident.space.bounds},
+        'files': {
+            'fit': [{'file': m.source, 'summary': m.summary(), 'notes': list(m.notes)}
+                    for m in ident.fit_files],
+            'validation': [{'file': m.source, 'summary': m.summary(), 'notes': list(m.notes)}
+                           for m in ident.val_files],
+        },
+        'timings_s': ident.timings_s,
+        'simulations': ident.simulations,
+        'units': {'iae': 'A s', 'rmse': 'A', 'nrmse_pct': '% of measured current range',
+                  'parameters': 'SI (names of ValveParameters)'},
+    })
+
+
+def _plot(ident: Identification, out: Path) -> list[str]:
+    """PNG plots: currents and residuals, before and after; returns the file names."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    names = []
+    sets = [('fit', ident.fit_files, ident.sim_fit)]
+    if ident.val_files:
+        sets.append(('validation', ident.val_files, ident.sim_val))
+    aug = ident.diagnosis is not None and ident.diagnosis.effect != 'none'
+    for role, files, sims in sets:
+        for k, m in enumerate(files):
+            fig, ax = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
+            t_ms = m.t_s * 1e3
+            ax[0].plot(t_ms, m.current_a, '.', ms=1.5, color='0.5', label='measured')
+            ax[0].plot(t_ms, sims['baseline'][k], '-', lw=1.2, label='baseline model')
+            r_b = m.current_a - sims['baseline'][k]
+            ax[1].plot(t_ms, r_b * 1e3, '-', lw=0.6, label='baseline residual')
+            if aug:
+                lab = f'augmented ({ident.diagnosis.effect})'
+                ax[0].plot(t_ms, sims['augmented'][k], '--', lw=1.2, label=lab)
+                r_a = m.current_a - sims['augmented'][k]
+                ax[1].plot(t_ms, r_a * 1e3, '-', lw=0.6, label='augmented residual')
+            ax[0].set_ylabel('current [A]')
+            ax[0].set_title(f'{role}: {m.name}')
+            ax[0].legend(loc='lower right')
+            ax[1].set_ylabel('measured - simulated [mA]')
+            ax[1].set_xlabel('time [ms]')
+            ax[1].axhline(0.0, color='k', lw=0.5)
+            ax[1].legend(loc='upper right')
+            fig.tight_layout()
+            name = f'{role}_{k}_{Path(m.name).stem}.png'
+            fig.savefig(out / name, dpi=90)
+            plt.close(fig)
+            names.append(name)
+    return names
+
+
+def _fmt(v: float | None, scale: float = 1.0, digits: int = 4) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return '-'
+    return f'{v * scale:.{digits}g}'
+
+
+def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
+    b, a, d = rep['baseline'], rep['augmented'], rep['diagnosis']
+    lines = ['# Valve identification report', '']
+    if d is not None:
+        lines += [f'**Diagnosis: `{d["effect"]}`** (confidence {d["confidence"]}).', '']
+        lines += [f'- {e}' for e in d['evidence']]
+        lines += ['', f'Rule: {d["numbers"]["rule"]}.', '']
+    lines += ['## Errors before and after', '',
+              '| model | data | IAE [A s] | RMSE [mA] | NRMSE [%] |', '|---|---|---|---|---|']
+    for label, s in (('baseline', b), ('augmented', a)):
+        for role in ('fit', 'validation'):
+            e = s[role]
+            if e:
+                lines.append(f'| {label} | {role} | {_fmt(e["iae"])} | '
+                             f'{_fmt(e["rmse"], 1e3)} | {_fmt(e["nrmse_pct"], 1, 3)} |')
+    lines += ['', '## Parameters', '',
+              '| parameter | symbol | Table 2 measured | start | baseline | augmented | '
+              '95 % CI (baseline) |', '|---|---|---|---|---|---|---|']
+    sens = b['sensitivity'] or {}
+    ci = sens.get('ci95_pct', {})
+    for n in IDENTIFIED_FIELDS:
+        meas = TABLE2_MEASURED.get(n)
+        c = ci.get(n)
+        lines.append(f'| {n} | {PAPER_SYMBOLS[n]} | {_fmt(meas)} | '
+                     f'{_fmt(rep["start_parameters"][n])} | {_fmt(b["parameters"][n])} | '
+                     f'{_fmt(a["parameters"][n])} | '
+                     f'{"not identifiable alone" if c is None else f"+-{c:.2g} %"} |')
+    gap = sens.get('derived', {}).get('equivalent_gap')
+    if gap:
+        lines.append(f'| equivalent gap s = l_c/mu_r + 2 x_t | s | - | - | '
+                     f'{_fmt(b["parameters"]["equivalent_gap_m"])} | '
+                     f'{_fmt(a["parameters"]["equivalent_gap_m"])} | '
+                     f'+-{_fmt(gap["ci95_pct"], 1, 2)} % |')
+    if d is not None and d['effect'] != 'none':
+        for f in EFFECTS[d['effect']].fields:
+            lines.append(f'| {f} | ({d["effect"]}) | - | neutral | neutral | '
+                         f'{_fmt(a["parameters"][f])} | |')
+    lines += ['', '## What the data pin down', '']
+    if sens:
+        lines.append(f'Pinned down (95 % CI below 5 %): {", ".join(sens["pinned_down"])}.')
+        lines.append(f'Not pinned down by this data: {", ".join(sens["not_pinned_down"])}.')
+        for w in sens['weak_directions']:
+            std = w['rel_std_pct']
+            lines.append(f'- weak direction `{w["combination"]}`: '
+                         f'{"invisible to the data" if std is None else f"std {std:.3g} %"}')
+        lines += [f'- {n}' for n in sens['notes']]
+    lines += ['', '## Residual of the baseline model', '']
+    for role in ('fit', 'validation'):
+        r = b['residual'][role]
+        if r:
+            lines.append(f'**{role}** (white: {r["white"]}, dominant phase: '
+                         f'{r["dominant_phase"]})')
+            lines += [f'- {s}' for s in r['summary']]
+            lines.append('')
+            lines += ['| phase | share of residual energy | RMS / noise (first file) |',
+                      '|---|---|---|']
+            ph = r['files'][0]['phases']
+            for p, share in r['phase_share_of_energy'].items():
+                ron = ph.get(p, {}).get('rms_over_noise')
+                lines.append(f'| {p} | {100 * share:.1f} % | {_fmt(ron, 1, 3)} |')
+            lines.append('')
+    if d is not None:
+        lines += ['## Candidate effects (ranked by validation gain)', '',
+                  '| effect | signature corr. | fit gain [%] | validation gain [%] | '
+                  'dBIC fit | dBIC val | structure explained [%] | kept | reason |',
+                  '|---|---|---|---|---|---|---|---|---|']
+        for c in d['candidates']:
+            lines.append(
+                f'| {c["effect"]} | {_fmt(c["signature_correlation"], 1, 2)} | '
+                f'{_fmt(c["fit_error_reduction_pct"], 1, 3)} | '
+                f'{_fmt(c["validation_error_reduction_pct"], 1, 3)} | '
+                f'{_fmt(c["delta_bic_fit"], 1, 4)} | {_fmt(c["delta_bic_validation"], 1, 4)} | '
+                f'{_fmt(c["structure_explained_pct"], 1, 3)} | {c["kept"]} | {c["reason"]} |')
+    lines += ['', '## Plots', '']
+    lines += [f'![{p}]({p})' for p in plots]
+    lines += ['', '## Files', '']
+    for role in ('fit', 'validation'):
+        for f in rep['files'][role]:
+            lines.append(f'- {role}: {f["summary"]}')
+            lines += [f'  - {n}' for n in f['notes']]
+    t = rep['timings_s']
+    lines += ['', f'Run time {t.get("total", 0):.1f} s, {rep["simulations"]} simulations.',
+              '']
+    return '\n'.join(lines)
+
+
+def write_report(ident: Identification, out_dir: str | Path, *, plots: bool = True
+                 ) -> dict[str, object]:
+    """Write report.json, report.md (+ PNGs) and params.yaml into ``out_dir``.
+
+    Returns
+    -------
+    dict
+        The report.json content.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rep = report_dict(ident)
+    (out / 'report.json').write_text(json.dumps(rep, indent=2), encoding='utf-8')
+    names = _plot(ident, out) if plots else []
+    (out / 'report.md').write_text(_markdown(rep, ident, names), encoding='utf-8')
+    header = ('# Valve parameters identified by valve_identify from:\n'
+              + ''.join(f'#   fit: {m.source}\n' for m in ident.fit_files)
+              + ''.join(f'#   validation: {m.source}\n' for m in ident.val_files)
+              + f'# Diagnosis: {rep["diagnosis"]["effect"] if rep["diagnosis"] else "-"}\n'
+              + '# Loadable with valve_model_pkg.model.load_parameters (valve_simulate, '
+              'valve_map).\n')
+    body = yaml.safe_dump(_clean(ident.augmented.params.to_dict()), sort_keys=False)
+    (out / 'params.yaml').write_text(header + body, encoding='utf-8')
+    return rep
