@@ -293,4 +293,3 @@ def test_faults_fuzz_and_recovery_across_processes(start_node, ros) -> None:
             sniffer.close()
         except Exception:   # noqa: BLE001 - already closed above
             pass
-

@@ -25,7 +25,7 @@ from valve_driver_pkg.canbus import TcpLoopbackBus, TcpLoopbackHub
 from valve_driver_pkg.driver import CanDriverCore, DriverConfig, Level, StateSample
 from valve_driver_pkg.emulator import ControllerEmulator, EmulatorConfig, EmulatorFault
 from valve_driver_pkg.errors import BusOpenError
-from valve_driver_pkg.protocol import COMMAND, ValveCodec
+from valve_driver_pkg.protocol import ValveCodec
 from valve_model_pkg.model import (ElectronicsConfig, ValveStepper, load_parameters,
                                    orifice_mass_flow)
 

@@ -314,7 +314,8 @@ def test_program_runs_on_a_virtual_bus_and_stops(capsys) -> None:
     code = main(['--interface', 'virtual', '--channel', 'emu_main_test', '--duration-s', '0.2',
                  '--effect', 'coil_heating', '--fault', 'drop_telemetry:0.05:0.05:0.5'])
     assert code == 0
-    assert 'valve_controller_emulator ready: virtual emu_main_test node 0' in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert 'valve_controller_emulator ready: virtual emu_main_test node 0' in out
 
 
 def test_program_refuses_bad_arguments() -> None:

@@ -75,8 +75,8 @@ def test_node_id_outside_range_is_refused(node_id: int) -> None:
     ('Duty', 1.2, '1'), ('Duty', -0.1, '0'), ('PwmFrequency', 5000.0, '1000'),
     ('PwmFrequency', 0.0, '0.1'),
 ])
-def test_strict_encoding_names_signal_limit_and_value(signal: str, value: float,
-                                                       limit: str) -> None:
+def test_strict_encoding_names_signal_limit_and_value(
+        signal: str, value: float, limit: str) -> None:
     signals = dict(SAMPLE_SIGNALS[COMMAND], **{signal: value})
     with pytest.raises(ProtocolEncodeError,
                        match=rf'"{signal}".*{limit}.*"ValveCommand".*{value}'):

@@ -43,6 +43,7 @@ def generate_launch_description() -> LaunchDescription:
     emulator_cmd = [emulator_exe, '--interface', cfg('interface'), '--channel', cfg('channel'),
                     '--node-id', cfg('node_id'), '--params-file', cfg('params_file'),
                     '--telemetry-rate-hz', cfg('telemetry_rate_hz')]
+
     def when(effect_test: str) -> IfCondition:
         # emulator:=true|false as launch spells booleans; effect empty or not.
         return IfCondition(PythonExpression([

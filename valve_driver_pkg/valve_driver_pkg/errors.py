@@ -4,9 +4,9 @@
 
     ValveDriverError
     ├── ProtocolError
-    │   ├── DbcError (ValueError)            the DBC file breaks the protocol's layout rules
+    │   ├── DbcError (ValueError)            the DBC breaks the protocol's layout rules
     │   ├── ProtocolEncodeError (ValueError) a signal value outside its DBC range (strict)
-    │   └── FrameRejected                    a received frame failed a check (carries reason)
+    │   └── FrameRejected                    a received frame failed a check (has reason)
     └── BusError
         ├── BusOpenError (OSError)           the bus could not be opened
         └── BusClosedError (ConnectionError) the bus went away while in use

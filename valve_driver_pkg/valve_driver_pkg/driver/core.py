@@ -746,9 +746,9 @@ class CanDriverCore:
         if bus is None or self._bus_failed:
             return
         if send_command:
-            sent = self._send(bus, COMMAND, {'Duty': duty, 'PwmFrequency': freq,
-                                              'Enable': int(enable), 'ClearFaults': 0},
-                              self._tx_counter)
+            signals = {'Duty': duty, 'PwmFrequency': freq, 'Enable': int(enable),
+                       'ClearFaults': 0}
+            sent = self._send(bus, COMMAND, signals, self._tx_counter)
             with self._wake:
                 self._tx_counter = (self._tx_counter + 1) & 0xF
                 if self._command_gen == command_gen:   # else a newer command is waiting
@@ -762,9 +762,8 @@ class CanDriverCore:
                     self._send_disable = False
                     self._wake.notify_all()
         if send_pressure:
-            sent = self._send(bus, PRESSURE, {'SupplyPressure': supply,
-                                               'OutputPressure': output},
-                              self._pressure_counter)
+            signals = {'SupplyPressure': supply, 'OutputPressure': output}
+            sent = self._send(bus, PRESSURE, signals, self._pressure_counter)
             with self._wake:
                 self._pressure_counter = (self._pressure_counter + 1) & 0xF
                 if self._pressure_gen == pressure_gen:

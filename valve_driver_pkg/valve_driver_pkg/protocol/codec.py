@@ -212,8 +212,8 @@ class ValveCodec:
                 signal = message.get_signal_by_name(name)
             except KeyError as err:
                 raise DbcError(f'DBC {self.dbc_path}: {message.name} has no {name}') from err
-            if (signal.start, signal.length, signal.byte_order) != (start, length,
-                                                                     'little_endian'):
+            layout = (signal.start, signal.length, signal.byte_order)
+            if layout != (start, length, 'little_endian'):
                 raise DbcError(f'DBC {self.dbc_path}: {message.name}.{name} must be '
                                f'{length} bits at bit {start}, little endian')
 

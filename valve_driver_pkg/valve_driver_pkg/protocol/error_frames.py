@@ -36,6 +36,8 @@ CAN_ERR_CRTL_TX_WARNING = 0x08
 CAN_ERR_CRTL_RX_PASSIVE = 0x10
 CAN_ERR_CRTL_TX_PASSIVE = 0x20
 CAN_ERR_CRTL_ACTIVE = 0x40
+_PASSIVE = CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE
+_WARNING = CAN_ERR_CRTL_RX_WARNING | CAN_ERR_CRTL_TX_WARNING
 
 
 class BusCondition(enum.Enum):
@@ -74,13 +76,11 @@ def parse_error_frame(msg: can.Message) -> ErrorFrameInfo:
                                     (CAN_ERR_RESTARTED, 'restarted')) if error_class & bit]
     if error_class & CAN_ERR_BUSOFF:
         condition = BusCondition.BUS_OFF
-    elif error_class & CAN_ERR_CRTL and ctrl & (CAN_ERR_CRTL_RX_PASSIVE
-                                                 | CAN_ERR_CRTL_TX_PASSIVE):
+    elif error_class & CAN_ERR_CRTL and ctrl & _PASSIVE:
         condition = BusCondition.ERROR_PASSIVE
     elif error_class & CAN_ERR_RESTARTED:
         condition = BusCondition.RESTARTED
-    elif error_class & CAN_ERR_CRTL and ctrl & (CAN_ERR_CRTL_RX_WARNING
-                                                 | CAN_ERR_CRTL_TX_WARNING):
+    elif error_class & CAN_ERR_CRTL and ctrl & _WARNING:
         condition = BusCondition.WARNING
     elif error_class & CAN_ERR_CRTL and ctrl & CAN_ERR_CRTL_ACTIVE:
         condition = BusCondition.ERROR_ACTIVE

@@ -1,0 +1,23 @@
+"""The CAN driver's cores import no ROS: protocol, transport, driver logic, emulator, backend."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from conftest import REPO_ROOT
+
+CORES = ('valve_driver_pkg.protocol', 'valve_driver_pkg.canbus', 'valve_driver_pkg.driver',
+         'valve_driver_pkg.emulator', 'valve_driver_pkg.emulator.emulator_main',
+         'valve_driver_pkg.backend', 'valve_driver_pkg.errors')
+ROS = ('rclpy', 'rcl_interfaces', 'std_msgs', 'sensor_msgs', 'diagnostic_msgs', 'valve_msgs',
+       'lifecycle_msgs', 'builtin_interfaces')
+
+
+def test_cores_import_without_ros() -> None:
+    code = (f'import sys; sys.path[:0] = {[str(REPO_ROOT / "valve_driver_pkg"), str(REPO_ROOT / "valve_model_pkg")]!r}\n'  # noqa: E501
+            f'import importlib\n'
+            f'for m in {CORES!r}: importlib.import_module(m)\n'
+            f'print(sorted(m for m in sys.modules if m.split(".")[0] in {ROS!r}))')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == '[]', f'ROS modules imported by the cores: {out}'
