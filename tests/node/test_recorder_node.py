@@ -8,8 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rclpy
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import MessageDefinitionFormat, QosReliability
 
@@ -165,14 +168,22 @@ def test_a_killed_recorder_leaves_a_bag_recoverable_to_its_last_flush(
     np.testing.assert_array_equal(killed[STATE]['sequence'], seq)
 
 
-def test_sigterm_closes_the_bag_and_bad_arguments_fail(start_node, tmp_path):
+def test_sigterm_closes_the_bag_and_bad_arguments_fail(start_node, ros, tmp_path):
     bag = tmp_path / 'bag'
     rec = _start_recorder(start_node, bag)
     deadline = time.monotonic() + 30.0
     while 'recording' not in rec.output and time.monotonic() < deadline:
         time.sleep(0.1)
     assert rec.alive(), rec.output
-    time.sleep(1.0)  # its own diagnostics get recorded
+    # parameters are read at start; a change at run time is refused, saying so
+    client_node = ros.add(rclpy.create_node('test_param_client'))
+    client = AsyncParameterClient(client_node, 'valve_recorder')
+    ros.wait_for(client.services_are_ready, 30.0, 'the recorder\'s parameter services')
+    future = client.set_parameters([Parameter('flush_period_s', value=0.1)])
+    ros.wait_for(future.done, 10.0, 'the parameter change answer')
+    (result,) = future.result().results
+    assert not result.successful and 'restart' in result.reason
+    ros.spin_for(0.5)  # its own diagnostics get recorded
     os.killpg(rec.proc.pid, signal.SIGTERM)
     assert rec.proc.wait(timeout=20) == 0, rec.output
     assert (bag / 'metadata.yaml').is_file()

@@ -51,7 +51,7 @@ from pathlib import Path
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -168,6 +168,9 @@ class RecorderNode(Node):
         for full, msgtype in typed:
             self._subscribe(full, msgtype)
 
+        # Every parameter is read once, above; refuse run-time changes rather than
+        # pretend to apply them to a bag already being written.
+        self.add_on_set_parameters_callback(self._refuse_parameter_changes)
         self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.create_timer(diag_period, self._publish_diagnostics)
         if self._pending:
@@ -185,6 +188,13 @@ class RecorderNode(Node):
                                          type=ParameterType.PARAMETER_STRING_ARRAY)
         value = self.declare_parameter(name, default, descriptor).value
         return [str(v) for v in value]
+
+    @staticmethod
+    def _refuse_parameter_changes(params: list[Parameter]) -> SetParametersResult:
+        names = ', '.join(p.name for p in params)
+        return SetParametersResult(
+            successful=False, reason=f'{NODE_NAME} reads its parameters at start ({names} '
+            'not changed); restart it to record with other settings')
 
     def _subscribe(self, topic: str, msgtype: str) -> None:
         """Subscribe ``topic`` raw, matching what its publishers offer if any exist yet."""
