@@ -7,6 +7,7 @@ import shutil
 import numpy as np
 import pytest
 
+from valve_model_pkg.recording import reader as reader_module
 from valve_model_pkg.recording import (BagFormatError, BagWriter, bag_info, build_typestore,
                                        load_bag, reliable_qos, sequence_gaps)
 from valve_model_pkg.recording.synthetic import (DUTY_COMMAND, VALVE_STATE, duty_command_cdr,
@@ -92,6 +93,23 @@ def test_sequences_and_nested_messages(suite_bag) -> None:
     assert rag.dtype == object and [len(r) for r in rag] == [0, 1, 2, 3, 4]
     status = data['/diagnostics']['status'][0]
     assert status[0].message == 'late' and status[0].values[0].value == '7'
+
+
+@pytest.mark.parametrize('block', [1, 2, 3])
+def test_long_bags_are_converted_in_blocks_with_the_same_result(suite_bag, monkeypatch, block):
+    whole = load_bag(suite_bag)
+    monkeypatch.setattr(reader_module._Accumulator, '_BLOCK', block)
+    blocked = load_bag(suite_bag)
+    for topic, data in whole.items():
+        np.testing.assert_array_equal(blocked[topic].log_time_ns, data.log_time_ns)
+        for name, arr in data.fields.items():
+            got = blocked[topic][name]
+            if arr.dtype == object or got.dtype == object:  # ragged rows, message lists
+                assert len(got) == len(arr)
+                for a, b in zip(got, arr):  # message objects compare by identity
+                    assert repr(list(a)) == repr(list(b)), (topic, name)
+            else:
+                np.testing.assert_array_equal(got, arr, err_msg=f'{topic} {name}')
 
 
 @pytest.mark.parametrize('sequence, expected', [

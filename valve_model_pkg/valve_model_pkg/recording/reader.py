@@ -51,8 +51,9 @@ class TopicData:
         ``ros2 bag record``. Sorted (messages are returned in bag-time order).
     fields : dict of str to numpy.ndarray
         One array per field, first axis = message: numbers as their numpy type, strings as
-        ``str`` arrays, fixed-length numeric sequences as 2-D arrays, ragged sequences and
-        sequences of messages as object arrays. Nested messages are flattened with dots:
+        ``str`` arrays, fixed-length numeric sequences as 2-D arrays, ragged numeric
+        sequences as object arrays of 1-D arrays, string sequences and sequences of
+        messages as object arrays of lists. Nested messages are flattened with dots:
         ``header.stamp.sec``, ``header.frame_id``.
     """
 
@@ -149,7 +150,7 @@ def _to_array(values: list, kind: str) -> np.ndarray:
     if kind.startswith('seq:'):
         base = kind[4:]
         lengths = {len(v) for v in values}
-        if len(lengths) == 1 and base in _NUMPY_BASE:
+        if len(lengths) == 1 and base in _NUMPY_BASE and _NUMPY_BASE[base] is not np.str_:
             dtype = _NUMPY_BASE[base]
             if lengths == {0}:
                 return np.empty((len(values), 0), dtype=dtype)
@@ -165,12 +166,29 @@ def _to_array(values: list, kind: str) -> np.ndarray:
     return np.asarray(values, dtype=dtype) if dtype is not None else np.asarray(values)
 
 
+def _concat(blocks: list[np.ndarray]) -> np.ndarray:
+    """Join per-block arrays; 2-D blocks of different widths become one object array."""
+    if len(blocks) == 1:
+        return blocks[0]
+    if len({b.shape[1:] for b in blocks}) == 1 and len({b.dtype for b in blocks}) == 1:
+        return np.concatenate(blocks)
+    out = np.empty(sum(len(b) for b in blocks), dtype=object)
+    out[:] = [row for b in blocks for row in (list(b) if b.dtype == object else b)]
+    return out
+
+
 class _Accumulator:
+    """Collects one topic's fields; converts to numpy every ``_BLOCK`` messages so a long
+    bag does not sit in memory as Python objects."""
+
+    _BLOCK = 65_536
+
     def __init__(self, topic: str, msgtype: str, store: Typestore) -> None:
         self.topic, self.msgtype, self.store = topic, msgtype, store
         self.columns = _columns(store, msgtype)
         self.getters = [operator.attrgetter(name) for name, _ in self.columns]
         self.values: list[list] = [[] for _ in self.columns]
+        self.blocks: list[list[np.ndarray]] = [[] for _ in self.columns]
         self.times: list[int] = []
 
     def add(self, log_time_ns: int, raw: bytes | memoryview) -> None:
@@ -178,16 +196,25 @@ class _Accumulator:
         self.times.append(log_time_ns)
         for get, col in zip(self.getters, self.values):
             col.append(get(msg))
+        if len(self.values[0]) >= self._BLOCK:
+            self._convert()
+
+    def _convert(self) -> None:
+        for (_, kind), col, blocks in zip(self.columns, self.values, self.blocks):
+            if col:
+                blocks.append(_to_array(col, kind))
+                col.clear()
 
     def result(self) -> TopicData:
+        self._convert()
         t = np.asarray(self.times, dtype=np.int64)
-        order = np.argsort(t, kind='stable')
         sorted_ = not np.any(np.diff(t) < 0)
+        order = None if sorted_ else np.argsort(t, kind='stable')
         fields = {}
-        for (name, kind), col in zip(self.columns, self.values):
-            arr = _to_array(col, kind)
-            fields[name] = arr if sorted_ else arr[order]
-        return TopicData(self.topic, self.msgtype, t if sorted_ else t[order], fields)
+        for (name, _), blocks in zip(self.columns, self.blocks):
+            arr = _concat(blocks) if blocks else np.empty(0)
+            fields[name] = arr if order is None else arr[order]
+        return TopicData(self.topic, self.msgtype, t if order is None else t[order], fields)
 
 
 # --------------------------------------------------------------------------------------
