@@ -164,6 +164,11 @@ class BagWriter:
 
     # --- life cycle ---------------------------------------------------------------------
     @property
+    def is_open(self) -> bool:
+        """True between :meth:`open` and :meth:`close` / :meth:`abort`."""
+        return self._opened and not self._closed
+
+    @property
     def mcap_path(self) -> Path:
         """The MCAP file inside the bag directory."""
         return self.path / f'{self.path.name}.mcap'
@@ -375,7 +380,7 @@ class QueuedBagWriter:
         """Open the bag (if needed) and start the writer thread."""
         if self._thread is not None:
             raise RecordingError('writer thread already started')
-        if not self.writer._opened:
+        if not self.writer.is_open:
             self.writer.open()
         self._thread = threading.Thread(target=self._run, name='bag-writer', daemon=True)
         self._thread.start()
