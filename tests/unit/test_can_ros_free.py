@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
-from conftest import REPO_ROOT
+REPO_ROOT = Path(__file__).resolve().parents[2]
 
 CORES = ('valve_driver_pkg.protocol', 'valve_driver_pkg.canbus', 'valve_driver_pkg.driver',
          'valve_driver_pkg.emulator', 'valve_driver_pkg.emulator.emulator_main',
