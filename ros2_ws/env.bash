@@ -23,8 +23,12 @@ case ":$PATH:" in *":$_valve_venv/bin:"*) ;; *) export PATH="$_valve_venv/bin:$P
 # The venv is the ROS prefix of the pip-installed Jazzy wheels.
 export AMENT_PREFIX_PATH="$_valve_venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
 export CMAKE_PREFIX_PATH="$_valve_venv${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}"
+# colcon's setup scripts read unset variables: relax nounset while sourcing them, so this
+# file also works from `set -u` shells and Makefiles.
+case "$-" in *u*) _valve_nounset=1; set +u ;; *) _valve_nounset= ;; esac
 # shellcheck disable=SC1091
 . "$_valve_ws/install/setup.bash"
+[ -z "$_valve_nounset" ] || set -u
 # ament_python installs console scripts in lib/<pkg> (for `ros2 run`); put them on PATH too
 # so `valve_simulator` works without the ros2 CLI, which the wheels do not provide.
 for _valve_pkg in valve_model_pkg valve_driver_pkg; do
@@ -38,4 +42,4 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-42}"
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
 export VALVE_SUITE_ROOT="$_valve_root"
-unset _valve_ws _valve_root _valve_venv _valve_pkg
+unset _valve_ws _valve_root _valve_venv _valve_pkg _valve_nounset

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import REPO_ROOT
+from suite_paths import REPO_ROOT
 
 pytestmark = pytest.mark.e2e
 

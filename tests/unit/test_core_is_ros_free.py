@@ -8,14 +8,14 @@ from pathlib import Path
 
 import pytest
 
-from conftest import REPO_ROOT
+from suite_paths import REPO_ROOT
 
 CORE_DIRS = [
     REPO_ROOT / 'valve_model_pkg' / 'valve_model_pkg' / name
     for name in ('model', 'maps', 'identification', 'pneumatics', 'cli')
 ] + [
     REPO_ROOT / 'valve_driver_pkg' / 'valve_driver_pkg' / name
-    for name in ('protocol', 'emulator')
+    for name in ('protocol', 'emulator', 'driver', 'canbus')
 ] + [REPO_ROOT / 'valve_model_pkg' / 'valve_model_pkg' / 'supervisor.py']
 
 ROS_MODULES = ('rclpy', 'rcl_interfaces', 'std_msgs', 'sensor_msgs', 'diagnostic_msgs',
@@ -62,6 +62,7 @@ def test_importing_the_cores_loads_no_ros_module() -> None:
         'for pkg in ("valve_model_pkg.model", "valve_model_pkg.maps",\n'
         '            "valve_model_pkg.identification", "valve_model_pkg.pneumatics",\n'
         '            "valve_driver_pkg.protocol", "valve_driver_pkg.emulator",\n'
+        '            "valve_driver_pkg.driver", "valve_driver_pkg.canbus",\n'
         '            "valve_model_pkg.supervisor"):\n'
         '    try:\n'
         '        m = importlib.import_module(pkg)\n'

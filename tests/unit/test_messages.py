@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import REPO_ROOT
+from suite_paths import REPO_ROOT
 
 MSG_DIR = REPO_ROOT / 'valve_msgs' / 'msg'
 FIELD = re.compile(r'^(?P<type>[A-Za-z_][\w/]*(\[\d*\])?)\s+(?P<name>[A-Za-z_]\w*)\s*(?P<rest>.*)$')

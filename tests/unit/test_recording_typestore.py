@@ -8,7 +8,7 @@ import sys
 import pytest
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from conftest import REPO_ROOT
+from suite_paths import REPO_ROOT
 from valve_model_pkg.recording import (DEFAULT_TOPICS, SUITE_TOPICS, UnknownMessageTypeError,
                                        build_typestore, ensure_type, msgdef_and_hash,
                                        parse_topic_spec)

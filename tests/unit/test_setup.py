@@ -7,7 +7,7 @@ import subprocess
 import sys
 import sysconfig
 
-from conftest import REPO_ROOT
+from suite_paths import REPO_ROOT
 
 FIX = REPO_ROOT / 'scripts' / 'fix_wheel_paths.py'
 
