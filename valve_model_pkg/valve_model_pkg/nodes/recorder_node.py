@@ -165,8 +165,12 @@ class RecorderNode(Node):
                 _message_class(msgtype)
                 typed.append((full, msgtype))
         self._writer = QueuedBagWriter(writer).start()
-        for full, msgtype in typed:
-            self._subscribe(full, msgtype)
+        try:
+            for full, msgtype in typed:
+                self._subscribe(full, msgtype)
+        except BaseException:
+            self._writer.close()  # a complete (if short) bag rather than a dangling one
+            raise
 
         # Every parameter is read once, above; refuse run-time changes rather than
         # pretend to apply them to a bag already being written.
