@@ -328,9 +328,6 @@ def read_csv(path: str | Path) -> Measurement:
             spath, header_line, f'header lacks required column(s) {missing}; '
             f'found {header}')
     unknown = [c for c in header if c not in _KNOWN_COLUMNS]
-    if len(rows) < _MIN_SAMPLES:
-        raise MeasurementFormatError(
-            spath, None, f'has {len(rows)} data rows; at least {_MIN_SAMPLES} are needed')
 
     ncol = len(header)
     index = {c: header.index(c) for c in header}
@@ -345,6 +342,9 @@ def read_csv(path: str | Path) -> Measurement:
             data[r, c] = _parse_float(spath, lineno, name, fields[c],
                                       allow_missing=name not in ('t', 'voltage'))
 
+    if len(rows) < _MIN_SAMPLES:
+        raise MeasurementFormatError(
+            spath, None, f'has {len(rows)} data rows; at least {_MIN_SAMPLES} are needed')
     t = data[:, index['t']]
     _check_time_axis(spath, t, linenos)
     current = data[:, index['current']]

@@ -105,7 +105,8 @@ def _segments(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t0, levels
 
 
-def prepare_trace(m: Measurement, *, h_stop_s: float | None = None) -> TraceSetup:
+def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
+                  keep: np.ndarray | None = None) -> TraceSetup:
     """Prepare a measurement for :func:`simulate_trace_batch`.
 
     Parameters
@@ -115,8 +116,11 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None) -> TraceSetu
         is sampled).
     h_stop_s : float, optional
         Kernel step while the spool rests [s]. Default: the kernel's default, or up to
-        100 us for multi-second traces, where the slow RL dynamics (tau ~ 10 ms) allow it
+        500 us for multi-second traces, where the slow RL dynamics (tau ~ 10 ms) allow it
         and it keeps the cost of a heating experiment down.
+    keep : numpy.ndarray of bool, optional
+        Samples at which to report the current (default all). The voltage edges always
+        come from every sample.
 
     Raises
     ------
@@ -126,13 +130,13 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None) -> TraceSetu
     if m.supply_pressure_pa is None:
         raise ModelAdapterError(
             f'{m.source}: no supply_pressure_pa in the metadata; the model needs it')
-    t = m.t_s
+    seg_t0, seg_v = _segments(m.t_s, m.voltage_v)
+    t = m.t_s if keep is None else m.t_s[keep]
     dt = float(np.median(np.diff(t)))
-    seg_t0, seg_v = _segments(t, m.voltage_v)
     # Samples on a uniform grid (missing rows allowed) are read straight off the grid.
     n_float = (t - t[0]) / dt
     n_int = np.round(n_float)
-    on_grid = bool(np.max(np.abs(n_float - n_int)) < 1e-3) and dt <= 1e-3
+    on_grid = bool(np.max(np.abs(n_float - n_int)) < 1e-3) and dt <= 1e-2
     if on_grid:
         grid_dt, index = dt, n_int.astype(np.int64)
         n_grid = int(index[-1]) + 1
@@ -142,7 +146,7 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None) -> TraceSetu
         index = None
     if h_stop_s is None:
         h_stop_s = _k.DEFAULT_H_STOP_S if m.duration_s < 0.5 else max(
-            _k.DEFAULT_H_STOP_S, min(100e-6, grid_dt))
+            _k.DEFAULT_H_STOP_S, min(500e-6, grid_dt))
     return TraceSetup(seg_t0_s=seg_t0, seg_v=seg_v, t_end_s=float(t[-1]),
                       grid_t0_s=float(t[0]), grid_dt_s=grid_dt, n_grid=n_grid, index=index,
                       t_s=t, supply_pressure_pa=float(m.supply_pressure_pa),

@@ -219,6 +219,34 @@ def _trapezoid_weights(t: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return w
 
 
+#: Multi-second records are compared at this rate at most: their information is the slow
+#: drift (coil heating), and the simulation cost grows with the number of output samples.
+LONG_RECORD_S = 0.5
+LONG_RECORD_RATE_HZ = 1000.0
+
+
+def _decimation(m: Measurement) -> np.ndarray | None:
+    """Samples kept for fitting: all, or every k-th of a long, fast record."""
+    if m.duration_s < LONG_RECORD_S or m.sample_rate_hz <= 1.2 * LONG_RECORD_RATE_HZ:
+        return None
+    k = int(m.sample_rate_hz // LONG_RECORD_RATE_HZ)
+    n = np.round((m.t_s - m.t_s[0]) * m.sample_rate_hz).astype(np.int64)
+    keep = n % k == 0
+    return keep
+
+
+def _subset(m: Measurement, keep: np.ndarray) -> Measurement:
+    """The kept samples of ``m`` as a Measurement of their own (for errors and plots)."""
+    from dataclasses import replace
+    note = (f'compared at {keep.sum()} of {keep.size} samples (every '
+            f'{int(round(keep.size / keep.sum()))}th): a long record is fitted on its drift')
+    return replace(m, t_s=m.t_s[keep], voltage_v=m.voltage_v[keep],
+                   current_a=m.current_a[keep],
+                   position_m=None if m.position_m is None else m.position_m[keep],
+                   notes=m.notes + (note,),
+                   n_missing_values=int(np.count_nonzero(~np.isfinite(m.current_a[keep]))))
+
+
 class FitData:
     """A set of measurements prepared for fast batch cost evaluation.
 
@@ -231,8 +259,13 @@ class FitData:
     def __init__(self, measurements: Sequence[Measurement]) -> None:
         if not measurements:
             raise IdentificationError('no measurement given')
-        self.measurements = list(measurements)
-        self.setups: list[TraceSetup] = [prepare_trace(m) for m in self.measurements]
+        self.full = list(measurements)
+        self.measurements = []
+        self.setups: list[TraceSetup] = []
+        for m in self.full:
+            keep = _decimation(m)
+            self.setups.append(prepare_trace(m, keep=keep))
+            self.measurements.append(m if keep is None else _subset(m, keep))
         self.valid = [m.valid for m in self.measurements]
         self.weights = [_trapezoid_weights(m.t_s, v) for m, v in zip(self.measurements,
                                                                       self.valid)]
