@@ -52,7 +52,6 @@ def main(argv: list[str] | None = None) -> int:
     from ..identification.measurements import read_measurements
     from ..identification.pipeline import IdentifySettings, identify
     from ..identification.report import write_report
-    from ..identification.search import SearchSettings
     from ..model.parameters import ParameterError, load_parameters
 
     start = time.perf_counter()
@@ -77,11 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     settings = IdentifySettings(diagnose=not args.no_diagnosis)
     if args.quick:
-        settings = IdentifySettings(
-            baseline=SearchSettings(global_samples=128, starts=4, max_iterations=250),
-            refit=SearchSettings(global_samples=0, starts=5, max_iterations=150,
-                                 initial_step=0.06, restarts=1),
-            diagnose=not args.no_diagnosis)
+        settings = IdentifySettings.quick(diagnose=not args.no_diagnosis)
     try:
         ident = identify(fit, val, base, settings, progress=progress)
         rep = write_report(ident, args.out, plots=not args.no_plots)

@@ -36,7 +36,7 @@ from typing import Callable
 import numpy as np
 
 from ..model.parameters import EFFECTS, ValveParameters
-from .problem import FIELD_INDEX, FitData, ParameterSpace, effect_space, unit_objective
+from .problem import FitData, ParameterSpace, effect_space, unit_objective
 from .search import SearchSettings, direct_search
 from .sensitivity import noise_std
 
@@ -138,26 +138,21 @@ def score_signatures(space: ParameterSpace, data: FitData, params: ValveParamete
         the probe signature that best fits the residual (negative = the wrong sign, the
         effect cannot produce it).
     """
+    from .sensitivity import _perturbed_values
     base = params.to_vector()
     n = space.size
-    rows = [base]
-    for j, name in enumerate(space.names):
-        v = base[FIELD_INDEX[name]]
-        for sgn in (1.0, -1.0):
-            r = base.copy()
-            r[FIELD_INDEX[name]] = v * math.exp(sgn * 0.01)
-            rows.append(r)
+    vrows, denom = _perturbed_values(space, params, 0.01)
     effects = list(EFFECTS)
-    for eff in effects:
-        rows.append(_probe(params, eff, _PROBE_FRACTION).to_vector())
-    raw = np.array(rows)
+    raw = np.vstack([base[None, :], space.raw_from_values(vrows)]
+                    + [_probe(params, eff, _PROBE_FRACTION).to_vector()[None, :]
+                       for eff in effects])
     ok = space.feasible(raw)
     raw[~ok] = base
     sims = [c for c, _ in data.simulate(raw)]
     res = _stack(data, [np.where(np.isfinite(r), r, 0.0) for r in residuals])
     cols = []
     for j in range(n):
-        cols.append(_stack(data, [(c[1 + 2 * j] - c[2 + 2 * j]) / 0.02 for c in sims]))
+        cols.append(_stack(data, [(c[1 + 2 * j] - c[2 + 2 * j]) / denom[j] for c in sims]))
     jac = np.column_stack(cols)
     out = {}
     for k, eff in enumerate(effects):

@@ -51,6 +51,14 @@ class IdentifySettings:
     max_refits: int = len(EFFECTS)
     diagnose: bool = True
 
+    @classmethod
+    def quick(cls, diagnose: bool = True) -> 'IdentifySettings':
+        """Smaller effort (tests, previews): fewer global samples, starts and iterations."""
+        return cls(baseline=SearchSettings(global_samples=128, starts=4, max_iterations=250),
+                   refit=SearchSettings(global_samples=0, starts=5, max_iterations=150,
+                                        initial_step=0.06, restarts=1),
+                   diagnose=diagnose)
+
 
 @dataclass
 class Stage:

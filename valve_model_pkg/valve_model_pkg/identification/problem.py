@@ -72,10 +72,13 @@ _BOUNDS: dict[str, tuple[float, float]] = {
 #: Smallest holding gap x_t - x_max the search allows [m] (eq. 2: L(x_max) stays finite).
 MIN_HOLDING_GAP_M = 5e-6
 
+_GAP_FIELDS = ('core_length_m', 'relative_permeability', 'total_air_gap_m')
+
 PAPER_SYMBOLS = {
     'core_length_m': 'l_c', 'coil_resistance_ohm': 'R', 'stroke_m': 'x_max',
     'core_area_m2': 'A_e', 'spring_pretension_m': 'delta', 'total_air_gap_m': 'x_t',
     'damping_n_s_per_m': 'b', 'relative_permeability': 'mu_r',
+    'equivalent_gap_m': 's',
 }
 
 
@@ -103,12 +106,34 @@ class ParameterBound:
         return self.low + (self.high - self.low) * u
 
 
+#: The search coordinate that replaces l_c, mu_r and x_t (see :class:`ParameterSpace`).
+GAP = 'equivalent_gap_m'
+
+
+def equivalent_gap_m(params: ValveParameters) -> float:
+    """``s = l_c / mu_r + 2 x_t`` [m]: the one combination of l_c, mu_r, x_t in eqs. (4)-(8).
+
+    ``L(x) = N^2 A_e mu_0 / (l_c/mu_r + 2 (x_t - x))``, so every current and force of the
+    model depends on the three only through ``s``.
+    """
+    return params.core_length_m / params.relative_permeability + 2.0 * params.total_air_gap_m
+
+
 @dataclass(frozen=True)
 class ParameterSpace:
-    """The free parameters of one fit, on top of a fixed base parameter set."""
+    """The free parameters of one fit, on top of a fixed base parameter set.
+
+    A bound named :data:`GAP` stands for ``s = l_c/mu_r + 2 x_t``. Eq. (4) contains l_c,
+    mu_r and x_t only through ``s``, so no current measurement can tell them apart and a
+    search over all three wanders along two flat directions (it slows Nelder-Mead down a
+    lot). The search therefore moves ``s``; ``l_c`` and ``x_t`` stay at the measured values
+    of Table 2 (``hold``) and ``mu_r = l_c / (s - 2 x_t)``. When the stroke leaves no room
+    for the measured x_t, x_t moves half-way into the room that ``s`` leaves.
+    """
 
     base: ValveParameters
     bounds: tuple[ParameterBound, ...]
+    hold: tuple[float, float] = (0.11, 0.35e-3)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -118,22 +143,52 @@ class ParameterSpace:
     def size(self) -> int:
         return len(self.bounds)
 
+    def values_of(self, params: ValveParameters) -> np.ndarray:
+        """Physical values of the free parameters, shape (n,)."""
+        return np.array([equivalent_gap_m(params) if b.name == GAP
+                         else getattr(params, b.name) for b in self.bounds])
+
     def to_unit(self, params: ValveParameters) -> np.ndarray:
         """Unit coordinates of a parameter set, shape (n,)."""
-        return np.array([b.to_unit(getattr(params, b.name)) for b in self.bounds])
+        return np.array([b.to_unit(v) for b, v in zip(self.bounds, self.values_of(params))])
+
+    def raw_from_values(self, values: np.ndarray) -> np.ndarray:
+        """Raw model parameter matrix (m, len(PARAMETER_FIELDS)) from physical values (m, n)."""
+        values = np.atleast_2d(values)
+        raw = np.repeat(self.base.to_vector()[None, :], values.shape[0], axis=0)
+        gap_col = None
+        for j, b in enumerate(self.bounds):
+            if b.name == GAP:
+                gap_col = j
+            else:
+                raw[:, FIELD_INDEX[b.name]] = values[:, j]
+        if gap_col is not None:
+            s = values[:, gap_col]
+            lc, xt0 = self.hold
+            xmax = raw[:, FIELD_INDEX['stroke_m']]
+            xt = np.maximum(xt0, xmax + MIN_HOLDING_GAP_M)
+            tight = s - 2.0 * xt <= 0.05 * s
+            xt = np.where(tight, xmax + 0.5 * (0.5 * s - xmax), xt)
+            room = s - 2.0 * xt
+            raw[:, FIELD_INDEX['core_length_m']] = lc
+            raw[:, FIELD_INDEX['total_air_gap_m']] = xt
+            with np.errstate(divide='ignore', invalid='ignore'):
+                raw[:, FIELD_INDEX['relative_permeability']] = np.where(
+                    room > 0, lc / np.where(room > 0, room, 1.0), np.nan)
+        return raw
 
     def raw_matrix(self, u: np.ndarray) -> np.ndarray:
         """Raw model parameter matrix, shape (m, len(PARAMETER_FIELDS)), from (m, n) units."""
         u = np.atleast_2d(u)
-        raw = np.repeat(self.base.to_vector()[None, :], u.shape[0], axis=0)
-        for j, b in enumerate(self.bounds):
-            raw[:, FIELD_INDEX[b.name]] = b.from_unit(u[:, j])
-        return raw
+        vals = np.column_stack([b.from_unit(u[:, j]) for j, b in enumerate(self.bounds)])
+        return self.raw_from_values(vals)
 
     def feasible(self, raw: np.ndarray) -> np.ndarray:
         """Rows that describe a valid valve (holding gap open, restitution below 1)."""
         gap = raw[:, FIELD_INDEX['total_air_gap_m']] - raw[:, FIELD_INDEX['stroke_m']]
         ok = gap >= MIN_HOLDING_GAP_M
+        mu = raw[:, FIELD_INDEX['relative_permeability']]
+        ok &= np.isfinite(mu) & (mu > 1.0) & (mu < 1e6)
         ok &= raw[:, FIELD_INDEX['restitution_coefficient']] < 0.95
         return ok
 
@@ -143,23 +198,36 @@ class ParameterSpace:
 
 
 def baseline_space(base: ValveParameters) -> ParameterSpace:
-    """The paper's eight parameters, bounds widened if ``base`` lies outside them."""
+    """The paper's eight parameters as six search coordinates (see :class:`ParameterSpace`).
+
+    R, x_max, A_e, delta and b directly; ``s = l_c/mu_r + 2 x_t`` for the other three,
+    bounded by what their own ranges allow. Bounds widen if ``base`` lies outside them.
+    """
     out = []
     for name in IDENTIFIED_FIELDS:
+        if name in _GAP_FIELDS:
+            continue
         lo, hi = _BOUNDS[name]
         v = getattr(base, name)
         out.append(ParameterBound(name, min(lo, 0.7 * v), max(hi, 1.4 * v)))
-    return ParameterSpace(base, tuple(out))
+    lc_lo, lc_hi = _BOUNDS['core_length_m']
+    mu_lo, mu_hi = _BOUNDS['relative_permeability']
+    xt_lo, xt_hi = _BOUNDS['total_air_gap_m']
+    s_base = equivalent_gap_m(base)
+    out.append(ParameterBound(GAP, min(lc_lo / mu_hi + 2 * xt_lo, 0.7 * s_base),
+                              max(lc_hi / mu_lo + 2 * xt_hi, 1.4 * s_base)))
+    hold = (float(TABLE2_MEASURED['core_length_m']), float(TABLE2_MEASURED['total_air_gap_m']))
+    return ParameterSpace(base, tuple(out), hold)
 
 
 def start_point(space: ParameterSpace) -> ValveParameters:
     """Table 2's measured values; b and mu_r (never measured) at the middle of their range."""
     changes = {}
-    for b in space.bounds:
-        measured = TABLE2_MEASURED.get(b.name)
-        if b.name in TABLE2_MEASURED:
-            changes[b.name] = (measured if measured is not None
-                               else float(b.from_unit(np.array(0.5))))
+    for name, measured in TABLE2_MEASURED.items():
+        if measured is None:
+            lo, hi = _BOUNDS[name]
+            measured = math.sqrt(lo * hi)
+        changes[name] = measured
     return space.base.replace(**changes)
 
 
@@ -176,7 +244,7 @@ def effect_space(space: ParameterSpace, effect: str) -> ParameterSpace:
         else:
             extra.append(ParameterBound(name, lo, hi, log=True))
         del neutral
-    return ParameterSpace(space.base, space.bounds + tuple(extra))
+    return ParameterSpace(space.base, space.bounds + tuple(extra), space.hold)
 
 
 @dataclass(frozen=True)
@@ -336,6 +404,7 @@ def unit_objective(space: ParameterSpace, data: FitData):
     return fun
 
 
-__all__ += ['MIN_HOLDING_GAP_M', 'PAPER_SYMBOLS', 'start_point', 'unit_objective']
+__all__ += ['GAP', 'MIN_HOLDING_GAP_M', 'PAPER_SYMBOLS', 'equivalent_gap_m', 'start_point',
+            'unit_objective']
 # PARAMETER_FIELDS is re-exported for the report (field order of raw matrices).
 _ = PARAMETER_FIELDS

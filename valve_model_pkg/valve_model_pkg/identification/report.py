@@ -29,8 +29,7 @@ import yaml
 
 from ..model.parameters import EFFECTS, ValveParameters
 from .pipeline import Identification, Stage
-from .problem import IDENTIFIED_FIELDS, PAPER_SYMBOLS, TABLE2_MEASURED
-from .sensitivity import equivalent_gap_m
+from .problem import IDENTIFIED_FIELDS, PAPER_SYMBOLS, TABLE2_MEASURED, equivalent_gap_m
 
 __all__ = ['write_report', 'report_dict']
 

@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..model.parameters import ValveParameters
-from .problem import FIELD_INDEX, PAPER_SYMBOLS, FitData, ParameterSpace
+from .problem import GAP, PAPER_SYMBOLS, FitData, ParameterSpace, equivalent_gap_m
 
-__all__ = ['SensitivityReport', 'analyse_sensitivity', 'noise_std']
+__all__ = ['SensitivityReport', 'analyse_sensitivity', 'noise_std', 'equivalent_gap_m']
 
 _PINNED_CI95_PCT = 5.0
 _REL_STEP = 0.01
@@ -84,40 +84,42 @@ class SensitivityReport:
         }
 
 
-def _jacobian(space: ParameterSpace, data: FitData, params: ValveParameters
-              ) -> tuple[np.ndarray, list[int]]:
-    """d(current)/d(ln theta) stacked over files, shape (n_valid_samples, n_params)."""
-    base = params.to_vector()
+def _perturbed_values(space: ParameterSpace, params: ValveParameters, step: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Rows +-step (log) per free parameter, shape (2n, n), and each row pair's divisor.
+
+    A parameter at 0 (an effect switched off) steps one-sidedly by ``step`` of its range.
+    """
+    vals = space.values_of(params)
     n = space.size
-    raw = np.repeat(base[None, :], 2 * n, axis=0)
-    usable = []
-    for j, name in enumerate(space.names):
-        col = FIELD_INDEX[name]
-        v = base[col]
+    rows = np.repeat(vals[None, :], 2 * n, axis=0)
+    denom = np.full(n, 2.0 * step)
+    for j, b in enumerate(space.bounds):
+        v = vals[j]
         if v == 0.0:
-            # An effect at its neutral 0: a one-sided step into the physical range.
-            b = space.bounds[j]
-            step = 0.01 * (b.high - b.low)
-            raw[2 * j, col] = v + step
-            raw[2 * j + 1, col] = v
+            rows[2 * j, j] = step * (b.high - b.low)
+            denom[j] = step
         else:
-            raw[2 * j, col] = v * math.exp(_REL_STEP)
-            raw[2 * j + 1, col] = v * math.exp(-_REL_STEP)
-        usable.append(j)
+            rows[2 * j, j] = v * math.exp(step)
+            rows[2 * j + 1, j] = v * math.exp(-step)
+    return rows, denom
+
+
+def _jacobian(space: ParameterSpace, data: FitData, params: ValveParameters
+              ) -> np.ndarray:
+    """d(current)/d(ln value) stacked over files, shape (n_valid_samples, n_params)."""
+    rows, denom = _perturbed_values(space, params, _REL_STEP)
+    raw = space.raw_from_values(rows)
     ok = space.feasible(raw)
-    raw[~ok] = base  # an infeasible step (holding gap) becomes a zero column
-    sims = data.simulate(raw)
+    raw[~ok] = params.to_vector()  # an infeasible step becomes a zero column
     blocks = []
-    for (cur, _), valid in zip(sims, data.valid):
+    for (cur, _), valid in zip(data.simulate(raw), data.valid):
         c = cur[:, valid]
-        jb = np.empty((c.shape[1], n))
-        for j in range(n):
-            denom = 2.0 * _REL_STEP
-            if base[FIELD_INDEX[space.names[j]]] == 0.0:
-                denom = _REL_STEP  # per "1 % of the range" for effects at 0
-            jb[:, j] = (c[2 * j] - c[2 * j + 1]) / denom
+        jb = np.empty((c.shape[1], space.size))
+        for j in range(space.size):
+            jb[:, j] = (c[2 * j] - c[2 * j + 1]) / denom[j]
         blocks.append(jb)
-    return np.vstack(blocks), usable
+    return np.vstack(blocks)
 
 
 def _weak_directions(names: list[str], evals: np.ndarray, evecs: np.ndarray
@@ -141,37 +143,6 @@ def _weak_directions(names: list[str], evals: np.ndarray, evecs: np.ndarray
 _GAP_GROUP = ('core_length_m', 'relative_permeability', 'total_air_gap_m')
 
 
-def equivalent_gap_m(params: ValveParameters) -> float:
-    """``s = l_c / mu_r + 2 x_t`` [m]: the one combination of l_c, mu_r, x_t in eqs. (4)-(8).
-
-    ``L(x) = N^2 A_e mu_0 / (l_c/mu_r + 2 (x_t - x))``, so every current and force of the
-    model depends on the three only through ``s``.
-    """
-    return params.core_length_m / params.relative_permeability + 2.0 * params.total_air_gap_m
-
-
-def _gap_group_invisible(space: ParameterSpace, data: FitData, params: ValveParameters
-                         ) -> bool:
-    """Check by simulation that moving l_c, mu_r, x_t at constant ``s`` changes nothing."""
-    if not all(n in space.names for n in _GAP_GROUP):
-        return False
-    s = equivalent_gap_m(params)
-    xt = params.total_air_gap_m * 1.05
-    moved = [params.replace(core_length_m=params.core_length_m * 1.05,
-                            relative_permeability=params.relative_permeability * 1.05)]
-    ratio = s - 2.0 * xt
-    if ratio > 0 and xt > params.stroke_m:
-        moved.append(params.replace(total_air_gap_m=xt,
-                                    core_length_m=ratio * params.relative_permeability))
-    raw = np.array([params.to_vector()] + [m.to_vector() for m in moved])
-    for (cur, _), valid in zip(data.simulate(raw), data.valid):
-        c = cur[:, valid]
-        scale = max(float(np.max(np.abs(c[0]))), 1e-3)
-        if np.max(np.abs(c[1:] - c[0])) > 1e-6 * scale:
-            return False
-    return True
-
-
 def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParameters
                         ) -> SensitivityReport:
     """Local sensitivity and confidence analysis at ``params``.
@@ -179,7 +150,7 @@ def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParam
     Parameters
     ----------
     space : ParameterSpace
-        The free parameters.
+        The free parameters (search coordinates, e.g. ``equivalent_gap_m``).
     data : FitData
         The fit files.
     params : ValveParameters
@@ -188,10 +159,11 @@ def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParam
     Returns
     -------
     SensitivityReport
+        Entries for every search coordinate; when the space uses ``equivalent_gap_m``,
+        also l_c, mu_r and x_t, reported as not identifiable on their own.
     """
-    jac, _ = _jacobian(space, data, params)
-    residuals = data.residuals(params)
-    sig = [noise_std(r) for r in residuals]
+    jac = _jacobian(space, data, params)
+    sig = [noise_std(r) for r in data.residuals(params)]
     sigma = float(np.nanmedian(sig)) if sig else math.nan
     names = list(space.names)
     sens = {n: float(np.sqrt(np.mean(jac[:, j] ** 2)) * 1e3 / 100.0)
@@ -200,54 +172,43 @@ def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParam
     if not math.isfinite(sigma) or sigma <= 0.0:
         sigma = 1e-3
         notes.append('noise could not be estimated from the residual; 1 mA assumed')
-    # Structural non-identifiability is taken out first, exactly: finite differences
-    # would leave spurious information along the invisible directions.
-    red_names = list(names)
-    red_jac = jac
-    gap = _gap_group_invisible(space, data, params)
-    derived: dict[str, object] = {}
-    if gap:
-        idx = [names.index(n) for n in _GAP_GROUP]
-        s_val = equivalent_gap_m(params)
-        j_s = jac[:, names.index('total_air_gap_m')] * s_val / (2.0 * params.total_air_gap_m)
-        keep_cols = [j for j in range(len(names)) if j not in idx]
-        red_jac = np.column_stack([jac[:, keep_cols], j_s])
-        red_names = [names[j] for j in keep_cols] + ['equivalent_gap']
-        notes.append('l_c, mu_r and x_t enter the model only through s = l_c/mu_r + 2 x_t '
-                     '(eq. 4; checked by simulation): each alone is not identifiable, s is')
-    fim = red_jac.T @ red_jac / sigma ** 2
+    fim = jac.T @ jac / sigma ** 2
     evals, evecs = np.linalg.eigh(fim)
     evals = np.maximum(evals, 0.0)
     std_dir = np.where(evals > 0, 100.0 / np.sqrt(np.maximum(evals, 1e-300)), np.inf)
     null = std_dir > _NULL_STD_PCT
     keep = ~null
-    var = (evecs[:, keep] ** 2) @ (1.0 / evals[keep]) if keep.any() else \
-        np.zeros(len(red_names))
-    null_weight = (evecs[:, null] ** 2).sum(axis=1) if null.any() else \
-        np.zeros(len(red_names))
-    red_std = {n: (math.inf if null_weight[j] > 0.25 else 100.0 * math.sqrt(var[j]))
-               for j, n in enumerate(red_names)}
-    rel_std = {n: red_std.get(n, math.inf) for n in names}
-    ci95 = {n: 1.96 * v for n, v in rel_std.items()}
-    if gap:
-        s_std = red_std['equivalent_gap']
+    var = (evecs[:, keep] ** 2) @ (1.0 / evals[keep]) if keep.any() else np.zeros(len(names))
+    null_weight = (evecs[:, null] ** 2).sum(axis=1) if null.any() else np.zeros(len(names))
+    rel_std = {n: (math.inf if null_weight[j] > 0.25 else 100.0 * math.sqrt(var[j]))
+               for j, n in enumerate(names)}
+    weak = _weak_directions(names, evals, evecs)
+    derived: dict[str, object] = {}
+    if GAP in names:
+        for n in _GAP_GROUP:
+            rel_std[n] = math.inf
+            sens[n] = None
+        weak.insert(0, {'combination': 'l_c, mu_r, x_t at constant s = l_c/mu_r + 2 x_t',
+                        'components': {n: None for n in _GAP_GROUP}, 'rel_std_pct': None})
+        s_std = rel_std[GAP]
         derived['equivalent_gap'] = {
             'definition': 's = l_c / mu_r + 2 x_t', 'value_m': equivalent_gap_m(params),
             'rel_std_pct': s_std if math.isfinite(s_std) else None,
             'ci95_pct': 1.96 * s_std if math.isfinite(s_std) else None}
-    pinned = [n for n in names if ci95[n] < _PINNED_CI95_PCT]
-    not_pinned = [n for n in names if n not in pinned]
-    weak = _weak_directions(red_names, evals, evecs)
-    if gap:
-        weak.insert(0, {'combination': 'l_c, mu_r, x_t at constant l_c/mu_r + 2 x_t',
-                        'components': {n: None for n in _GAP_GROUP}, 'rel_std_pct': None})
+        notes.append('l_c, mu_r and x_t enter the model only through s = l_c/mu_r + 2 x_t '
+                     '(eq. 4): no current measurement separates them. The search moves s; '
+                     'l_c and x_t are held at their measured values and mu_r follows.')
+    if null.any():
+        notes.append('parameters with weight in a direction the data cannot see are '
+                     'reported without an error (not identifiable)')
     notes.append('confidence intervals are local (linearised) and assume white noise; '
                  'a structured residual makes them optimistic')
-    rep = SensitivityReport(
-        names=names, sensitivity_ma=sens,
+    ci95 = {n: 1.96 * v for n, v in rel_std.items()}
+    pinned = [n for n in ci95 if ci95[n] < _PINNED_CI95_PCT]
+    not_pinned = [n for n in ci95 if n not in pinned]
+    return SensitivityReport(
+        names=list(rel_std), sensitivity_ma=sens,
         rel_std_pct={k: (v if math.isfinite(v) else None) for k, v in rel_std.items()},
         ci95_pct={k: (v if math.isfinite(v) else None) for k, v in ci95.items()},
         pinned=pinned, not_pinned=not_pinned, weak_directions=weak, noise_std_a=sigma,
-        notes=notes)
-    rep.derived = derived
-    return rep
+        notes=notes, derived=derived)

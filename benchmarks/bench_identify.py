@@ -1,0 +1,122 @@
+"""Identification benchmarks (issue 5): speed of the fit and of the whole loop, accuracy.
+
+Writes benchmarks/results/identify.json (records: name, value, unit, reference_name,
+reference_value, ratio, target, passed, notes).
+
+1. ``identify_8_params_40ms_50khz``: the baseline fit of the eight Table 2 parameters from
+   a 40 ms, 50 kHz noisy 24 V step (full effort), target <= 30 s on 2 cores.
+2. ``close_the_loop_40ms``: baseline, residual analysis, signatures, six refits and the
+   selection on a 40 ms fit file + a 40 ms validation file, target <= 180 s.
+3. ``table2_recovery_worst_pinned_pct``: the largest relative error of a pinned-down
+   parameter after (1), target <= 5 %.
+4. ``close_the_loop_diagnosis_correct``: how many of the generated cases (none, six
+   effects, one outside the list) the loop answers right (informative).
+
+The data come from the test-data generator (tests/datagen), run here into a temporary
+folder. The first simulation compiles the numba kernels; that is timed separately
+(``numba_warmup``) and not counted in (1) and (2).
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(ROOT / 'valve_model_pkg'))
+sys.path.insert(0, str(ROOT / 'tests'))
+
+from datagen.generate import CASES, LISTED_EFFECTS, generate_case  # noqa: E402
+from valve_model_pkg.identification.measurements import read_csv  # noqa: E402
+from valve_model_pkg.identification.pipeline import IdentifySettings, identify  # noqa: E402
+from valve_model_pkg.identification.problem import equivalent_gap_m  # noqa: E402
+from valve_model_pkg.model.parameters import load_parameters  # noqa: E402
+
+_TRUTH = {'coil_resistance_ohm': 'resistance_ohm', 'stroke_m': 'stroke_m',
+          'core_area_m2': 'flux_area_m2', 'spring_pretension_m': 'pretension_m'}
+
+
+def _record(name, value, unit, ref_name, ref_value, target, passed, notes):
+    return {'name': name, 'value': value, 'unit': unit, 'reference_name': ref_name,
+            'reference_value': ref_value,
+            'ratio': (value / ref_value) if ref_value else None,
+            'target': target, 'passed': passed, 'notes': notes}
+
+
+def main() -> int:
+    load = f'machine load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs'
+    records = []
+    with tempfile.TemporaryDirectory() as tmp:
+        base = load_parameters()
+        paper = generate_case(tmp, 'paper', seed=1)
+        fit = [read_csv(f) for f in paper['fit']]
+        val = [read_csv(f) for f in paper['validate']]
+        t0 = time.perf_counter()
+        identify(fit, val, base, IdentifySettings.quick(diagnose=False))
+        warm = time.perf_counter() - t0
+        records.append(_record('numba_warmup', warm, 's', None, None, 'informative', True,
+                               'first run in a fresh process: kernel compilation or cache '
+                               f'load, plus a quick fit; {load}'))
+
+        t0 = time.perf_counter()
+        ident = identify(fit, val, base, IdentifySettings(diagnose=False))
+        t_fit = ident.timings_s['baseline_fit']
+        records.append(_record(
+            'identify_8_params_40ms_50khz', t_fit, 's', 'target', 30.0, '<= 30 s on 2 cores',
+            t_fit <= 30.0, f'{ident.simulations} simulations; full effort (256 Sobol points, '
+            f'6 lock-step Nelder-Mead starts); {load}'))
+        p, tv = ident.baseline.params, paper['valve']
+        errs = {n: abs(getattr(p, n) / tv[k] - 1.0) * 100 for n, k in _TRUTH.items()}
+        s_true = tv['core_length_m'] / tv['mu_r'] + 2 * tv['total_gap_m']
+        errs['equivalent_gap_m'] = abs(equivalent_gap_m(p) / s_true - 1.0) * 100
+        pinned = ident.baseline.sensitivity.pinned
+        worst = max(errs[n] for n in pinned if n in errs)
+        records.append(_record(
+            'table2_recovery_worst_pinned_pct', worst, '%', 'target', 5.0, '<= 5 %',
+            worst <= 5.0, 'errors: ' + ', '.join(f'{n} {e:.2f} %' for n, e in errs.items())
+            + f'; pinned down: {pinned}; not: {ident.baseline.sensitivity.not_pinned}'))
+
+        case = generate_case(tmp, 'coulomb_friction', seed=3)
+        fit = [read_csv(f) for f in case['fit']]
+        val = [read_csv(f) for f in case['validate']]
+        t0 = time.perf_counter()
+        ident = identify(fit, val, base, IdentifySettings())
+        t_loop = time.perf_counter() - t0
+        records.append(_record(
+            'close_the_loop_40ms', t_loop, 's', 'target', 180.0, '<= 180 s on 2 cores',
+            t_loop <= 180.0, f'coulomb_friction case: diagnosis {ident.diagnosis.effect}; '
+            f'{ident.simulations} simulations; stages {ident.timings_s}; {load}'))
+
+        right = []
+        for name in CASES[1:]:
+            c = generate_case(tmp, name, seed=5)
+            res = identify([read_csv(f) for f in c['fit']],
+                           [read_csv(f) for f in c['validate']], base, IdentifySettings())
+            want = name if name in LISTED_EFFECTS else 'none'
+            ok = res.diagnosis.effect == want or (
+                name not in LISTED_EFFECTS and name != 'none'
+                and res.diagnosis.confidence == 'low')
+            right.append(f'{name}: {res.diagnosis.effect} ({res.diagnosis.confidence}) '
+                         f'{"ok" if ok else "WRONG"}, validation RMSE '
+                         f'{1e3 * res.baseline.validation.rmse:.2f} -> '
+                         f'{1e3 * res.augmented.validation.rmse:.2f} mA')
+            print(right[-1], file=sys.stderr)
+        n_ok = sum(r.count(' ok,') for r in right)
+        records.append(_record(
+            'close_the_loop_diagnosis_correct', float(n_ok), 'cases', 'cases', float(len(right)),
+            'informative', n_ok == len(right), '; '.join(right)))
+    out = HERE / 'results' / 'identify.json'
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps(records, indent=1), encoding='utf-8')
+    for r in records:
+        print(f"{r['name']}: {r['value']:.4g} {r['unit']} (target {r['target']}) "
+              f"{'ok' if r['passed'] else 'MISSED'}", file=sys.stderr)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
