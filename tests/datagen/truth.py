@@ -334,7 +334,11 @@ def simulate_truth(valve: TruthValve, segments: list[tuple[float, float]], t_end
     y_all = np.concatenate(ys_out) if ys_out else np.empty((0, 5))
     order = np.argsort(t_all, kind='stable')
     t_all, y_all = t_all[order], y_all[order]
-    _, first = np.unique(t_all, return_index=True)
+    # A sample on a voltage edge belongs to the piece after it (the voltage column shows
+    # the new level there): keep the last of duplicate times.
+    rev = t_all[::-1]
+    _, last_rev = np.unique(rev, return_index=True)
+    first = t_all.size - 1 - last_rev
     t_all, y_all = t_all[first], y_all[first]
     if t_all.size != t_samples.size:
         raise RuntimeError(f'truth model covered {t_all.size} of {t_samples.size} samples')

@@ -185,7 +185,10 @@ def _trace_batch(raw: np.ndarray, e: np.ndarray, seg_t0: np.ndarray, seg_v: np.n
         avg = np.zeros(0)
         for s in range(n_seg):
             d[_k.D_VS] = seg_v[s]
-            t_stop = seg_t0[s + 1] if s + 1 < n_seg else t_end + 0.5 * grid_dt
+            # Stop 3 ps short of the next edge (the kernel's event tolerance is 1 ps), so
+            # a sample that falls on the edge is recorded under the new voltage, as the
+            # model's own step response does (it matters with eddy currents).
+            t_stop = seg_t0[s + 1] - 3e-12 if s + 1 < n_seg else t_end + 0.5 * grid_dt
             _k._advance(p, e, y, d, t_stop, h_free, h_stop, out, avg)
         for k in range(n_grid):
             cur[r, k] = out[k, _k.O_I]
