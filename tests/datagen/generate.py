@@ -76,7 +76,7 @@ def effect_changes(effect: str) -> dict[str, float]:
         'coil_heating': {'thermal_capacity_j_k': 6.0, 'thermal_resistance_k_w': 15.0},
         'leakage_inductance': {'leakage_inductance_h': 0.02},
         'end_stop_bounce': {'restitution': 0.5},
-        'supply_ripple': {'ripple_fraction': 0.04, 'ripple_hz': 100.0,
+        'supply_ripple': {'ripple_fraction': 0.08, 'ripple_hz': 100.0,
                           'source_resistance_ohm': 0.3},
     }
     if effect not in table:

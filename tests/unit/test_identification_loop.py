@@ -168,4 +168,5 @@ def test_generator_is_independent_and_differs_from_table2(data_dir: Path) -> Non
     assert rows[0].startswith('# experiment: step')
     currents = np.array([float(r.split(',')[2]) for r in rows[8:] if r.split(',')[2]])
     lsb = 5.0 / 4096
-    np.testing.assert_allclose(currents / lsb, np.round(currents / lsb), atol=1e-3)
+    # 6 significant digits in the file: the codes come back to within 0.01 LSB
+    np.testing.assert_allclose(currents / lsb, np.round(currents / lsb), atol=1e-2)

@@ -38,6 +38,7 @@ import numpy as np
 from ..model.parameters import EFFECTS, ValveParameters
 from .problem import FitData, ParameterSpace, effect_space, unit_objective
 from .search import SearchSettings, direct_search
+from .residuals import ljung_box
 from .sensitivity import noise_std
 
 __all__ = ['CandidateResult', 'Diagnosis', 'score_signatures', 'refit_effect', 'select',
@@ -51,6 +52,8 @@ MIN_VALIDATION_GAIN = 0.02
 MIN_EXPLAINED = 0.5
 #: Structured residual RMS (beyond noise), relative to the noise, that counts as structure.
 STRUCTURE_FRACTION = 0.3
+#: Ljung-Box p-value below which a residual counts as structured whatever its size.
+WHITENESS_P = 1e-4
 
 # Probe values for the signatures: a moderate amount of each effect, as a fraction of the
 # registry's range for the first field of each effect (heating keeps its time constant).
@@ -268,9 +271,13 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
                  f'{100 * MIN_VALIDATION_GAIN:g} %; claim if it also removes >= '
                  f'{100 * MIN_EXPLAINED:g} % of the validation residual energy beyond noise'),
     }
-    sigma = float(np.median([noise_std(r) for r in (val if val is not None else fit
-                                                    ).residuals(baseline)]))
-    structured = math.sqrt(struct_base) > STRUCTURE_FRACTION * sigma
+    base_res = (val if val is not None else fit).residuals(baseline)
+    sigma = float(np.median([noise_std(r) for r in base_res]))
+    lb_p = min(ljung_box(r)[1] for r in base_res)
+    # Structure: clearly more residual than noise, or a residual far from white.
+    structured = (math.sqrt(struct_base) > STRUCTURE_FRACTION * sigma
+                  or (math.isfinite(lb_p) and lb_p < WHITENESS_P))
+    numbers['baseline_ljung_box_p_min'] = lb_p
     numbers['baseline_noise_std_a'] = sigma
     unexplained = structured
     if not kept:
@@ -281,8 +288,9 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
         if structured:
             evidence.append(
                 f'but the baseline residual is structured ({1e3 * math.sqrt(struct_base):.2f} '
-                f'mA RMS beyond {1e3 * sigma:.2f} mA noise): something the candidate list '
-                'does not hold is at work; see the residual analysis')
+                f'mA RMS beyond {1e3 * sigma:.2f} mA noise, Ljung-Box p = {lb_p:.2g}): '
+                'something the candidate list does not hold is at work; see the residual '
+                'analysis')
         best = ranked[0] if ranked else None
         if best is not None and math.isfinite(best.val_gain):
             evidence.append(f'best candidate {best.effect}: validation error '

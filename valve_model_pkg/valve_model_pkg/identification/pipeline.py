@@ -6,12 +6,10 @@ that :mod:`.report` writes out.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
-import numpy as np
 
 from ..model.parameters import EFFECTS, ValveParameters
 from .diagnosis import CandidateResult, Diagnosis, refit_effect, score_signatures, select
@@ -46,8 +44,8 @@ class IdentifySettings:
 
     baseline: SearchSettings = SearchSettings(global_samples=256, starts=6,
                                               max_iterations=400)
-    refit: SearchSettings = SearchSettings(global_samples=0, starts=5, max_iterations=250,
-                                           initial_step=0.06, restarts=2)
+    refit: SearchSettings = SearchSettings(global_samples=0, starts=5, max_iterations=500,
+                                           initial_step=0.1, restarts=3)
     max_refits: int = len(EFFECTS)
     diagnose: bool = True
 
@@ -55,8 +53,8 @@ class IdentifySettings:
     def quick(cls, diagnose: bool = True) -> 'IdentifySettings':
         """Smaller effort (tests, previews): fewer global samples, starts and iterations."""
         return cls(baseline=SearchSettings(global_samples=128, starts=4, max_iterations=250),
-                   refit=SearchSettings(global_samples=0, starts=5, max_iterations=150,
-                                        initial_step=0.06, restarts=1),
+                   refit=SearchSettings(global_samples=0, starts=5, max_iterations=300,
+                                        initial_step=0.1, restarts=2),
                    diagnose=diagnose)
 
 
@@ -207,5 +205,4 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
         simulations=fit.simulations + (val.simulations if val else 0),
         sim_fit={'baseline': sim_fit_b, 'augmented': sim_fit_a},
         sim_val={'baseline': sim_val_b, 'augmented': sim_val_a})
-    _ = math, np
     return ident

@@ -20,7 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..model.parameters import EFFECTS, PARAMETER_FIELDS, ValveParameters
+from ..model.parameters import EFFECTS, ValveParameters
 from .errors import IdentificationError
 from .measurements import Measurement
 from .model_adapter import FIELD_INDEX, TraceSetup, prepare_trace, simulate_trace_batch
@@ -335,8 +335,8 @@ class FitData:
             self.setups.append(prepare_trace(m, keep=keep))
             self.measurements.append(m if keep is None else _subset(m, keep))
         self.valid = [m.valid for m in self.measurements]
-        self.weights = [_trapezoid_weights(m.t_s, v) for m, v in zip(self.measurements,
-                                                                      self.valid)]
+        self.weights = [_trapezoid_weights(m.t_s, v)
+                        for m, v in zip(self.measurements, self.valid)]
         self.durations = [float(w.sum()) for w in self.weights]
         self.simulations = 0
 
@@ -406,5 +406,3 @@ def unit_objective(space: ParameterSpace, data: FitData):
 
 __all__ += ['GAP', 'MIN_HOLDING_GAP_M', 'PAPER_SYMBOLS', 'equivalent_gap_m', 'start_point',
             'unit_objective']
-# PARAMETER_FIELDS is re-exported for the report (field order of raw matrices).
-_ = PARAMETER_FIELDS
