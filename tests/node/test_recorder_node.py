@@ -169,8 +169,9 @@ def test_a_killed_recorder_leaves_a_bag_recoverable_to_its_last_flush(
 
 
 def test_sigterm_closes_the_bag_and_bad_arguments_fail(start_node, ros, tmp_path):
-    bag = tmp_path / 'bag'
-    rec = _start_recorder(start_node, bag)
+    # no output: a bag named after the time inside output_dir (created)
+    rec = start_node('valve_recorder', '--ros-args', '-p', f'output_dir:={tmp_path / "bags"}',
+                     '-p', 'diagnostics_period_s:=0.2')
     deadline = time.monotonic() + 30.0
     while 'recording' not in rec.output and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -186,6 +187,7 @@ def test_sigterm_closes_the_bag_and_bad_arguments_fail(start_node, ros, tmp_path
     ros.spin_for(0.5)  # its own diagnostics get recorded
     os.killpg(rec.proc.pid, signal.SIGTERM)
     assert rec.proc.wait(timeout=20) == 0, rec.output
+    (bag,) = (tmp_path / 'bags').glob('valve_*')
     assert (bag / 'metadata.yaml').is_file()
     assert '/diagnostics' in load_bag(bag)
 

@@ -113,8 +113,11 @@ class RecorderNode(Node):
         super().__init__(NODE_NAME, parameter_overrides=parameter_overrides or [])
         output = declare_string(
             self, 'output', '',
-            'Bag directory to create (must not exist); empty = valve_<YYYYmmdd-HHMMSS> in '
-            'the working directory')
+            'Bag directory to create (must not exist); empty = valve_<YYYYmmdd-HHMMSS> '
+            'inside output_dir')
+        output_dir = declare_string(
+            self, 'output_dir', '.',
+            'Where a bag named after the time goes when output is empty (created if needed)')
         topics = self._declare_string_array(
             'topics', list(DEFAULT_TOPICS),
             'Topics to record: "name" (suite topics know their type; others are discovered '
@@ -143,7 +146,8 @@ class RecorderNode(Node):
         if compression not in ('none', 'zstd'):
             raise ValueError(f"parameter 'compression' = {compression!r} is not none or zstd")
 
-        path = Path(output or f'valve_{datetime.now():%Y%m%d-%H%M%S}')
+        path = Path(output) if output else \
+            Path(output_dir) / f'valve_{datetime.now():%Y%m%d-%H%M%S}'
         writer = BagWriter(path, flush_period_s=self._flush_period_s, fsync=fsync,
                            compression=compression,
                            custom_data={'recorder': NODE_NAME,
