@@ -36,6 +36,7 @@ setup(
             'valve_identify = valve_model_pkg.cli.identify:main',
             'valve_report = valve_model_pkg.cli.report:main',
             'valve_demo = valve_model_pkg.cli.demo:main',
+            'valve_bench_loop = valve_model_pkg.cli.bench_loop:main',
         ],
     },
 )

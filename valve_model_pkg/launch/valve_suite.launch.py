@@ -68,6 +68,6 @@ def generate_launch_description() -> LaunchDescription:
     recorder = Node(
         package='valve_model_pkg', executable='valve_recorder', name='valve_recorder',
         output='screen', condition=IfCondition(LaunchConfiguration('record')),
-        parameters=[{'output': LaunchConfiguration('bag_dir')}])
+        parameters=[{'output_dir': LaunchConfiguration('bag_dir')}])
     return LaunchDescription(args + [simulator, can_backend, flow_to_duty, cylinder,
                                      controller, recorder])
