@@ -1,0 +1,554 @@
+"""Generate the static duty map: x_avg / x_max at periodic steady state on a grid.
+
+Every grid point (duty, supply pressure, PWM frequency) is simulated with the full model,
+drive electronics on, from a closed valve at rest, until its period averages meet the
+periodic-steady-state criterion of :mod:`.steady_state`. The model's parallel batch API
+(:func:`valve_model_pkg.model.simulate_pwm_batch`, numba ``prange`` over runs) simulates
+many points at once; it returns the average position of every period of a run but cannot
+continue a run, so the generator works in rounds: all points of a curve with the first
+round's period count, then the points not yet steady again from the start with the next
+count, up to ``max_periods``.
+
+The model runs in a worker process (:mod:`.worker`) that is restarted if a call never
+returns, so a model fault cannot hang the generator; such events are noted in the file.
+
+Then, for every curve, the dead band edge (between the last closed and the first open grid
+duty) and the saturation edge (between the last grid duty that leaves the open stop and
+the first that does not) are refined by bisection to ``edge_tolerance`` (default 0.1 %
+duty), again at periodic steady state, and steep or curved segments are refined
+adaptively (:class:`Refinement`) so that linear interpolation of the stored points is
+accurate and jumps of the curve are found.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .curves import DEFAULT_STOP_TOLERANCE, curve_features
+from .dutymap import DutyMap
+from .errors import MapGenerationError
+from .steady_state import SteadyState, SteadyStateCriterion, detect_steady_state
+
+__all__ = ['MapGrid', 'GenerationStats', 'MapSimulator', 'Refinement', 'generate_map',
+           'steady_positions', 'PAPER_GRID']
+
+#: ``progress(done, total, message)``; ``done`` counts grid points (and refinement runs).
+ProgressCallback = Callable[[int, int, str], None]
+
+
+@dataclass(frozen=True)
+class MapGrid:
+    """The grid of a duty map.
+
+    Attributes
+    ----------
+    duty : tuple of float
+        Ascending duties [1] from 0 to 1.
+    supply_pressures_pa : tuple of float
+        Supply pressures, gauge [Pa].
+    pwm_frequencies_hz : tuple of float
+        Main PWM frequencies [Hz].
+    output_pressure_pa : float
+        Output pressure, gauge [Pa] (0: exhausting to atmosphere, as in the paper).
+    """
+
+    duty: tuple[float, ...] = tuple(np.round(np.linspace(0.0, 1.0, 101), 12))
+    supply_pressures_pa: tuple[float, ...] = (0.0, 2.0e5, 4.0e5, 6.0e5)
+    pwm_frequencies_hz: tuple[float, ...] = (20.0, 50.0, 100.0, 200.0)
+    output_pressure_pa: float = 0.0
+
+    @classmethod
+    def regular(cls, duty_step: float = 0.01, supply_pressures_pa=(0.0, 2.0e5, 4.0e5, 6.0e5),
+                pwm_frequencies_hz=(20.0, 50.0, 100.0, 200.0),
+                output_pressure_pa: float = 0.0) -> MapGrid:
+        """Duties 0, step, ..., 1 (``1 / duty_step`` must be an integer)."""
+        n = round(1.0 / duty_step)
+        if n < 1 or abs(n * duty_step - 1.0) > 1e-9:
+            raise ValueError(f'1 / duty_step must be a whole number, got step {duty_step!r}')
+        return cls(tuple(np.round(np.linspace(0.0, 1.0, n + 1), 12)),
+                   tuple(float(p) for p in sorted(supply_pressures_pa)),
+                   tuple(float(f) for f in sorted(pwm_frequencies_hz)),
+                   float(output_pressure_pa))
+
+    @property
+    def n_points(self) -> int:
+        return len(self.duty) * len(self.supply_pressures_pa) * len(self.pwm_frequencies_hz)
+
+
+#: The grid the issue asks for: 1 % steps, 0/2/4/6 bar, 20/50/100/200 Hz.
+PAPER_GRID = MapGrid()
+
+
+@dataclass
+class GenerationStats:
+    """What a generation cost.
+
+    Attributes
+    ----------
+    runs : int
+        Simulations started (a point simulated again in a later round counts again).
+    simulated_s : float
+        Model time simulated over all runs [s].
+    grid_periods_s : float
+        Model time of the periods the grid points needed (sum over points of periods x
+        period length) [s]; a plain loop that knew in advance how long each point needs
+        would simulate this much.
+    wall_s : float
+        Wall time of the whole generation [s].
+    grid_wall_s, refine_wall_s : float
+        Wall time of the grid and of the edge refinement [s].
+    unconverged : int
+        Grid points that missed the steady-state criterion.
+    subharmonic : int
+        Grid points that settled to a cycle of more than one period.
+    """
+
+    runs: int = 0
+    simulated_s: float = 0.0
+    grid_periods_s: float = 0.0
+    wall_s: float = 0.0
+    grid_wall_s: float = 0.0
+    refine_wall_s: float = 0.0
+    unconverged: int = 0
+    subharmonic: int = 0
+    threads: int = 0
+    extra: dict = field(default_factory=dict)
+
+
+class MapSimulator:
+    """Steady x_avg / x_max of operating points, on the model's public batch API.
+
+    The only place maps/ runs the model. With ``isolate=True`` (the default) every batch
+    runs in a :class:`~valve_model_pkg.maps.worker.BatchWorker` child process that is
+    restarted if a model call never returns; otherwise in this process.
+
+    Use as a context manager (or call :meth:`close`) to stop the worker.
+
+    Parameters
+    ----------
+    params : ValveParameters
+    electronics : ElectronicsConfig, optional
+    supply_voltage_v : float
+    criterion : SteadyStateCriterion, optional
+    isolate : bool
+    threads : int, optional
+        numba threads.
+    """
+
+    def __init__(self, params, electronics=None, supply_voltage_v: float = 24.0,
+                 criterion: SteadyStateCriterion | None = None, *, isolate: bool = True,
+                 threads: int | None = None) -> None:
+        from valve_model_pkg.model import ElectronicsConfig
+        from .worker import BatchWorker
+        self.params = params
+        self.electronics = ElectronicsConfig() if electronics is None else electronics
+        self.supply_voltage_v = float(supply_voltage_v)
+        self.criterion = criterion or SteadyStateCriterion()
+        self.threads = threads
+        self.stats = GenerationStats()
+        self._params_dict = params.to_dict()
+        self._electronics_dict = self.electronics.to_dict()
+        self._worker = BatchWorker(threads=threads) if isolate else None
+        if self._worker is not None:
+            self._worker.start()
+            self.stats.threads = self._worker.child_threads
+        else:
+            import numba
+            if threads is not None:
+                numba.set_num_threads(int(threads))
+            self.stats.threads = numba.get_num_threads()
+
+    @property
+    def incidents(self) -> list[str]:
+        """Model calls that did not return (and what was done instead)."""
+        return [] if self._worker is None else list(self._worker.incidents)
+
+    def close(self) -> None:
+        if self._worker is not None:
+            self._worker.close()
+
+    def __enter__(self) -> MapSimulator:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def period_averages(self, duty: np.ndarray, freq: np.ndarray, supply: np.ndarray,
+                        output: float, n_periods: int) -> np.ndarray:
+        """(n_runs, n_periods) period averages, fraction of x_max, of fresh runs.
+
+        Rows of runs given up by the worker are NaN.
+        """
+        from .worker import BatchRequest, run_batch_in_process
+        if duty.size == 0:
+            return np.zeros((0, n_periods))
+        # interleave long and short runs so numba's equal chunks get equal work
+        order = np.argsort(-(n_periods / freq), kind='stable')
+        perm = np.concatenate([order[0::2], order[1::2][::-1]])
+        req = BatchRequest(self._params_dict, self._electronics_dict, self.supply_voltage_v,
+                           float(output), int(n_periods), np.ascontiguousarray(duty[perm]),
+                           np.ascontiguousarray(freq[perm]),
+                           np.ascontiguousarray(supply[perm]), self.threads)
+        try:
+            raw = self._worker.run(req) if self._worker is not None \
+                else run_batch_in_process(req)
+        except (ValueError, ArithmeticError, RuntimeError) as err:
+            raise MapGenerationError(f'model batch failed: {err}') from err
+        out = np.empty((duty.size, n_periods))
+        out[perm] = np.asarray(raw) / self.params.stroke_m
+        bad = ~np.all(np.isfinite(out), axis=1)
+        if np.any(bad & ~np.all(np.isnan(out), axis=1)):
+            raise MapGenerationError('model returned non-finite period averages')
+        self.stats.runs += duty.size
+        self.stats.simulated_s += float(np.sum(n_periods / freq))
+        return out
+
+    def steady(self, duty: np.ndarray, freq: np.ndarray, supply: np.ndarray,
+               output: float = 0.0) -> list[SteadyState]:
+        """Periodic steady state of every point, simulated in rounds.
+
+        A point whose run was given up (see :class:`BatchWorker`) gets a not-converged
+        state with value NaN.
+        """
+        duty = np.asarray(duty, dtype=float)
+        freq = np.broadcast_to(np.asarray(freq, dtype=float), duty.shape)
+        supply = np.broadcast_to(np.asarray(supply, dtype=float), duty.shape)
+        result: list[SteadyState | None] = [None] * duty.size
+        pending = np.arange(duty.size)
+        rounds = self.criterion.rounds()
+        for n, n_periods in enumerate(rounds):
+            if pending.size == 0:
+                break
+            avg = self.period_averages(duty[pending], freq[pending], supply[pending],
+                                       output, n_periods)
+            found = detect_steady_state(avg, self.criterion, final=n == len(rounds) - 1)
+            still = []
+            for idx, row, s in zip(pending, avg, found):
+                if np.isnan(row).all():
+                    result[idx] = SteadyState(False, 0, 0, math.nan)
+                elif s is None:
+                    still.append(idx)
+                else:
+                    result[idx] = s
+            pending = np.asarray(still, dtype=int)
+        return [s for s in result if s is not None]
+
+
+def steady_positions(params, electronics=None, duty=0.5, pwm_frequency_hz=50.0,
+                     supply_pressure_pa=4.0e5, output_pressure_pa: float = 0.0, *,
+                     criterion: SteadyStateCriterion | None = None,
+                     supply_voltage_v: float = 24.0, isolate: bool = True
+                     ) -> list[SteadyState]:
+    """Steady x_avg / x_max of arbitrary points (arrays broadcast), e.g. for checks.
+
+    Returns
+    -------
+    list of SteadyState
+        One per point, in the broadcast order of the inputs.
+    """
+    d, f, p = (np.ravel(a).astype(float) for a in np.broadcast_arrays(
+        np.asarray(duty, float), np.asarray(pwm_frequency_hz, float),
+        np.asarray(supply_pressure_pa, float)))
+    with MapSimulator(params, electronics, supply_voltage_v, criterion,
+                      isolate=isolate) as sim:
+        return sim.steady(d, f, p, output_pressure_pa)
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """Adaptive refinement of the curves between grid duties.
+
+    A segment between neighbouring steady points is split at its midpoint (a new steady
+    simulation) while it is wider than ``min_spacing`` and either rises by more than
+    ``max_rise`` or the curve is not linear on it: the middle point of three neighbours
+    lies more than ``interp_tolerance`` from the chord of the outer two. So linear
+    interpolation of the stored points is good to about ``interp_tolerance`` wherever the
+    curve is continuous, and a segment still rising by more than ``jump_threshold`` at the
+    finest spacing is a jump of the curve (openings in between are not reachable).
+
+    Attributes
+    ----------
+    interp_tolerance : float
+        Fraction of x_max (default 0.005).
+    max_rise : float
+        Fraction of x_max (default 0.05).
+    min_spacing : float
+        Finest duty step (default 1/16 of 1 %).
+    jump_threshold : float
+        Fraction of x_max (default 0.02, the round-trip accuracy).
+    max_levels : int
+        Most bisection levels.
+    """
+
+    interp_tolerance: float = 0.005
+    max_rise: float = 0.05
+    min_spacing: float = 0.01 / 16
+    jump_threshold: float = 0.02
+    max_levels: int = 8
+
+    def as_dict(self) -> dict:
+        return {'interp_tolerance': self.interp_tolerance, 'max_rise': self.max_rise,
+                'min_spacing': self.min_spacing, 'jump_threshold': self.jump_threshold,
+                'max_levels': self.max_levels}
+
+
+def _initial_segments(d: np.ndarray, x: np.ndarray, ref: Refinement) -> set[tuple[float, float]]:
+    """Segments of one curve's points that need splitting (see :class:`Refinement`)."""
+    out: set[tuple[float, float]] = set()
+    wide = np.diff(d) > ref.min_spacing * 1.0001
+    for k in range(d.size - 1):
+        if wide[k] and abs(x[k + 1] - x[k]) > ref.max_rise:
+            out.add((float(d[k]), float(d[k + 1])))
+    for k in range(1, d.size - 1):
+        chord = x[k - 1] + (x[k + 1] - x[k - 1]) * (d[k] - d[k - 1]) / (d[k + 1] - d[k - 1])
+        if abs(x[k] - chord) > ref.interp_tolerance:
+            for a, b in ((k - 1, k), (k, k + 1)):
+                if wide[a] and abs(x[b] - x[a]) > ref.interp_tolerance:
+                    out.add((float(d[a]), float(d[b])))
+    return out
+
+
+def generate_map(params, electronics=None, grid: MapGrid = PAPER_GRID, *,
+                 criterion: SteadyStateCriterion | None = None, supply_voltage_v: float = 24.0,
+                 refine_edges: bool = True, edge_tolerance: float = 1e-3,
+                 refinement: Refinement | None = Refinement(),
+                 stop_tolerance: float = DEFAULT_STOP_TOLERANCE,
+                 progress: ProgressCallback | None = None, threads: int | None = None,
+                 generator: dict | None = None, isolate: bool = True,
+                 simulator: MapSimulator | None = None) -> tuple[DutyMap, GenerationStats]:
+    """Simulate the static duty map on ``grid``.
+
+    Parameters
+    ----------
+    params : ValveParameters
+    electronics : ElectronicsConfig, optional
+        Default ``ElectronicsConfig()`` (drive electronics on, as in the paper).
+    grid : MapGrid
+    criterion : SteadyStateCriterion, optional
+    supply_voltage_v : float
+    refine_edges : bool
+        Bisect the dead band and saturation edges of every curve.
+    edge_tolerance : float
+        Width of the final bisection bracket [duty fraction].
+    refinement : Refinement or None
+        Adaptive refinement of steep or curved segments (None: grid only).
+    stop_tolerance : float
+        Average opening (fraction of x_max) within which a point counts as on a stop.
+    progress : callable, optional
+        ``progress(done, total, message)``, called after every curve and refinement step.
+    threads : int, optional
+        numba threads (default: numba's, i.e. all cores).
+    generator : dict, optional
+        Extra provenance recorded in the file.
+    isolate : bool
+        Run the model in a worker process that is restarted if a call never returns.
+    simulator : MapSimulator, optional
+        Reuse a simulator (its parameters, electronics, criterion and voltage are used;
+        it is not closed).
+
+    Returns
+    -------
+    (DutyMap, GenerationStats)
+
+    Raises
+    ------
+    MapGenerationError
+        If the model fails.
+    """
+    own = simulator is None
+    t_start = time.perf_counter()
+    sim = simulator or MapSimulator(params, electronics, supply_voltage_v, criterion,
+                                    isolate=isolate, threads=threads)
+    try:
+        return _generate(sim, grid, refine_edges, edge_tolerance, refinement, stop_tolerance,
+                         progress, generator, t_start)
+    finally:
+        if own:
+            sim.close()
+
+
+def _generate(sim: MapSimulator, grid: MapGrid, refine_edges: bool, edge_tolerance: float,
+              refinement: Refinement | None, stop_tolerance: float,
+              progress: ProgressCallback | None, generator: dict | None,
+              t_start: float) -> tuple[DutyMap, GenerationStats]:
+    params, electronics, criterion = sim.params, sim.electronics, sim.criterion
+    supply_voltage_v = sim.supply_voltage_v
+    stats = sim.stats
+    stats.extra['startup_s'] = time.perf_counter() - t_start
+    duty = np.asarray(grid.duty, dtype=float)
+    press = np.asarray(grid.supply_pressures_pa, dtype=float)
+    freqs = np.asarray(grid.pwm_frequencies_hz, dtype=float)
+    n_f, n_p, n_d = freqs.size, press.size, duty.size
+    x = np.zeros((n_f, n_p, n_d))
+    periods = np.zeros((n_f, n_p, n_d), dtype=int)
+    converged = np.zeros((n_f, n_p, n_d), dtype=bool)
+    cycles = np.zeros((n_f, n_p, n_d), dtype=int)
+    extra: list[dict[float, float]] = [{} for _ in range(n_f * n_p)]
+    # progress counts grid points, then one unit per refinement batch point (estimated)
+    total = grid.n_points
+    done = 0
+    t0 = time.perf_counter()
+    for i, f in enumerate(freqs):
+        for j, p in enumerate(press):
+            states = sim.steady(duty, np.full(n_d, f), np.full(n_d, p),
+                                grid.output_pressure_pa)
+            for k, s in enumerate(states):
+                x[i, j, k] = min(max(s.value, 0.0), 1.0) if not math.isnan(s.value) \
+                    else math.nan
+                periods[i, j, k] = s.periods
+                converged[i, j, k] = s.converged
+                cycles[i, j, k] = s.cycle
+            stats.grid_periods_s += float(np.sum(periods[i, j]) / f)
+            done += n_d
+            if progress:
+                feat = curve_features(duty, x[i, j], stop_tolerance)
+                progress(done, total, f'{f:g} Hz, {p / 1e5:g} bar: dead band '
+                                      f'{feat.dead_band_duty:.0%}, saturation '
+                                      f'{feat.saturation_duty:.0%}, '
+                                      f'max {periods[i, j].max()} periods')
+    stats.grid_wall_s = time.perf_counter() - t0
+
+    notes_extra: list[str] = []
+
+    def run_extra(ij: list[tuple[int, int]], dq: np.ndarray) -> np.ndarray:
+        fq = np.array([freqs[i] for i, _ in ij])
+        pr = np.array([press[j] for _, j in ij])
+        states = sim.steady(dq, fq, pr, grid.output_pressure_pa)
+        v = np.array([min(max(s.value, 0.0), 1.0) if not math.isnan(s.value) else math.nan
+                      for s in states])
+        for (i, j), dd, vv, s in zip(ij, dq, v, states):
+            if not math.isnan(vv):
+                extra[i * n_p + j][float(dd)] = float(vv)
+            stats.unconverged += int(not s.converged)
+        return v
+
+    db_edges = np.full((n_f, n_p), math.nan)
+    sat_edges = np.full((n_f, n_p), math.nan)
+    t1 = time.perf_counter()
+    if refine_edges:
+        ij: list[tuple[int, int]] = []
+        lo_l, hi_l, kind_l = [], [], []
+        for i in range(n_f):
+            for j in range(n_p):
+                feat = curve_features(duty, x[i, j], stop_tolerance)
+                if feat.opens and feat.dead_band_duty < feat.opening_duty:
+                    ij.append((i, j))
+                    lo_l.append(feat.dead_band_duty)
+                    hi_l.append(feat.opening_duty)
+                    kind_l.append(0)
+                if not math.isnan(feat.saturation_duty):
+                    k = int(np.searchsorted(duty, feat.saturation_duty))
+                    if k > 0:
+                        ij.append((i, j))
+                        lo_l.append(duty[k - 1])
+                        hi_l.append(duty[k])
+                        kind_l.append(1)
+        if ij:
+            lo_c, hi_c, kind = np.array(lo_l), np.array(hi_l), np.array(kind_l)
+            step = 0
+            # dead band: "hi" = opens; saturation: "hi" = stays open; same batches
+            while np.max(hi_c - lo_c) > edge_tolerance:
+                mid = np.round(0.5 * (lo_c + hi_c), 6)
+                v = run_extra(ij, mid)
+                # a point the model never returned for (NaN) counts as "not hi"
+                flags = np.where(kind == 0, v > stop_tolerance, v >= 1.0 - stop_tolerance)
+                hi_c = np.where(flags, mid, hi_c)
+                lo_c = np.where(flags, lo_c, mid)
+                step += 1
+                if progress:
+                    progress(done, total, f'edge bisection step {step}: bracket '
+                                          f'{np.max(hi_c - lo_c):.2%}')
+            for n, (i, j) in enumerate(ij):
+                (db_edges if kind[n] == 0 else sat_edges)[i, j] = 0.5 * (lo_c[n] + hi_c[n])
+    if refinement is not None:
+        segs: list[tuple[int, int, float, float]] = []
+        for i in range(n_f):
+            for j in range(n_p):
+                dmap_pts = _merged(duty, x[i, j], extra[i * n_p + j])
+                for a, b in sorted(_initial_segments(*dmap_pts, refinement)):
+                    segs.append((i, j, a, b))
+        level = 0
+        while segs and level < refinement.max_levels:
+            level += 1
+            ij = [(i, j) for i, j, _, _ in segs]
+            # midpoints on a 1e-6 duty lattice: short numbers in the file
+            mids = np.array([round(0.5 * (a + b), 6) for _, _, a, b in segs])
+            v = run_extra(ij, mids)
+            nxt = []
+            for (i, j, a, b), m, vm in zip(segs, mids, v):
+                pts = extra[i * n_p + j]
+                va = _value_at(duty, x[i, j], pts, a)
+                vb = _value_at(duty, x[i, j], pts, b)
+                if math.isnan(vm):
+                    continue
+                curved = abs(vm - 0.5 * (va + vb)) > refinement.interp_tolerance
+                steep = abs(vb - va) > refinement.max_rise
+                if (curved or steep) and 0.5 * (b - a) > refinement.min_spacing * 1.0001:
+                    m = float(m)
+                    for c0, c1, w0, w1 in ((a, m, va, vm), (m, b, vm, vb)):
+                        if abs(w1 - w0) > refinement.interp_tolerance:
+                            nxt.append((i, j, c0, c1))
+            segs = nxt
+            if progress:
+                progress(done, total, f'adaptive refinement level {level}: {len(mids)} points, '
+                                      f'{len(segs)} segments left')
+    stats.refine_wall_s = time.perf_counter() - t1
+    stats.wall_s = time.perf_counter() - t_start
+    # a grid point the model never returned for: interpolated from its neighbours
+    for i in range(n_f):
+        for j in range(n_p):
+            bad = np.isnan(x[i, j])
+            if bad.any():
+                x[i, j, bad] = np.interp(duty[bad], duty[~bad], x[i, j, ~bad])
+                notes_extra.append(f'{int(bad.sum())} grid point(s) at {freqs[i]:g} Hz, '
+                                   f'{press[j]:g} Pa interpolated from neighbours (model '
+                                   'did not return)')
+    stats.unconverged += int(np.sum(~converged))
+    stats.subharmonic = int(np.sum(cycles > 1))
+    notes = notes_extra + sim.incidents
+    if stats.unconverged:
+        notes.append(f'{stats.unconverged} simulated point(s) did not meet the steady-state '
+                     f'criterion within {criterion.max_periods} periods (value = mean over the '
+                     'second half of the periods)')
+    if stats.subharmonic:
+        notes.append(f'{stats.subharmonic} grid point(s) settled to a sub-harmonic cycle '
+                     '(value = average over the whole cycle)')
+    gen = {'program': 'valve_model_pkg.maps.generate_map', 'wall_s': round(stats.wall_s, 3),
+           'runs': stats.runs, 'simulated_s': round(stats.simulated_s, 3),
+           'threads': stats.threads, 'refine_edges': refine_edges,
+           'edge_tolerance': edge_tolerance}
+    gen.update(generator or {})
+    extra_points = [(np.array(sorted(e)), np.array([e[k] for k in sorted(e)])) for e in extra]
+    dmap = DutyMap(duty=duty, supply_pressures_pa=press, pwm_frequencies_hz=freqs,
+                   position_fraction=x, parameters=params.to_dict(),
+                   electronics=electronics.to_dict(), supply_voltage_v=supply_voltage_v,
+                   output_pressure_pa=grid.output_pressure_pa,
+                   steady_state=criterion.as_dict(), periods=periods, converged=converged,
+                   cycles=cycles, dead_band_edges=db_edges if refine_edges else None,
+                   saturation_edges=sat_edges if refine_edges else None,
+                   stop_tolerance=stop_tolerance, extra_points=extra_points,
+                   refinement=refinement.as_dict() if refinement is not None else {},
+                   created_utc=_dt.datetime.now(_dt.timezone.utc).strftime(
+                       '%Y-%m-%dT%H:%M:%SZ'),
+                   generator=gen, notes=notes)
+    return dmap, stats
+
+
+def _merged(duty: np.ndarray, x: np.ndarray, pts: dict[float, float]
+            ) -> tuple[np.ndarray, np.ndarray]:
+    d = dict(zip((float(v) for v in duty), (float(v) for v in x)))
+    d.update(pts)
+    keys = sorted(d)
+    return np.array(keys), np.array([d[k] for k in keys])
+
+
+def _value_at(duty: np.ndarray, x: np.ndarray, pts: dict[float, float], d: float) -> float:
+    if d in pts:
+        return pts[d]
+    k = int(np.argmin(np.abs(duty - d)))
+    return float(x[k])
