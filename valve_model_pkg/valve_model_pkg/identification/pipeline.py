@@ -6,7 +6,9 @@ that :mod:`.report` writes out.
 from __future__ import annotations
 
 import logging
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -172,21 +174,25 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
         scores = score_signatures(space, fit, baseline_params, residuals)
         order = sorted(scores, key=lambda e: -scores[e][0])
         say('signatures: ' + ', '.join(f'{e} {scores[e][0]:+.2f}' for e in order))
-        candidates = []
-        for rank, eff in enumerate(order):
-            c = CandidateResult(effect=eff, fields=EFFECTS[eff].fields,
-                                signature_correlation=scores[eff][0],
-                                signature_amplitude=scores[eff][1])
-            if rank < settings.max_refits:
-                p_aug, cost, _ = refit_effect(space, fit, baseline_params, eff,
-                                              settings.refit, progress=None)
-                c.refitted = True
-                c.params = p_aug
-                c.parameters = {f: getattr(p_aug, f) for f in EFFECTS[eff].fields}
-                c.fit_cost = cost
-                say(f'refit {eff}: cost {cost:.6g} A (baseline {res.cost:.6g} A), '
-                    + ', '.join(f'{k} = {v:.4g}' for k, v in c.parameters.items()))
-            candidates.append(c)
+        candidates = [CandidateResult(effect=eff, fields=EFFECTS[eff].fields,
+                                      signature_correlation=scores[eff][0],
+                                      signature_amplitude=scores[eff][1]) for eff in order]
+
+        def run(c: CandidateResult) -> CandidateResult:
+            # Each refit in its own thread, its simulations on that thread without the GIL.
+            p_aug, cost, _ = refit_effect(space, fit.serial(), baseline_params, c.effect,
+                                          settings.refit, progress=None)
+            c.refitted = True
+            c.params = p_aug
+            c.parameters = {f: getattr(p_aug, f) for f in c.fields}
+            c.fit_cost = cost
+            say(f'refit {c.effect}: cost {cost:.6g} A (baseline {res.cost:.6g} A), '
+                + ', '.join(f'{k} = {v:.4g}' for k, v in c.parameters.items()))
+            return c
+
+        workers = max(1, min(settings.max_refits, os.cpu_count() or 1))
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            list(pool.map(run, candidates[:settings.max_refits]))
         diag = select(candidates, fit, val, baseline_params)
         timings['diagnosis'] = time.perf_counter() - t0
         say(f'diagnosis: {diag.effect} (confidence {diag.confidence})')

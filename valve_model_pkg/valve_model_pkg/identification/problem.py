@@ -14,6 +14,7 @@ the samples that have a current; missing samples are bridged). The cost is
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -339,6 +340,18 @@ class FitData:
                         for m, v in zip(self.measurements, self.valid)]
         self.durations = [float(w.sum()) for w in self.weights]
         self.simulations = 0
+        self.parallel = True
+
+    def serial(self) -> 'FitData':
+        """A view on the same data whose simulations stay on the calling thread.
+
+        For running several searches in Python threads at once (see
+        :func:`model_adapter.simulate_trace_batch`).
+        """
+        view = copy.copy(self)
+        view.parallel = False
+        view.simulations = 0
+        return view
 
     @property
     def names(self) -> list[str]:
@@ -348,7 +361,7 @@ class FitData:
         """Simulated (current, position) of each file, each of shape (m, n_samples)."""
         raw = np.atleast_2d(raw)
         self.simulations += raw.shape[0] * len(self.setups)
-        return [simulate_trace_batch(raw, s) for s in self.setups]
+        return [simulate_trace_batch(raw, s, parallel=self.parallel) for s in self.setups]
 
     def cost(self, raw: np.ndarray) -> np.ndarray:
         """Sum over files of the mean absolute current error [A], shape (m,)."""
@@ -356,7 +369,7 @@ class FitData:
         total = np.zeros(raw.shape[0])
         for m, setup, w, T in zip(self.measurements, self.setups, self.weights,
                                   self.durations):
-            cur, _ = simulate_trace_batch(raw, setup)
+            cur, _ = simulate_trace_batch(raw, setup, parallel=self.parallel)
             err = np.abs(np.where(np.isfinite(m.current_a), m.current_a, 0.0)[None, :] - cur)
             total += err @ w / T
         self.simulations += raw.shape[0] * len(self.setups)

@@ -107,6 +107,19 @@ def report_dict(ident: Identification) -> dict[str, object]:
     })
 
 
+def _smooth(t: np.ndarray, r: np.ndarray, window_s: float = 0.5e-3) -> np.ndarray:
+    """Moving mean over about ``window_s`` (missing samples ignored): shows structure."""
+    dt = float(np.median(np.diff(t)))
+    window_s = max(window_s, (t[-1] - t[0]) / 200.0)  # long records: 1/200 of the span
+    n = max(1, int(round(window_s / dt)))
+    ok = np.isfinite(r)
+    kern = np.ones(n)
+    num = np.convolve(np.where(ok, r, 0.0), kern, mode='same')
+    den = np.convolve(ok.astype(float), kern, mode='same')
+    with np.errstate(invalid='ignore', divide='ignore'):
+        return np.where(den > 0, num / den, np.nan)
+
+
 def _plot(ident: Identification, out: Path) -> list[str]:
     """PNG plots: currents and residuals, before and after; returns the file names."""
     import matplotlib
@@ -125,12 +138,16 @@ def _plot(ident: Identification, out: Path) -> list[str]:
             ax[0].plot(t_ms, m.current_a, '.', ms=1.5, color='0.5', label='measured')
             ax[0].plot(t_ms, sims['baseline'][k], '-', lw=1.2, label='baseline model')
             r_b = m.current_a - sims['baseline'][k]
-            ax[1].plot(t_ms, r_b * 1e3, '-', lw=0.6, label='baseline residual')
+            ax[1].plot(t_ms, r_b * 1e3, '-', lw=0.4, alpha=0.35, color='C0')
+            ax[1].plot(t_ms, _smooth(m.t_s, r_b) * 1e3, '-', lw=1.6, color='C0',
+                       label='baseline residual (moving mean; thin: raw)')
             if aug:
                 lab = f'augmented ({ident.diagnosis.effect})'
                 ax[0].plot(t_ms, sims['augmented'][k], '--', lw=1.2, label=lab)
                 r_a = m.current_a - sims['augmented'][k]
-                ax[1].plot(t_ms, r_a * 1e3, '-', lw=0.6, label='augmented residual')
+                ax[1].plot(t_ms, r_a * 1e3, '-', lw=0.4, alpha=0.35, color='C1')
+                ax[1].plot(t_ms, _smooth(m.t_s, r_a) * 1e3, '-', lw=1.6, color='C1',
+                           label='augmented residual (moving mean)')
             ax[0].set_ylabel('current [A]')
             ax[0].set_title(f'{role}: {m.name}')
             ax[0].legend(loc='lower right')
