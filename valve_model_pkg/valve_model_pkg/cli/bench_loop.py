@@ -34,7 +34,13 @@ from pathlib import Path
 
 from valve_model_pkg.supervisor import ChildExited, ProcessSpec, Supervisor
 
-__all__ = ['main', 'BenchRecord', 'record_bench_step']
+__all__ = ['main', 'BenchRecord', 'record_bench_step', 'DEFAULT_EFFECT_PARAMS']
+
+#: Effect parameters of the emulated valve when --effect-param is not given. Coil heating
+#: is made visible within the 1.5 s records (a real coil's time constant is minutes).
+DEFAULT_EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
+    'coil_heating': ('thermal_resistance_k_per_w=5', 'thermal_time_constant_s=1.0'),
+}
 
 
 @dataclass(frozen=True)
@@ -44,8 +50,8 @@ class BenchRecord:
     name: str
     supply_voltage_v: float
     pre_s: float = 0.3
-    on_s: float = 3.0
-    post_s: float = 0.4
+    on_s: float = 1.5
+    post_s: float = 0.3
 
 
 def _say(text: str) -> None:
@@ -124,8 +130,10 @@ def main(argv: list[str] | None = None) -> int:
                                      description=__doc__.split('\n')[0])
     parser.add_argument('--effect', default='coil_heating',
                         help='physical effect of the emulated valve (default coil_heating)')
-    parser.add_argument('--effect-param', action='append', default=[], metavar='FIELD=VALUE',
-                        help='value of an effect parameter, passed to the emulator')
+    parser.add_argument('--effect-param', action='append', default=None, metavar='FIELD=VALUE',
+                        help='value of an effect parameter, passed to the emulator (default '
+                        'for coil_heating: a small coil that heats noticeably within a '
+                        'second, R_th 5 K/W, tau 1 s)')
     parser.add_argument('--out', type=Path, default=Path('bench_loop_output'))
     parser.add_argument('--quick', action='store_true',
                         help='quick identification settings (fewer starts)')
@@ -139,9 +147,12 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     effect_args: tuple[str, ...] = ()
+    effect_params = args.effect_param
+    if effect_params is None:
+        effect_params = list(DEFAULT_EFFECT_PARAMS.get(args.effect, ()))
     if args.effect and args.effect != 'none':
         effect_args = ('--effect', args.effect) + tuple(
-            a for item in args.effect_param for a in ('--effect-param', item))
+            a for item in effect_params for a in ('--effect-param', item))
     stamp = time.strftime('%Y%m%d-%H%M%S')
     try:
         fit = record_bench_step(BenchRecord('fit', 24.0), out / f'bench_24V_{stamp}',
@@ -165,8 +176,9 @@ def main(argv: list[str] | None = None) -> int:
         params = ident / 'params.yaml'
         _run(['valve_simulate', '--experiment', 'step', '--voltage', '24', '--duration',
               '0.02', '--params', str(params), '--out', str(out / 'step24_identified.csv')])
-        _run(['valve_map', '--params', str(params), '--out', str(out / 'map_identified'),
-              '--frequencies', '50', '--pressures', '0', '4'])
+        _run(['valve_map', '--params', str(params), '-o', str(out / 'map_identified.json'),
+              '--frequencies', '50', '--pressures-bar', '0', '4', '--duty-step', '0.02',
+              '--fig-dir', str(out)])
         sim = subprocess.Popen(['valve_simulator', '--ros-args', '-p',
                                 f'params_file:={params.resolve()}'],
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
