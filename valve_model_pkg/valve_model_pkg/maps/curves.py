@@ -17,6 +17,11 @@ the paper, made exact for a sampled curve):
   stop.
 * **effective range**: ``(dead_band_duty, saturation_duty)``, the duties that modulate the
   opening; its width is ``saturation_duty - dead_band_duty``.
+* ``first_saturation_duty``: the lowest grid duty that reaches the open stop for good in
+  its period (``>= 1 - stop_tolerance``). It equals ``saturation_duty`` unless the curve
+  leaves the open stop again at some higher duties (an *island*, seen in the model at
+  200 Hz and 5 bar); the flow inversion, which takes the lowest duty for an opening, never
+  uses duties above it.
 """
 from __future__ import annotations
 
@@ -47,6 +52,8 @@ class CurveFeatures:
         never reaches the open stop.
     effective_width : float
         ``saturation_duty - dead_band_duty``; nan without saturation.
+    first_saturation_duty : float
+        Lowest grid duty at the open stop (nan if none).
     max_decrease : float
         Largest fall of the curve between neighbouring duties (0 for a monotone curve),
         fraction of x_max.
@@ -57,6 +64,7 @@ class CurveFeatures:
     saturation_duty: float
     effective_width: float
     max_decrease: float
+    first_saturation_duty: float = math.nan
 
     @property
     def opens(self) -> bool:
@@ -105,11 +113,13 @@ def curve_features(duty: np.ndarray, position_fraction: np.ndarray,
     # start of the trailing run of open points
     m = n - int(np.argmin(open_[::-1])) if not open_.all() else 0
     saturation = float(d[m]) if m < n else math.nan
+    first_sat = float(d[int(np.argmax(open_))]) if open_.any() else math.nan
     width = saturation - dead_band if not math.isnan(saturation) else math.nan
     drops = f[:-1] - f[1:]
     return CurveFeatures(dead_band_duty=dead_band, opening_duty=opening,
                          saturation_duty=saturation, effective_width=width,
-                         max_decrease=float(max(0.0, drops.max())))
+                         max_decrease=float(max(0.0, drops.max())),
+                         first_saturation_duty=first_sat)
 
 
 def monotone_envelope(position_fraction: np.ndarray) -> np.ndarray:

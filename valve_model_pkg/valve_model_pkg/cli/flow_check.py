@@ -1,0 +1,99 @@
+"""valve_flow_check: compare a measured flow_map file with the static duty map (Fig. 10).
+
+Reads a ``flow_map`` CSV file (shared measured-data format: columns ``duty`` and
+``mass_flow`` or ``flow_fraction``; metadata ``pwm_frequency_hz``, ``supply_pressure_pa``
+and optionally ``output_pressure_pa``), predicts the flow percentage from the map
+(x_avg(d) / x_avg(100 %), eq. 12 makes flow proportional to the opening at fixed
+pressures) and prints the error per duty and overall. Optionally draws Fig. 10 and writes
+the comparison as JSON.
+
+Examples::
+
+    valve_flow_check bench7_flow.csv
+    valve_flow_check bench7_flow.csv --map my_map.json --plot fig10.png --json out.json
+    valve_flow_check bench7_flow.csv --max-rms-percent 3     # exit 2 if worse
+
+Exit codes: 0 done, 1 bad input (file, map), 2 error above ``--max-rms-percent``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+__all__ = ['main']
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog='valve_flow_check', description=__doc__.split('\n\n')[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('flow_map', help='measured flow_map CSV file')
+    p.add_argument('--map', default='', help='duty map file (default: the shipped one)')
+    p.add_argument('--params', default='',
+                   help='valve parameter YAML the map must match (default: the map\'s own '
+                        'parameter set is used without a check)')
+    p.add_argument('--pwm-frequency', type=float, default=None,
+                   help='PWM frequency [Hz] if the file does not state it')
+    p.add_argument('--supply-pressure-bar', type=float, default=None,
+                   help='supply pressure [bar gauge] if the file does not state it')
+    p.add_argument('--plot', default=None, help='write Fig. 10 to this PNG')
+    p.add_argument('--json', default=None, help='write the comparison to this JSON file')
+    p.add_argument('--max-rms-percent', type=float, default=None,
+                   help='exit with code 2 if the rms error exceeds this [%% of full flow]')
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``valve_flow_check``; returns the exit code."""
+    args = _parser().parse_args(argv)
+    import numpy as np
+
+    from valve_model_pkg.maps import MapError, load_map
+    from valve_model_pkg.maps.flow_check import (compare_flow_map, map_flow_fraction,
+                                                 read_flow_map)
+    try:
+        dmap = load_map(args.map or None)
+        if args.params:
+            from valve_model_pkg.model import load_parameters
+            dmap.check_parameters(load_parameters(args.params), args.map or 'shipped map',
+                                  args.params)
+        measured = read_flow_map(
+            args.flow_map, pwm_frequency_hz=args.pwm_frequency,
+            supply_pressure_pa=None if args.supply_pressure_bar is None
+            else args.supply_pressure_bar * 1e5)
+        result = compare_flow_map(dmap, measured)
+    except KeyError as err:
+        print(f'valve_flow_check: error: {args.flow_map}: {err.args[0]}', file=sys.stderr)
+        return 1
+    except (MapError, ValueError, OSError) as err:
+        print(f'valve_flow_check: error: {err}', file=sys.stderr)
+        return 1
+    print(f'{measured.path}: {measured.duty.size} points, {measured.pwm_frequency_hz:g} Hz, '
+          f'supply {measured.supply_pressure_pa / 1e5:g} bar, output '
+          f'{measured.output_pressure_pa / 1e5:g} bar (gauge)')
+    print(result.table())
+    if args.json:
+        Path(args.json).write_text(json.dumps(result.as_dict(), indent=1) + '\n',
+                                   encoding='utf-8')
+        print(f'wrote {args.json}')
+    if args.plot:
+        from valve_model_pkg.maps.plots import plot_flow_comparison
+        fine = np.linspace(0.0, 1.0, 401)
+        plot_flow_comparison(measured.duty, measured.flow_fraction, fine,
+                             map_flow_fraction(dmap, fine, measured.pwm_frequency_hz,
+                                               measured.supply_pressure_pa),
+                             args.plot,
+                             title=f'Measured flow vs simulated average position, '
+                                   f'{measured.pwm_frequency_hz:g} Hz, '
+                                   f'{measured.supply_pressure_pa / 1e5:g} bar (Fig. 10)')
+        print(f'wrote {args.plot}')
+    if args.max_rms_percent is not None and result.rms_error * 100 > args.max_rms_percent:
+        print(f'valve_flow_check: rms error {result.rms_error * 100:.2f} % exceeds '
+              f'{args.max_rms_percent:g} %', file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
