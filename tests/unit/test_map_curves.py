@@ -8,6 +8,7 @@ import pytest
 
 from valve_model_pkg.maps import (SteadyStateCriterion, curve_features, detect_steady_state,
                                   monotone_envelope)
+from valve_model_pkg.maps.steady_state import steady_at
 
 DUTY = np.round(np.linspace(0.0, 1.0, 101), 12)
 
@@ -91,9 +92,16 @@ def test_first_periods_are_never_taken() -> None:
     assert s.periods == CRIT.min_periods
 
 
-def test_criterion_rounds_and_validation() -> None:
-    assert CRIT.rounds() == [10, 40, 160, 400]
-    assert SteadyStateCriterion(max_periods=30, schedule=(10, 40)).rounds() == [10, 30]
+def test_streaming_detection_equals_offline() -> None:
+    """steady_at after every period (what the generator does) = detect on the whole run."""
+    a = np.concatenate([0.5 - 0.3 * 0.4 ** np.arange(12), np.tile([0.51, 0.49], 10)])
+    (offline,) = detect_steady_state(a[None, :], CRIT)
+    first = next(s for k in range(a.size) if (s := steady_at(a[:k + 1], k, CRIT)))
+    assert first == offline
+
+
+def test_criterion_validation_and_round_trip() -> None:
+    assert SteadyStateCriterion.from_dict(CRIT.as_dict()) == CRIT
     with pytest.raises(ValueError, match='tolerance must be positive'):
         SteadyStateCriterion(tolerance=0.0)
     assert 'tolerance' in CRIT.as_dict()['method']

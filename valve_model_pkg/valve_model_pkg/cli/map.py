@@ -55,8 +55,8 @@ def _parser() -> argparse.ArgumentParser:
                    help='do not refine the dead band / saturation edges by bisection')
     p.add_argument('--edge-tolerance', type=float, default=1e-3,
                    help='edge refinement bracket, duty fraction (default: %(default)s)')
-    p.add_argument('--threads', type=int, default=None,
-                   help='numba threads (default: all cores)')
+    p.add_argument('--workers', type=int, default=None,
+                   help='worker processes (default: one per core)')
     p.add_argument('--fig-dir', default=None,
                    help='directory for fig8_pressures.png / fig9_frequencies.png (default: '
                         'next to the map file)')
@@ -157,7 +157,9 @@ def _figures(duty_map, args, out_dir: Path) -> list[Path]:  # noqa: ANN001
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``valve_map``; returns the exit code."""
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = _parser().parse_args(argv)
+    args.command = ' '.join(['valve_map'] + argv)
     from valve_model_pkg.maps import MapError, load_map
     try:
         if args.show:
@@ -200,13 +202,14 @@ def _generate(args: argparse.Namespace):  # noqa: ANN202 - DutyMap
                                supply_voltage_v=args.supply_voltage,
                                refine_edges=not args.no_refine,
                                edge_tolerance=args.edge_tolerance, progress=progress,
-                               threads=args.threads,
+                               threads=args.workers,
                                generator={'program': 'valve_map',
                                           'params_file': args.params or 'config/valve.yaml',
-                                          'command': ' '.join(sys.argv)})
+                                          'command': args.command})
     path = dmap.save(args.output)
     print(f'wrote {path}: {grid.n_points} grid points in {stats.wall_s:.2f} s '
-          f'({stats.runs} runs, {stats.simulated_s:.1f} s simulated, {stats.threads} threads; '
+          f'({stats.runs} points simulated, {stats.simulated_s:.1f} s of model time, '
+          f'{stats.threads} workers; '
           f'{stats.unconverged} unconverged, {stats.subharmonic} sub-harmonic)')
     return dmap
 

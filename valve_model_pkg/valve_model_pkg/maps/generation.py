@@ -2,15 +2,14 @@
 
 Every grid point (duty, supply pressure, PWM frequency) is simulated with the full model,
 drive electronics on, from a closed valve at rest, until its period averages meet the
-periodic-steady-state criterion of :mod:`.steady_state`. The model's parallel batch API
-(:func:`valve_model_pkg.model.simulate_pwm_batch`, numba ``prange`` over runs) simulates
-many points at once; it returns the average position of every period of a run but cannot
-continue a run, so the generator works in rounds: all points of a curve with the first
-round's period count, then the points not yet steady again from the start with the next
-count, up to ``max_periods``.
-
-The model runs in a worker process (:mod:`.worker`) that is restarted if a call never
-returns, so a model fault cannot hang the generator; such events are noted in the file.
+periodic-steady-state criterion of :mod:`.steady_state`. Each point is simulated with the
+model's streaming API one PWM period at a time and stopped as soon as it is steady, so it
+costs exactly the periods it needs (the model's batch API, ``simulate_pwm_batch``, cannot
+continue a run: a steady-state search on it has to restart longer runs from the beginning,
+which simulated 1.6-2.2 times the needed periods on this grid and was slower). The points
+are spread over one worker process per core (:mod:`.worker`); a worker is restarted if a
+model call never returns, so a model fault cannot hang the generator; such events are
+noted in the file.
 
 Then, for every curve, the dead band edge (between the last closed and the first open grid
 duty) and the saturation edge (between the last grid duty that leaves the open stop and
@@ -91,13 +90,11 @@ class GenerationStats:
     Attributes
     ----------
     runs : int
-        Simulations started (a point simulated again in a later round counts again).
+        Points simulated (grid, edge bisection and refinement).
     simulated_s : float
         Model time simulated over all runs [s].
     grid_periods_s : float
-        Model time of the periods the grid points needed (sum over points of periods x
-        period length) [s]; a plain loop that knew in advance how long each point needs
-        would simulate this much.
+        Model time the grid points needed (sum over points of periods x period) [s].
     wall_s : float
         Wall time of the whole generation [s].
     grid_wall_s, refine_wall_s : float
@@ -106,6 +103,8 @@ class GenerationStats:
         Grid points that missed the steady-state criterion.
     subharmonic : int
         Grid points that settled to a cycle of more than one period.
+    threads : int
+        Worker processes.
     """
 
     runs: int = 0
@@ -121,13 +120,16 @@ class GenerationStats:
 
 
 class MapSimulator:
-    """Steady x_avg / x_max of operating points, on the model's public batch API.
+    """Steady x_avg / x_max of operating points, on the model's public streaming API.
 
-    The only place maps/ runs the model. With ``isolate=True`` (the default) every batch
-    runs in a :class:`~valve_model_pkg.maps.worker.BatchWorker` child process that is
-    restarted if a model call never returns; otherwise in this process.
+    The only place maps/ runs the model. Each point is simulated period by period
+    (:func:`~valve_model_pkg.maps.worker.steady_point`) until it meets the periodic-steady-
+    state criterion. With ``isolate=True`` (the default) the points are spread over
+    ``workers`` child processes (:class:`~valve_model_pkg.maps.worker.PointWorker`, one per
+    core by default) that are restarted if a model call never returns; otherwise they run
+    in this process, one after the other.
 
-    Use as a context manager (or call :meth:`close`) to stop the worker.
+    Use as a context manager (or call :meth:`close`) to stop the workers.
 
     Parameters
     ----------
@@ -136,41 +138,41 @@ class MapSimulator:
     supply_voltage_v : float
     criterion : SteadyStateCriterion, optional
     isolate : bool
-    threads : int, optional
-        numba threads.
+    workers : int, optional
+        Worker processes (default: the number of CPUs).
     """
 
     def __init__(self, params, electronics=None, supply_voltage_v: float = 24.0,
                  criterion: SteadyStateCriterion | None = None, *, isolate: bool = True,
-                 threads: int | None = None) -> None:
+                 workers: int | None = None) -> None:
+        import os
+
         from valve_model_pkg.model import ElectronicsConfig
-        from .worker import BatchWorker
+
+        from .worker import PointWorker
         self.params = params
         self.electronics = ElectronicsConfig() if electronics is None else electronics
         self.supply_voltage_v = float(supply_voltage_v)
         self.criterion = criterion or SteadyStateCriterion()
-        self.threads = threads
         self.stats = GenerationStats()
         self._params_dict = params.to_dict()
         self._electronics_dict = self.electronics.to_dict()
-        self._worker = BatchWorker(threads=threads) if isolate else None
-        if self._worker is not None:
-            self._worker.start()
-            self.stats.threads = self._worker.child_threads
-        else:
-            import numba
-            if threads is not None:
-                numba.set_num_threads(int(threads))
-            self.stats.threads = numba.get_num_threads()
+        n = max(1, int(workers or os.cpu_count() or 1)) if isolate else 0
+        self._workers = [PointWorker() for _ in range(n)]
+        for w in self._workers:
+            w.start()
+        for w in self._workers:
+            w.wait_ready()
+        self.stats.threads = max(n, 1)
 
     @property
     def incidents(self) -> list[str]:
         """Model calls that did not return (and what was done instead)."""
-        return [] if self._worker is None else list(self._worker.incidents)
+        return [text for w in self._workers for text in w.incidents]
 
     def close(self) -> None:
-        if self._worker is not None:
-            self._worker.close()
+        for w in self._workers:
+            w.close()
 
     def __enter__(self) -> MapSimulator:
         return self
@@ -178,65 +180,48 @@ class MapSimulator:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def period_averages(self, duty: np.ndarray, freq: np.ndarray, supply: np.ndarray,
-                        output: float, n_periods: int) -> np.ndarray:
-        """(n_runs, n_periods) period averages, fraction of x_max, of fresh runs.
+    def steady(self, duty, freq, supply, output: float = 0.0) -> list[SteadyState]:
+        """Periodic steady state of every point (arrays broadcast against ``duty``).
 
-        Rows of runs given up by the worker are NaN.
+        A point the model never returned for gets a not-converged state with value NaN.
         """
-        from .worker import BatchRequest, run_batch_in_process
+        import threading
+
+        from .worker import PointRequest, run_points_in_process
+        duty = np.atleast_1d(np.asarray(duty, dtype=float))
+        freq = np.broadcast_to(np.asarray(freq, dtype=float), duty.shape).copy()
+        supply = np.broadcast_to(np.asarray(supply, dtype=float), duty.shape).copy()
         if duty.size == 0:
-            return np.zeros((0, n_periods))
-        # interleave long and short runs so numba's equal chunks get equal work
-        order = np.argsort(-(n_periods / freq), kind='stable')
-        perm = np.concatenate([order[0::2], order[1::2][::-1]])
-        req = BatchRequest(self._params_dict, self._electronics_dict, self.supply_voltage_v,
-                           float(output), int(n_periods), np.ascontiguousarray(duty[perm]),
-                           np.ascontiguousarray(freq[perm]),
-                           np.ascontiguousarray(supply[perm]), self.threads)
-        try:
-            raw = self._worker.run(req) if self._worker is not None \
-                else run_batch_in_process(req)
-        except (ValueError, ArithmeticError, RuntimeError) as err:
-            raise MapGenerationError(f'model batch failed: {err}') from err
-        out = np.empty((duty.size, n_periods))
-        out[perm] = np.asarray(raw) / self.params.stroke_m
-        bad = ~np.all(np.isfinite(out), axis=1)
-        if np.any(bad & ~np.all(np.isnan(out), axis=1)):
-            raise MapGenerationError('model returned non-finite period averages')
+            return []
+        req = PointRequest(self._params_dict, self._electronics_dict, self.supply_voltage_v,
+                           float(output), self.criterion.as_dict(), duty, freq, supply)
+        if not self._workers:
+            results = run_points_in_process(req)
+        else:
+            # deal the points out like cards, longest periods first, for equal work
+            order = np.argsort(-1.0 / freq, kind='stable')
+            chunks = [order[k::len(self._workers)].tolist()
+                      for k in range(len(self._workers))]
+            results = [None] * duty.size
+            errors: list[BaseException] = []
+
+            def work(worker, idx: list[int]) -> None:
+                try:
+                    for i, s in zip(idx, worker.steady(req.subset(idx))):
+                        results[i] = s
+                except BaseException as err:  # noqa: BLE001 - re-raised below
+                    errors.append(err)
+            threads = [threading.Thread(target=work, args=(w, c), daemon=True)
+                       for w, c in zip(self._workers, chunks) if c]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            if errors:
+                raise MapGenerationError(f'model failed: {errors[0]}') from errors[0]
         self.stats.runs += duty.size
-        self.stats.simulated_s += float(np.sum(n_periods / freq))
-        return out
-
-    def steady(self, duty: np.ndarray, freq: np.ndarray, supply: np.ndarray,
-               output: float = 0.0) -> list[SteadyState]:
-        """Periodic steady state of every point, simulated in rounds.
-
-        A point whose run was given up (see :class:`BatchWorker`) gets a not-converged
-        state with value NaN.
-        """
-        duty = np.asarray(duty, dtype=float)
-        freq = np.broadcast_to(np.asarray(freq, dtype=float), duty.shape)
-        supply = np.broadcast_to(np.asarray(supply, dtype=float), duty.shape)
-        result: list[SteadyState | None] = [None] * duty.size
-        pending = np.arange(duty.size)
-        rounds = self.criterion.rounds()
-        for n, n_periods in enumerate(rounds):
-            if pending.size == 0:
-                break
-            avg = self.period_averages(duty[pending], freq[pending], supply[pending],
-                                       output, n_periods)
-            found = detect_steady_state(avg, self.criterion, final=n == len(rounds) - 1)
-            still = []
-            for idx, row, s in zip(pending, avg, found):
-                if np.isnan(row).all():
-                    result[idx] = SteadyState(False, 0, 0, math.nan)
-                elif s is None:
-                    still.append(idx)
-                else:
-                    result[idx] = s
-            pending = np.asarray(still, dtype=int)
-        return [s for s in result if s is not None]
+        self.stats.simulated_s += float(sum(s.periods / f for s, f in zip(results, freq)))
+        return results
 
 
 def steady_positions(params, electronics=None, duty=0.5, pwm_frequency_hz=50.0,
@@ -342,11 +327,11 @@ def generate_map(params, electronics=None, grid: MapGrid = PAPER_GRID, *,
     progress : callable, optional
         ``progress(done, total, message)``, called after every curve and refinement step.
     threads : int, optional
-        numba threads (default: numba's, i.e. all cores).
+        Worker processes (default: one per CPU).
     generator : dict, optional
         Extra provenance recorded in the file.
     isolate : bool
-        Run the model in a worker process that is restarted if a call never returns.
+        Run the model in worker processes that are restarted if a call never returns.
     simulator : MapSimulator, optional
         Reuse a simulator (its parameters, electronics, criterion and voltage are used;
         it is not closed).
@@ -363,7 +348,7 @@ def generate_map(params, electronics=None, grid: MapGrid = PAPER_GRID, *,
     own = simulator is None
     t_start = time.perf_counter()
     sim = simulator or MapSimulator(params, electronics, supply_voltage_v, criterion,
-                                    isolate=isolate, threads=threads)
+                                    isolate=isolate, workers=threads)
     try:
         return _generate(sim, grid, refine_edges, edge_tolerance, refinement, stop_tolerance,
                          progress, generator, t_start)

@@ -33,7 +33,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ['SteadyStateCriterion', 'SteadyState', 'detect_steady_state']
+__all__ = ['SteadyStateCriterion', 'SteadyState', 'detect_steady_state', 'steady_at',
+           'not_converged']
 
 
 @dataclass(frozen=True)
@@ -53,10 +54,6 @@ class SteadyStateCriterion:
         Periods after which a run is given up as not converged.
     max_cycle : int
         Longest sub-harmonic cycle (in PWM periods) accepted as periodic.
-    schedule : tuple of int
-        Period counts of the successive simulation rounds (a run not yet steady after a
-        round is simulated again with the next count, from the start); the last entry is
-        raised to ``max_periods``.
     """
 
     tolerance: float = 1e-4
@@ -64,7 +61,6 @@ class SteadyStateCriterion:
     min_periods: int = 4
     max_periods: int = 400
     max_cycle: int = 16
-    schedule: tuple[int, ...] = (10, 40, 160)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.tolerance) and self.tolerance > 0.0):
@@ -75,18 +71,14 @@ class SteadyStateCriterion:
             raise ValueError(f'need 2 <= min_periods <= max_periods, got {self.min_periods}, '
                              f'{self.max_periods}')
 
-    def rounds(self) -> list[int]:
-        """Period counts of the simulation rounds, ascending, ending at ``max_periods``."""
-        out = sorted({max(self.min_periods, min(int(n), self.max_periods))
-                      for n in self.schedule})
-        if not out or out[-1] != self.max_periods:
-            out.append(self.max_periods)
-        return out
+    @classmethod
+    def from_dict(cls, data: dict) -> SteadyStateCriterion:
+        """Inverse of :meth:`as_dict` (the description is ignored)."""
+        return cls(**{k: v for k, v in data.items() if k != 'method'})
 
     def as_dict(self) -> dict:
         """Settings plus a one-line description of the method, for the map file."""
         d = asdict(self)
-        d['schedule'] = list(self.schedule)
         d['method'] = ('period averages a_k: steady when the last `window` changes '
                        '|a_k - a_(k-m)| (m = 1, or a sub-harmonic cycle of m <= max_cycle '
                        'periods with max(window, 2m) changes) are <= tolerance (fraction of '
@@ -117,27 +109,44 @@ class SteadyState:
     value: float
 
 
-def _first_steady(a: np.ndarray, crit: SteadyStateCriterion) -> SteadyState | None:
-    n = a.size
+def steady_at(a: np.ndarray, k: int, crit: SteadyStateCriterion) -> SteadyState | None:
+    """The steady state if the criterion holds at period ``k`` of ``a`` (else None).
+
+    Only ``a[: k + 1]`` is used, so a simulation can call this after every period.
+    """
     tol = crit.tolerance
     w1 = crit.window
-    for k in range(max(crit.min_periods - 1, w1), n):
-        if np.max(np.abs(np.diff(a[k - w1:k + 1]))) <= tol:
-            # changes per period are small: steady unless it is a slow creep
-            d1, d0 = abs(a[k] - a[k - 1]), abs(a[k - 1] - a[k - 2]) if k >= 2 else 0.0
-            if d1 > 1e-12 and d0 > 0.0:
-                rho = d1 / d0
-                if rho >= 1.0 or d1 * rho / (1.0 - rho) > tol:
-                    continue
-            return SteadyState(True, k + 1, 1, float(a[k]))
-        # a real sub-harmonic cycle changes by more than tol from period to period
-        for m in range(2, crit.max_cycle + 1):
-            w = max(w1, 2 * m)
-            if k - w - m + 1 < 0:
-                break
-            seg = a[k - w - m + 1:k + 1]
-            if np.max(np.abs(seg[m:] - seg[:-m])) <= tol:
-                return SteadyState(True, k + 1, m, float(np.mean(a[k - m + 1:k + 1])))
+    if k < max(crit.min_periods - 1, w1):
+        return None
+    if np.max(np.abs(np.diff(a[k - w1:k + 1]))) <= tol:
+        # changes per period are small: steady unless it is a slow creep
+        d1, d0 = abs(a[k] - a[k - 1]), abs(a[k - 1] - a[k - 2]) if k >= 2 else 0.0
+        if d1 > 1e-12 and d0 > 0.0:
+            rho = d1 / d0
+            if rho >= 1.0 or d1 * rho / (1.0 - rho) > tol:
+                return None
+        return SteadyState(True, k + 1, 1, float(a[k]))
+    # a real sub-harmonic cycle changes by more than tol from period to period
+    for m in range(2, crit.max_cycle + 1):
+        w = max(w1, 2 * m)
+        if k - w - m + 1 < 0:
+            break
+        seg = a[k - w - m + 1:k + 1]
+        if np.max(np.abs(seg[m:] - seg[:-m])) <= tol:
+            return SteadyState(True, k + 1, m, float(np.mean(a[k - m + 1:k + 1])))
+    return None
+
+
+def not_converged(a: np.ndarray) -> SteadyState:
+    """The result for a run that never met the criterion: mean of its second half."""
+    return SteadyState(False, int(a.size), 0, float(np.mean(a[a.size // 2:])))
+
+
+def _first_steady(a: np.ndarray, crit: SteadyStateCriterion) -> SteadyState | None:
+    for k in range(a.size):
+        s = steady_at(a, k, crit)
+        if s is not None:
+            return s
     return None
 
 
@@ -164,6 +173,6 @@ def detect_steady_state(averages: np.ndarray, criterion: SteadyStateCriterion,
     for row in a:
         s = _first_steady(row, criterion)
         if s is None and final:
-            s = SteadyState(False, row.size, 0, float(np.mean(row[row.size // 2:])))
+            s = not_converged(row)
         out.append(s)
     return out

@@ -1,72 +1,121 @@
-"""Run the model's batch API in a child process that can be stopped if it never returns.
+"""Steady states of operating points, computed in child processes that can be stopped.
 
-The map generator simulates thousands of operating points, some of them at the edges of
-the effective range where the valve model's event handling is most delicate. A compiled
-(numba) kernel cannot be interrupted from its own process, so a model call that never
-returns would hang ``valve_map`` forever. The :class:`BatchWorker` runs every batch in a
-spawned child process and waits for it with a deadline derived from the throughput seen so
-far. If the deadline passes, the child is killed and restarted, the batch is split in
-halves until the run that does not return is isolated, and that run is retried with its
-duty moved by ``nudge`` (1e-5, far below the map's resolution); after ``max_nudges``
-failures its value is reported as NaN. Every such event is recorded in
-:attr:`BatchWorker.incidents` (and in the map file's notes).
+Each operating point (duty, PWM frequency, supply and output pressure) is simulated with
+the model's public streaming API (:class:`~valve_model_pkg.model.ValveStepper`), one PWM
+period at a time from a closed valve at rest, and stopped as soon as its period averages
+meet the periodic-steady-state criterion (:func:`.steady_state.steady_at`). Continuing a
+run period by period means every point costs exactly the periods it needs.
+
+A compiled (numba) model call cannot be interrupted from its own process, so a model call
+that never returns would hang ``valve_map`` forever. A :class:`PointWorker` therefore runs
+its points in a child process (``python -m valve_model_pkg.maps.worker``, talking over two
+private pipes), which reports every finished point. If no report arrives within a deadline
+(``min_timeout_s`` plus ``slack`` times the longest a point may legitimately take), the
+child is killed and restarted and the point it was on is retried with its duty moved by
+``nudge`` (1e-5, far below the map's resolution); after ``max_nudges`` failures the point
+is given up (value NaN). Every such event is recorded in :attr:`PointWorker.incidents`
+(and in the map file's notes). Several workers run side by side, one per core.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
+import math
 import os
 import subprocess
 import sys
 import time
-from multiprocessing.connection import Connection
 from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
 
-__all__ = ['BatchWorker', 'BatchRequest', 'run_batch_in_process']
+from .steady_state import SteadyState, SteadyStateCriterion, not_converged, steady_at
+
+__all__ = ['PointRequest', 'PointWorker', 'steady_point', 'run_points_in_process']
 
 _LOG = logging.getLogger(__name__)
+#: Past a period boundary by this much so the model has closed the period [s].
+_PAST_BOUNDARY_S = 1e-9
+#: Model time per wall time assumed for deadlines (a slow, loaded machine) [1].
+_SLOW_RATE = 20.0
 
 
 @dataclass(frozen=True)
-class BatchRequest:
-    """One call of ``simulate_pwm_batch`` (everything the child needs, picklable)."""
+class PointRequest:
+    """Operating points to bring to steady state (everything the child needs, picklable)."""
 
     params: dict[str, Any]
     electronics: dict[str, Any]
     supply_voltage_v: float
     output_pressure_pa: float
-    n_periods: int
+    criterion: dict[str, Any]
     duty: np.ndarray
     pwm_frequency_hz: np.ndarray
     supply_pressure_pa: np.ndarray
-    threads: int | None = None
+
+    def subset(self, idx: list[int], duty: np.ndarray | None = None) -> PointRequest:
+        sel = np.asarray(idx, dtype=int)
+        return dataclasses.replace(
+            self, duty=self.duty[sel] if duty is None else np.asarray(duty, dtype=float),
+            pwm_frequency_hz=self.pwm_frequency_hz[sel],
+            supply_pressure_pa=self.supply_pressure_pa[sel])
 
 
-def run_batch_in_process(req: BatchRequest) -> np.ndarray:
-    """Period averages [m], shape (n_runs, n_periods), computed in this process."""
-    from valve_model_pkg.model import ElectronicsConfig, ValveParameters, simulate_pwm_batch
-    if req.threads is not None:
-        import numba
-        numba.set_num_threads(int(req.threads))
-    res = simulate_pwm_batch(ValveParameters.from_dict(req.params),
-                             ElectronicsConfig.from_dict(req.electronics),
-                             duty=req.duty, pwm_frequency_hz=req.pwm_frequency_hz,
-                             supply_pressure_pa=req.supply_pressure_pa,
-                             output_pressure_pa=req.output_pressure_pa,
-                             n_periods=req.n_periods, supply_voltage_v=req.supply_voltage_v,
-                             validate=False)
-    return np.asarray(res.position_avg_m)
+def steady_point(params, electronics, supply_voltage_v: float, crit: SteadyStateCriterion,
+                 duty: float, pwm_frequency_hz: float, supply_pressure_pa: float,
+                 output_pressure_pa: float = 0.0) -> SteadyState:
+    """Simulate one point period by period until it is in periodic steady state.
+
+    Returns
+    -------
+    SteadyState
+        Value as a fraction of x_max.
+    """
+    from valve_model_pkg.model import ValveStepper
+    stepper = ValveStepper(params, electronics, supply_voltage_v, duty=float(duty),
+                           pwm_frequency_hz=float(pwm_frequency_hz),
+                           supply_pressure_pa=float(supply_pressure_pa),
+                           output_pressure_pa=float(output_pressure_pa))
+    period = 1.0 / float(pwm_frequency_hz)
+    stroke = params.stroke_m
+    a = np.empty(crit.max_periods)
+    for k in range(crit.max_periods):
+        stepper.advance_to((k + 1) * period + _PAST_BOUNDARY_S)
+        a[k] = stepper.sample().position_avg_m / stroke
+        s = steady_at(a, k, crit)
+        if s is not None:
+            return s
+    return not_converged(a)
+
+
+def _objects(req: PointRequest):
+    from valve_model_pkg.model import ElectronicsConfig, ValveParameters
+    return (ValveParameters.from_dict(req.params), ElectronicsConfig.from_dict(req.electronics),
+            SteadyStateCriterion.from_dict(req.criterion))
+
+
+def run_points_in_process(req: PointRequest, report=None) -> list[SteadyState]:
+    """Steady states of all points of ``req`` in this process (``report(i, state)``)."""
+    params, electronics, crit = _objects(req)
+    out = []
+    for i, (d, f, p) in enumerate(zip(req.duty, req.pwm_frequency_hz,
+                                      req.supply_pressure_pa)):
+        s = steady_point(params, electronics, req.supply_voltage_v, crit, d, f, p,
+                         req.output_pressure_pa)
+        out.append(s)
+        if report is not None:
+            report(i, s)
+    return out
 
 
 def _serve(fd_in: int, fd_out: int) -> None:  # pragma: no cover - runs in the child
-    import numba
-
-    import valve_model_pkg.model  # noqa: F401 - load the compiled kernels before 'ready'
+    from valve_model_pkg.model import ElectronicsConfig, ValveStepper, load_parameters
+    ValveStepper(load_parameters(), ElectronicsConfig(), duty=0.5).advance_to(0.03)  # JIT
     rx = Connection(fd_in, readable=True, writable=False)
     tx = Connection(fd_out, readable=False, writable=True)
-    tx.send(('ready', numba.get_num_threads()))
+    tx.send(('ready',))
     while True:
         try:
             req = rx.recv()
@@ -75,60 +124,51 @@ def _serve(fd_in: int, fd_out: int) -> None:  # pragma: no cover - runs in the c
         if req is None:
             return
         try:
-            tx.send(('ok', run_batch_in_process(req)))
+            run_points_in_process(req, lambda i, s: tx.send(('point', i, tuple(
+                dataclasses.astuple(s)))))
+            tx.send(('done',))
         except Exception as err:  # noqa: BLE001 - reported to the parent, which raises
             tx.send(('error', f'{type(err).__name__}: {err}'))
 
 
 @dataclass
-class BatchWorker:
-    """A child process running model batches, restarted if a batch never returns.
+class PointWorker:
+    """A child process computing steady states, restarted if a model call never returns.
 
     Parameters
     ----------
-    threads : int, optional
-        numba threads in the child (default: all cores).
     min_timeout_s : float
-        Smallest deadline for one batch [s].
+        Smallest wait for the next point [s].
     slack : float
-        Deadline = ``min_timeout_s`` + ``slack`` x the expected time (from the throughput of
-        earlier batches, in simulated seconds per wall second).
+        The wait is ``min_timeout_s`` + ``slack`` x (``max_periods`` periods of the point at
+        a slow 20 s of model time per second).
     nudge : float
-        Duty offset for a run that did not return.
+        Duty offset for a point the model did not return for.
     max_nudges : int
-        Retries of such a run before giving up on it (NaN).
+        Retries of such a point before giving it up (NaN).
     """
 
-    threads: int | None = None
     min_timeout_s: float = 5.0
-    slack: float = 20.0
+    slack: float = 3.0
     nudge: float = 1e-5
     max_nudges: int = 3
     incidents: list[str] = field(default_factory=list)
-    child_threads: int = 0
     _proc: Any = None
     _tx: Any = None
     _rx: Any = None
-    _rate: float = 0.0   # simulated s per wall s, running estimate
-    # (duty, frequency, supply pressure) of runs that did not return -> duty used instead
+    # (duty, frequency, supply pressure) of points that hung -> duty used instead
     _substitutes: dict[tuple[float, float, float], float] = field(default_factory=dict)
-    _given_up: set[tuple[float, float, float]] = field(default_factory=set)
 
     # --- process management -------------------------------------------------------------
     def start(self) -> None:
-        """Start the child (idempotent); waits until it has imported the model.
-
-        The child is ``python -m valve_model_pkg.maps.worker`` talking over two private
-        pipes (not stdin/stdout, so nothing it prints can corrupt the channel).
-        """
+        """Start the child (idempotent); returns when it has loaded the model."""
         if self._proc is not None and self._proc.poll() is None:
             return
         req_r, req_w = os.pipe()
         res_r, res_w = os.pipe()
         env = dict(os.environ)
-        if self.threads is not None:
-            env['NUMBA_NUM_THREADS'] = str(int(self.threads))
-        # the child must import this very package (source tree or install)
+        env['NUMBA_NUM_THREADS'] = '1'        # one worker per core instead
+        # the child imports this very package (source tree or install)
         pkg_root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
         env['PYTHONPATH'] = pkg_root + os.pathsep + env.get('PYTHONPATH', '')
         try:
@@ -140,14 +180,17 @@ class BatchWorker:
             os.close(res_w)
         self._tx = Connection(req_w, readable=False, writable=True)
         self._rx = Connection(res_r, readable=True, writable=False)
-        if not self._rx.poll(120.0):
+
+    def wait_ready(self, timeout_s: float = 120.0) -> None:
+        """Block until the child has loaded the model."""
+        if not self._rx.poll(timeout_s):
             self._kill()
-            raise RuntimeError('the batch worker process did not start within 120 s')
+            raise RuntimeError(f'the map worker process did not start within {timeout_s:g} s')
         try:
-            _, self.child_threads = self._rx.recv()
+            self._rx.recv()
         except EOFError as err:
             self._kill()
-            raise RuntimeError('the batch worker process exited while starting') from err
+            raise RuntimeError('the map worker process exited while starting') from err
 
     def close(self) -> None:
         """Stop the child (idempotent)."""
@@ -171,19 +214,6 @@ class BatchWorker:
                 conn.close()
         self._tx = self._rx = None
 
-    def __enter__(self) -> BatchWorker:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:  # noqa: BLE001 - best effort at interpreter exit
-            pass
-
     def _kill(self) -> None:
         if self._proc is not None:
             self._proc.kill()
@@ -191,87 +221,74 @@ class BatchWorker:
             self._proc = None
         self._close_pipes()
 
-    # --- batches --------------------------------------------------------------------------
-    def _deadline(self, req: BatchRequest) -> float:
-        sim_s = float(np.sum(req.n_periods / req.pwm_frequency_hz))
-        expected = sim_s / self._rate if self._rate > 0.0 else 10.0
-        return self.min_timeout_s + self.slack * expected
-
-    def _try(self, req: BatchRequest) -> np.ndarray | None:
-        """Result, or None if the child did not answer in time (it is then restarted)."""
-        self.start()
-        t0 = time.perf_counter()
-        self._tx.send(req)
-        if not self._rx.poll(self._deadline(req)):
-            self._kill()
-            return None
+    def __del__(self) -> None:
         try:
-            status, payload = self._rx.recv()
-        except EOFError:
-            code = self._proc.poll() if self._proc is not None else None
-            self._kill()
-            raise RuntimeError(f'the batch worker process died (exit code {code})') from None
-        if status != 'ok':
-            raise RuntimeError(f'model batch failed in the worker: {payload}')
-        wall = max(time.perf_counter() - t0, 1e-6)
-        rate = float(np.sum(req.n_periods / req.pwm_frequency_hz)) / wall
-        self._rate = rate if self._rate == 0.0 else 0.7 * self._rate + 0.3 * rate
-        return payload
+            self.close()
+        except Exception:  # noqa: BLE001 - best effort at interpreter exit
+            pass
 
-    def run(self, req: BatchRequest) -> np.ndarray:
-        """Period averages [m], shape (n_runs, n_periods); NaN rows for runs given up."""
-        keys = list(zip(req.duty.tolist(), req.pwm_frequency_hz.tolist(),
-                        req.supply_pressure_pa.tolist()))
-        if self._given_up:
-            ok = np.array([k not in self._given_up for k in keys], dtype=bool)
-            if not ok.all():
-                out = np.full((req.duty.size, req.n_periods), np.nan)
-                if ok.any():
-                    out[ok] = self.run(self._subset(req, np.nonzero(ok)[0]))
-                return out
-        if self._substitutes:
-            duty = np.array([self._substitutes.get(k, k[0]) for k in keys])
-            req = self._subset(req, np.arange(req.duty.size), duty)
-        out = self._try(req)
-        if out is not None:
-            return out
-        return self._isolate(req)
-
-    def _subset(self, req: BatchRequest, idx: np.ndarray, duty: np.ndarray | None = None
-                ) -> BatchRequest:
-        return BatchRequest(req.params, req.electronics, req.supply_voltage_v,
-                            req.output_pressure_pa, req.n_periods,
-                            req.duty[idx] if duty is None else duty,
-                            req.pwm_frequency_hz[idx], req.supply_pressure_pa[idx],
-                            req.threads)
-
-    def _isolate(self, req: BatchRequest) -> np.ndarray:
+    # --- points ---------------------------------------------------------------------------
+    def steady(self, req: PointRequest) -> list[SteadyState]:
+        """Steady states of all points; a point given up has value NaN."""
         n = req.duty.size
-        out = np.full((n, req.n_periods), np.nan)
-        if n == 1:
-            base = float(req.duty[0])
-            for k in range(1, self.max_nudges + 1):
-                duty = min(max(base + k * self.nudge * (1 if base < 0.5 else -1), 0.0), 1.0)
-                res = self._try(self._subset(req, np.array([0]), np.array([duty])))
-                if res is not None:
-                    self._substitutes[(base, float(req.pwm_frequency_hz[0]),
-                                       float(req.supply_pressure_pa[0]))] = duty
-                    self._note(f'model did not return for duty {base:.6g} at '
-                               f'{req.pwm_frequency_hz[0]:g} Hz, '
-                               f'{req.supply_pressure_pa[0]:g} Pa ({req.n_periods} periods); '
-                               f'simulated at duty {duty:.6g} instead (from now on)')
-                    return res
-            self._given_up.add((base, float(req.pwm_frequency_hz[0]),
-                                float(req.supply_pressure_pa[0])))
-            self._note(f'model did not return for duty {base:.6g} at '
-                       f'{req.pwm_frequency_hz[0]:g} Hz, {req.supply_pressure_pa[0]:g} Pa '
-                       f'even after {self.max_nudges} nudges; point left out')
-            return out
-        half = n // 2
-        for idx in (np.arange(half), np.arange(half, n)):
-            # run() applies what earlier isolations found (substitutes, given-up runs)
-            out[idx] = self.run(self._subset(req, idx))
-        return out
+        results: list[SteadyState | None] = [None] * n
+        attempts: dict[int, int] = {}
+        pending = list(range(n))
+        max_periods = int(req.criterion.get('max_periods', 400))
+        while pending:
+            keys = [(float(req.duty[i]), float(req.pwm_frequency_hz[i]),
+                     float(req.supply_pressure_pa[i])) for i in pending]
+            duty = np.array([self._substitutes.get(k, k[0]) for k in keys])
+            sub = req.subset(pending, duty)
+            if self._proc is None or self._proc.poll() is not None:
+                self.start()
+                self.wait_ready()
+            self._tx.send(sub)
+            done = -1
+            finished = False
+            while True:
+                i_next = pending[min(done + 1, len(pending) - 1)]
+                wait = self.min_timeout_s + self.slack * max_periods / (
+                    float(req.pwm_frequency_hz[i_next]) * _SLOW_RATE)
+                if not self._rx.poll(wait):
+                    break
+                try:
+                    msg = self._rx.recv()
+                except EOFError:
+                    code = self._proc.poll() if self._proc is not None else None
+                    self._kill()
+                    raise RuntimeError(f'the map worker process died (exit code {code})') \
+                        from None
+                if msg[0] == 'point':
+                    done = int(msg[1])
+                    results[pending[done]] = SteadyState(*msg[2])
+                elif msg[0] == 'done':
+                    finished = True
+                    break
+                else:
+                    raise RuntimeError(f'model failed in the map worker: {msg[1]}')
+            if finished:
+                break
+            # the child is stuck on point pending[done + 1]: restart, nudge it, go on
+            self._kill()
+            hung = pending[done + 1]
+            key = keys[done + 1]
+            attempts[hung] = attempts.get(hung, 0) + 1
+            where = (f'duty {key[0]:.6g} at {key[1]:g} Hz, {key[2]:g} Pa '
+                     f'(no answer within {wait:.0f} s)')
+            if attempts[hung] > self.max_nudges:
+                results[hung] = SteadyState(False, 0, 0, math.nan)
+                self._note(f'model did not return for {where} even after {self.max_nudges} '
+                           'nudges; point left out')
+                pending = pending[done + 2:]
+            else:
+                sign = 1.0 if key[0] < 0.5 else -1.0
+                new = min(max(key[0] + sign * attempts[hung] * self.nudge, 0.0), 1.0)
+                self._substitutes[key] = new
+                self._note(f'model did not return for {where}; simulated at duty {new:.6g} '
+                           'instead')
+                pending = pending[done + 1:]
+        return [s if s is not None else SteadyState(False, 0, 0, math.nan) for s in results]
 
     def _note(self, text: str) -> None:
         _LOG.warning('%s', text)

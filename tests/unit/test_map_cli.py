@@ -1,0 +1,48 @@
+"""valve_map: writes the map file and Figs. 8/9, shows progress, refuses bad input."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from valve_model_pkg.cli.map import main as valve_map
+from valve_model_pkg.maps import DutyMap, default_map_path
+from valve_model_pkg.model import load_parameters
+
+
+def test_generates_a_small_map_with_figures(tmp_path: Path, capsys) -> None:
+    out = tmp_path / 'maps' / 'small.json'
+    code = valve_map(['-o', str(out), '--duty-step', '0.05', '--pressures-bar', '0', '4',
+                      '--frequencies', '50', '100'])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    dmap = DutyMap.load(out)
+    dmap.check_parameters(load_parameters())
+    assert dmap.position_fraction.shape == (2, 2, 21)
+    assert dmap.generator['program'] == 'valve_map'
+    assert (tmp_path / 'maps' / 'fig8_pressures.png').stat().st_size > 10_000
+    assert (tmp_path / 'maps' / 'fig9_frequencies.png').stat().st_size > 10_000
+    # the summary names dead band, saturation and width of every curve; progress on stderr
+    assert 'dead band' in captured.out and 'saturation' in captured.out
+    assert '50 Hz: with pressure the range shifts up' in captured.out
+    assert '100.0%' in captured.err and 'edge bisection' in captured.err
+
+
+def test_show_reads_an_existing_map(tmp_path: Path, capsys) -> None:
+    code = valve_map(['--show', str(default_map_path()), '--fig-dir', str(tmp_path)])
+    text = capsys.readouterr().out
+    assert code == 0
+    assert '4 bar: with frequency the range narrows' in text
+    assert (tmp_path / 'fig8_pressures.png').exists()
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['--params', '/nonexistent/valve.yaml'], 'valve.yaml'),
+    (['--duty-step', '0.03'], 'whole number'),
+    (['--show', '/nonexistent/map.json'], 'no such map file'),
+])
+def test_bad_input_exits_1_with_the_reason(tmp_path: Path, capsys, argv: list[str],
+                                           message: str) -> None:
+    code = valve_map(['-o', str(tmp_path / 'm.json'), '--no-figures', '-q'] + argv)
+    assert code == 1
+    assert message in capsys.readouterr().err
