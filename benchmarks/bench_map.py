@@ -94,7 +94,8 @@ def bench_grid(records: list[dict]) -> None:
         'map_full_grid', batch_s, 's', 'plain loop of simulate_pwm (extrapolated)', plain_s,
         plain_s / batch_s, '<= 10 s on 2 cores', batch_s <= 10.0,
         f'{PAPER_GRID.n_points} grid points to periodic steady state + edge bisection; '
-        f'{stats.runs} points simulated, {stats.simulated_s:.1f} s of model time; grid phase {stats.grid_wall_s:.2f} s, '
+        f'{stats.runs} points simulated, {stats.simulated_s:.1f} s of model time; '
+        f'grid phase {stats.grid_wall_s:.2f} s, '
         f'edges {stats.refine_wall_s:.2f} s, worker start {stats.extra.get("startup_s", 0):.2f}'
         f' s; {stats.threads} worker processes; plain loop: {len(subset)} of {len(flat)} points '
         f'in {plain_subset_s:.2f} s, extrapolated by simulated time; ratio = speed-up; '

@@ -78,6 +78,8 @@ def summary_table(duty_map) -> str:  # noqa: ANN001 - DutyMap
              '  ------  -------  ---------  ------  -----  ----------  ------  -----  '
              '-------------  --------------------']
 
+    islands: list[str] = []
+
     def pct(v: float) -> str:
         return '   -  ' if v is None or (isinstance(v, float) and math.isnan(v)) \
             else f'{v * 100:5.1f}%'
@@ -92,7 +94,11 @@ def summary_table(duty_map) -> str:  # noqa: ANN001 - DutyMap
             lines.append(f'  {f:6g}  {p / 1e5:7g}  {pct(ft.dead_band_duty):>9}  {pct(db)}  '
                          f'{pct(ft.opening_duty)}  {pct(ft.saturation_duty):>10}  {pct(se)}  '
                          f'{pct(ft.effective_width)}  {pct(rw):>13}  {per:>20}')
-    return '\n'.join(lines)
+            if ft.first_saturation_duty < ft.saturation_duty:
+                islands.append(f'  island: {f:g} Hz, {p / 1e5:g} bar reaches the open stop at '
+                               f'{ft.first_saturation_duty:.0%} but leaves it again below '
+                               f'{ft.saturation_duty:.0%}')
+    return '\n'.join(lines + islands)
 
 
 def trend_summary(duty_map) -> str:  # noqa: ANN001 - DutyMap

@@ -235,8 +235,8 @@ def map_flow_position(duty_map: DutyMap, duty: float, pwm_frequency_hz: float,
     """x_avg / x_max of the map at one duty (pressures between the grid interpolated)."""
     i_f = duty_map.frequency_index(pwm_frequency_hz)
     try:
-        curve = duty_map.position_fraction[i_f, duty_map.pressure_index(supply_pressure_pa)]
-        return float(np.interp(duty, duty_map.duty, curve))
+        d, x = duty_map.curve_points(i_f, duty_map.pressure_index(supply_pressure_pa))
+        return float(np.interp(duty, d, x))
     except KeyError:
         from .inversion import FlowToDutyInverter
         inv = FlowToDutyInverter(duty_map, pwm_frequency_hz)
@@ -253,8 +253,8 @@ def map_flow_fraction(duty_map: DutyMap, duty: np.ndarray, pwm_frequency_hz: flo
     i_f = duty_map.frequency_index(pwm_frequency_hz)
     duty = np.asarray(duty, dtype=float)
     try:
-        curve = duty_map.position_fraction[i_f, duty_map.pressure_index(supply_pressure_pa)]
-        x = np.interp(duty, duty_map.duty, curve)
+        d, curve = duty_map.curve_points(i_f, duty_map.pressure_index(supply_pressure_pa))
+        x = np.interp(duty, d, curve)
         full = float(curve[-1])
     except KeyError:
         from .inversion import FlowToDutyInverter

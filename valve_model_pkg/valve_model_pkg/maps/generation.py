@@ -31,7 +31,7 @@ import numpy as np
 from .curves import DEFAULT_STOP_TOLERANCE, curve_features
 from .dutymap import DutyMap
 from .errors import MapGenerationError
-from .steady_state import SteadyState, SteadyStateCriterion, detect_steady_state
+from .steady_state import SteadyState, SteadyStateCriterion
 
 __all__ = ['MapGrid', 'GenerationStats', 'MapSimulator', 'Refinement', 'generate_map',
            'steady_positions', 'PAPER_GRID']

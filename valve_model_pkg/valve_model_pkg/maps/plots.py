@@ -28,8 +28,8 @@ def _curves(ax, duty_map: DutyMap, pairs: list[tuple[int, int]], labels: list[st
         feat = duty_map.features(i, j)
         width = '' if math.isnan(feat.effective_width) else \
             f' (range {feat.dead_band_duty:.0%}-{feat.saturation_duty:.0%})'
-        ax.plot(duty_map.duty * 100.0, duty_map.position_fraction[i, j] * 100.0,
-                label=label + width)
+        d, x = duty_map.curve_points(i, j)     # grid plus refined points
+        ax.plot(d * 100.0, x * 100.0, label=label + width)
     ax.set_xlabel('duty cycle [%]')
     ax.set_ylabel(r'average spool position $\bar{x}/x_{max}$ [%]')
     ax.set_xlim(0, 100)

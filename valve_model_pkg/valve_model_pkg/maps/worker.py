@@ -24,7 +24,6 @@ import math
 import os
 import subprocess
 import sys
-import time
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import Any
