@@ -203,3 +203,55 @@ def test_bad_map_is_refused_at_start(start_node, tmp_path: Path, case: str) -> N
     assert code != 0, out
     assert str(path) in out and reason in out, out
     assert 'cannot start' in out
+
+
+def test_keeps_up_with_1khz_flow_and_pressure_streams(start_node, ros, inverter) -> None:
+    """The demo drives it with pressures at 1 kHz and flow commands at 100-1000 Hz.
+
+    The client sends as fast as it can for 2 s (one flow command and two pressure messages
+    per round; about 400 rounds/s on a loaded 2-CPU machine) and the node must process every
+    command, by its own count in /diagnostics, and answer the last one correctly.
+    """
+    import time
+
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from valve_model_pkg.nodes.common import TOPIC_DIAGNOSTICS
+    node = start_node('flow_to_duty', '--ros-args', '-p', 'diagnostics_period_s:=0.2')
+    client = ros.add(Client())
+    diags: list[DiagnosticArray] = []
+    client.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, diags.append, 10)
+    _connect(ros, client, node)
+    full = _full_flow(inverter, 4e5)
+
+    def node_commands() -> int:
+        for arr in reversed(diags):
+            for st in arr.status:
+                if 'flow to duty' in st.name:
+                    return int({kv.key: kv.value for kv in st.values}['commands'])
+        return -1
+    ros.wait_for(lambda: node_commands() >= 0, 10.0, 'flow_to_duty diagnostics')
+    before = node_commands()
+    sent = 0
+    t_end = time.monotonic() + 2.0
+    while time.monotonic() < t_end:
+        p = 4e5 + 1e5 * math.sin(sent / 50.0)
+        client.pressures(p, 1e5 + 5e4 * math.cos(sent / 70.0))
+        client.flow((0.3 + 0.2 * math.sin(sent / 30.0)) * full)
+        sent += 1
+        for _ in range(3):
+            ros.spin(0.0)
+        time.sleep(0.0005)
+    client.flow(0.5 * full)
+    client.pressures(4e5, 0.0)
+    sent += 1
+    ros.wait_for(lambda: client.statuses and client.statuses[-1].requested_mass_flow
+                 == pytest.approx(0.5 * full)
+                 and client.statuses[-1].supply_pressure == pytest.approx(4e5), 10.0,
+                 'the answer to the last command')
+    ros.wait_for(lambda: node_commands() >= before + sent, 5.0,
+                 f'the node to count all {sent} commands (it has {node_commands() - before})')
+    print(f'{sent} flow commands in 2 s, {node_commands() - before} processed by the node')
+    assert client.duties[-1].duty == pytest.approx(
+        inverter.compute(0.5 * full, 4e5, 0.0).duty, abs=1e-9)
+    assert node.alive() and node.stop() == 0

@@ -3,17 +3,18 @@ from __future__ import annotations
 
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import REPO_ROOT
 from valve_model_pkg.maps import (ATMOSPHERIC_PRESSURE_PA, DutyMap, FlowStatus,
                                   FlowToDutyInverter, OrificeConstants, flow_per_opening,
                                   invalid_flow_reason)
 from valve_model_pkg.maps.synthetic import linear_map, linear_position
 from valve_model_pkg.model import load_parameters, orifice_mass_flow
 
+REPO_ROOT = Path(__file__).resolve().parents[2]
 PARAMS = load_parameters()
 CONST = OrificeConstants.from_parameters(PARAMS)
 
