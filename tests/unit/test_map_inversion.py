@@ -173,3 +173,13 @@ def test_status_codes_equal_the_message_constants() -> None:
     constants = {m.group(1): int(m.group(2))
                  for m in re.finditer(r'uint8 STATUS_(\w+)\s*=\s*(\d+)', text)}
     assert constants == {s.name: int(s) for s in FlowStatus}
+
+
+@pytest.mark.parametrize('supply_pa', [3e5, 4e5, 5.2e5])
+def test_forward_direction_is_the_inverse(inv: FlowToDutyInverter, supply_pa: float) -> None:
+    """duty_to_position (used by the flow check between grid pressures) undoes the inversion."""
+    for duty in (0.05, 0.2, 0.45, 0.7, 0.95):
+        expected = float(linear_position(duty, 50.0, supply_pa))
+        if duty < inv.opening_duty(supply_pa):
+            expected = 0.0
+        assert inv.duty_to_position(duty, supply_pa) == pytest.approx(expected, abs=1e-9)
