@@ -255,3 +255,41 @@ def test_keeps_up_with_1khz_flow_and_pressure_streams(start_node, ros, inverter)
     assert client.duties[-1].duty == pytest.approx(
         inverter.compute(0.5 * full, 4e5, 0.0).duty, abs=1e-9)
     assert node.alive() and node.stop() == 0
+
+
+def test_live_parameters(start_node, ros) -> None:
+    """pwm_frequency_hz can switch to another map frequency; map_file cannot change live."""
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    node = start_node('flow_to_duty')
+    client = ros.add(Client())
+    _connect(ros, client, node)
+    srv = client.create_client(SetParameters, '/flow_to_duty/set_parameters')
+    ros.wait_for(srv.service_is_ready, 10.0, 'the set_parameters service')
+
+    def set_param(name: str, value: object):
+        msg = ParameterMsg(name=name)
+        if isinstance(value, str):
+            msg.value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+        else:
+            msg.value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
+                                       double_value=float(value))
+        future = srv.call_async(SetParameters.Request(parameters=[msg]))
+        ros.wait_for(future.done, 10.0, f'setting {name}')
+        return future.result().results[0]
+
+    inv100 = FlowToDutyInverter(load_map(), 100.0)
+    q = 0.5 * _full_flow(inv100, 4e5)
+    client.pressures(4e5, 0.0)
+    assert set_param('pwm_frequency_hz', 100.0).successful
+    st = _ask(ros, client, q)
+    assert st.pwm_frequency == 100.0 and client.duties[-1].pwm_frequency == 100.0
+    assert st.duty == pytest.approx(inv100.compute(q, 4e5, 0.0).duty, abs=1e-9)
+    bad = set_param('pwm_frequency_hz', 75.0)
+    assert not bad.successful and '75 Hz is not in the map' in bad.reason
+    refused = set_param('map_file', '/tmp/other.json')
+    assert not refused.successful and 'restart' in refused.reason
+    assert _ask(ros, client, q).pwm_frequency == 100.0
+    assert node.alive() and node.stop() == 0

@@ -29,7 +29,10 @@ Rules (details in docs/maps.md):
   ``republish_period_s`` and a new duty is published if it changed;
 - the map file must exist, be a valid duty map, contain ``pwm_frequency_hz`` and be made
   for the valve parameter set in force (``params_file``), else the node refuses to start
-  (exit code 1, naming the file and the reason).
+  (exit code 1, naming the file and the reason);
+- at run time ``pwm_frequency_hz`` (to another of the map's frequencies),
+  ``supply_temperature_k`` and ``dead_band_zero_fraction`` can be changed; the other
+  parameters need a restart and changing them is refused.
 """
 from __future__ import annotations
 
@@ -39,8 +42,10 @@ import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import FluidPressure
 from valve_msgs.msg import DutyCommand, FlowCommand, FlowToDutyStatus
 
@@ -134,6 +139,15 @@ class FlowToDutyNode(Node):
         except KeyError as err:
             raise StartupError(f'map file refused: {self._map_path}: {err.args[0]}') from err
 
+        self._map = dmap
+        self._zero_fraction = zero_fraction
+        if dmap.parameters['valve']['area_a3_m2'] != dmap.parameters['valve']['area_a4_m2']:
+            self.get_logger().warning(
+                'A_3 != A_4 in this parameter set: the output pressure pushes on the spool, '
+                f'but the map was made at {dmap.output_pressure_pa:g} Pa output pressure '
+                'only; its duties are off at other output pressures')
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
         self._duty_pub = self.create_publisher(DutyCommand, TOPIC_DUTY_COMMAND, COMMAND_QOS)
         self._status_pub = self.create_publisher(FlowToDutyStatus, TOPIC_FLOW_STATUS,
                                                  COMMAND_QOS)
@@ -165,6 +179,30 @@ class FlowToDutyNode(Node):
             f'pressures) for {self._params_path}; {pwm_hz:g} Hz, dead band up to '
             f'{feats.dead_band_duty:.0%}, saturation from {feats.saturation_duty:.0%} near '
             f'{self._supply_pa:g} Pa; dead-band zero fraction {zero_fraction:g}')
+
+    # --- parameters -----------------------------------------------------------------------
+    _LIVE = ('pwm_frequency_hz', 'supply_temperature_k', 'dead_band_zero_fraction')
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        """Apply the live parameters (rebuilding the inverter); refuse the others."""
+        changes = {}
+        for p in params:
+            if p.name not in self._LIVE:
+                return SetParametersResult(successful=False, reason=(
+                    f'{p.name} cannot change while running; restart the node'))
+            changes[p.name] = float(p.value)
+        freq = changes.get('pwm_frequency_hz', self._inverter.pwm_frequency_hz)
+        temp = changes.get('supply_temperature_k', self._temperature_k)
+        zero = changes.get('dead_band_zero_fraction', self._zero_fraction)
+        try:
+            inverter = FlowToDutyInverter(self._map, freq, supply_temperature_k=temp,
+                                          zero_fraction=zero,
+                                          atmospheric_pressure_pa=ATMOSPHERIC_PRESSURE_PA)
+        except (KeyError, ValueError) as err:
+            return SetParametersResult(successful=False, reason=str(err.args[0]))
+        self._inverter, self._temperature_k, self._zero_fraction = inverter, temp, zero
+        self._pressure_dirty = True      # re-evaluate the command in force
+        return SetParametersResult(successful=True)
 
     # --- inputs ---------------------------------------------------------------------------
     def _on_flow(self, msg: FlowCommand) -> None:
