@@ -108,3 +108,34 @@ def test_controller_rejects_non_finite_feedback() -> None:
         PositionController().update(0.02, math.nan, 0.0, 0.01)
     with pytest.raises(ValueError, match='kp_kg_s_per_m'):
         ControllerGains(kp_kg_s_per_m=-1.0)
+
+
+def test_valve_fed_chamber_never_exceeds_the_supply() -> None:
+    """(C7): with the valve held open the chamber tends to the supply pressure, not beyond."""
+    from valve_model_pkg.model import load_parameters
+    plant = CylinderParameters(bleed_discharge_area_m2=0.0)
+    cyl = Cylinder(plant, valve_params=load_parameters())
+    supply = 4.0e5
+    for _ in range(300):
+        cyl.step_with_valve(0.01, 0.33e-3, supply)
+        assert cyl.chamber_gauge_pressure_pa <= supply + 1.0
+    assert cyl.chamber_gauge_pressure_pa == pytest.approx(supply, rel=1e-3)
+    # Above the supply the flow reverses.
+    cyl.state = CylinderState(ATMOSPHERIC_PRESSURE_PA + 6.0e5, plant.stroke_m, 0.0)
+    cyl.step_with_valve(1e-3, 0.33e-3, supply)
+    assert cyl.last_valve_flow_kg_s < 0.0
+
+
+def test_closed_loop_through_the_real_valve_and_map_tolerates_transport_delay() -> None:
+    """Controller -> flow_to_duty inversion -> valve model (50 Hz PWM) -> cylinder, with
+    80 ms of feedback delay (what node scheduling can add): every step ends within 1 mm."""
+    from valve_model_pkg.pneumatics.closed_loop import simulate_closed_loop
+    goals = [(0.02, 3.0), (0.06, 3.0), (0.04, 3.0)]
+    r = simulate_closed_loop(goals, feedback_delay_s=0.08)
+    end = 0.0
+    for goal, hold in goals:
+        end += hold
+        tail = (r.t_s > end - 0.8) & (r.t_s <= end)
+        assert np.all(np.abs(r.position_m[tail] - goal) < 1e-3), (goal, r.position_m[tail][-1])
+    assert np.max(r.chamber_pressure_pa) - ATMOSPHERIC_PRESSURE_PA <= 4.0e5 + 1.0
+    assert np.all((r.duty >= 0.0) & (r.duty <= 1.0))

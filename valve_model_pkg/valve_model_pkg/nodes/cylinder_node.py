@@ -1,6 +1,9 @@
 """pneumatic_cylinder: the cylinder plant fed by the valve's mass flow, as a ROS 2 node.
 
-- subscribes ``valve/state`` (valve_msgs/ValveState): its ``mass_flow`` fills the chamber;
+- subscribes ``valve/state`` (valve_msgs/ValveState): the valve's spool position and
+  supply pressure; the plant evaluates the valve's orifice (eq. 12) at its own chamber
+  pressure on every integration step (C7), so the pressure that sets the flow is never
+  stale by a message round trip;
 - publishes ``valve/output_pressure`` (sensor_msgs/FluidPressure, absolute Pa): the chamber
   pressure is the valve's output pressure, which sets the valve's flow regime (eq. 12);
 - publishes ``cylinder/joint_states`` (sensor_msgs/JointState, joint ``piston``): position
@@ -23,9 +26,10 @@ from rclpy.time import Time
 from sensor_msgs.msg import FluidPressure, JointState
 from valve_msgs.msg import ValveState
 
+from valve_model_pkg.model import load_parameters
 from valve_model_pkg.model.orifice import ATMOSPHERIC_PRESSURE_PA
 from valve_model_pkg.nodes.common import (PRESSURE_QOS, STATE_QOS, TOPIC_OUTPUT_PRESSURE,
-                                          TOPIC_STATE, declare_float)
+                                          TOPIC_STATE, declare_float, declare_string)
 from valve_model_pkg.pneumatics.cylinder import (PARAMETER_INFO, Cylinder, CylinderParameters,
                                                  CylinderState)
 
@@ -43,15 +47,23 @@ class CylinderNode(Node):
         self._params = dataclasses.replace(defaults, **values)
         self._rate_hz = declare_float(self, 'rate_hz', 1000.0, 'Plant update rate [Hz]',
                                       10.0, 5000.0)
-        pressure_rate = declare_float(self, 'pressure_publish_rate_hz', 500.0,
+        pressure_rate = declare_float(self, 'pressure_publish_rate_hz', 200.0,
                                       'Rate of valve/output_pressure [Hz]', 1.0, 5000.0)
+        joint_rate = declare_float(self, 'joint_state_rate_hz', 200.0,
+                                   'Rate of cylinder/joint_states [Hz] (the plant itself '
+                                   'advances at rate_hz)', 1.0, 5000.0)
         y0 = declare_float(self, 'initial_position_m', 0.0, 'Initial piston position [m]',
                            0.0, self._params.stroke_m)
         self._max_advance_s = declare_float(self, 'max_advance_per_tick_s', 0.05,
                                             'Most plant time integrated in one tick [s]',
                                             1e-3, 1.0)
-        self._cylinder = Cylinder(self._params, CylinderState(position_m=y0))
-        self._mass_flow_kg_s = 0.0
+        valve_file = declare_string(
+            self, 'valve_params_file', '',
+            'Valve parameter YAML, for the valve\'s orifice (empty: the paper\'s values)')
+        valve = load_parameters(valve_file or None)
+        self._cylinder = Cylinder(self._params, CylinderState(position_m=y0), valve)
+        self._opening_m = 0.0
+        self._supply_pa = 0.0
         self._rejected = 0
         self._last: Time | None = None
         self._pressure_pub = self.create_publisher(FluidPressure, TOPIC_OUTPUT_PRESSURE,
@@ -60,19 +72,21 @@ class CylinderNode(Node):
         self.create_subscription(ValveState, TOPIC_STATE, self._on_valve, STATE_QOS)
         self.create_timer(1.0 / self._rate_hz, self._on_tick)
         self.create_timer(1.0 / pressure_rate, self._publish_pressure)
+        self.create_timer(1.0 / joint_rate, self._publish_joint)
         self.get_logger().info(
             f'cylinder: bore {self._params.bore_diameter_m * 1e3:g} mm, stroke '
             f'{self._params.stroke_m * 1e3:g} mm, mass {self._params.moving_mass_kg:g} kg, '
             f'spring {self._params.spring_stiffness_n_per_m:g} N/m')
 
     def _on_valve(self, msg: ValveState) -> None:
-        flow = float(msg.mass_flow)
-        if not math.isfinite(flow):
+        opening, supply = float(msg.spool_position), float(msg.supply_pressure)
+        if not (math.isfinite(opening) and math.isfinite(supply)):
             self._rejected += 1
-            self.get_logger().warning(f'valve/state mass_flow {flow!r} is not finite; '
-                                      'keeping the last valid flow')
+            self.get_logger().warning(f'valve/state spool_position {opening!r} / '
+                                      f'supply_pressure {supply!r} not finite; keeping the '
+                                      'last valid values', throttle_duration_sec=1.0)
             return
-        self._mass_flow_kg_s = flow
+        self._opening_m, self._supply_pa = opening, supply
 
     def _on_tick(self) -> None:
         now = self.get_clock().now()
@@ -87,9 +101,12 @@ class CylinderNode(Node):
             self.get_logger().warning(f'{dt * 1e3:.1f} ms since the last tick; integrating '
                                       f'{self._max_advance_s * 1e3:.0f} ms only')
             dt = self._max_advance_s
-        state = self._cylinder.step(dt, self._mass_flow_kg_s)
+        self._cylinder.step_with_valve(dt, self._opening_m, self._supply_pa)
+
+    def _publish_joint(self) -> None:
+        state = self._cylinder.state
         msg = JointState()
-        msg.header.stamp = now.to_msg()
+        msg.header.stamp = self.get_clock().now().to_msg()
         msg.name = ['piston']
         msg.position = [state.position_m]
         msg.velocity = [state.velocity_m_s]
@@ -114,7 +131,7 @@ def main(args: list[str] | None = None) -> None:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ValueError as err:
+    except (ValueError, OSError) as err:
         rclpy.logging.get_logger('pneumatic_cylinder').fatal(f'cannot start: {err}')
         sys.exit(1)
     finally:

@@ -23,8 +23,8 @@ __all__ = ['ControllerGains', 'PositionController']
 class ControllerGains:
     """Gains and limits of the flow-commanding position controller (SI units)."""
 
-    kp_kg_s_per_m: float = 0.08
-    ki_kg_s_per_m_s: float = 0.15
+    kp_kg_s_per_m: float = 0.04
+    ki_kg_s_per_m_s: float = 0.04
     kd_kg_per_m: float = 0.004
     max_mass_flow_kg_s: float = 2.0e-3
     feedforward: bool = True

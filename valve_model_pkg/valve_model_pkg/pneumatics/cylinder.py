@@ -18,7 +18,16 @@ piston velocity v (m/s). Equations (numbered C1.. to keep them apart from the pa
 - end stops                      0 <= y <= stroke, plastic impact (v -> 0)            (C6)
 
 m_in is the valve's mass flow (kg/s), positive into the chamber; it may be negative if
-the chamber pressure exceeds the supply (reverse flow through the open valve).
+the chamber pressure exceeds the supply (reverse flow through the open valve). Either it
+is given (:meth:`Cylinder.step`), or the plant evaluates the valve's orifice, eq. (12),
+at its own chamber pressure from the valve's opening (:meth:`Cylinder.step_with_valve`):
+
+- valve flow                      m_in = eq. (12)(x, p_sup, p) with the valve's C_d, C_A,
+                                  T; reversed if p > p_sup                            (C7)
+
+The second form is what the cylinder node uses: the opening comes from valve/state at
+1 kHz, and the chamber pressure that sets the flow regime is the plant's own, at every
+integration step, so the stiff pressure/flow coupling is not closed through messages.
 """
 from __future__ import annotations
 
@@ -27,6 +36,7 @@ from dataclasses import dataclass, fields, replace
 from typing import Any
 
 from valve_model_pkg.model.orifice import ATMOSPHERIC_PRESSURE_PA, _mass_flow
+from valve_model_pkg.model.parameters import ValveParameters
 
 __all__ = ['CylinderParameters', 'CylinderState', 'Cylinder', 'PARAMETER_INFO']
 
@@ -55,12 +65,12 @@ class CylinderParameters:
     bore_diameter_m: float = 0.025
     stroke_m: float = 0.100
     dead_volume_m3: float = 2.0e-5
-    moving_mass_kg: float = 2.0
+    moving_mass_kg: float = 1.0
     spring_stiffness_n_per_m: float = 1000.0
     spring_preload_n: float = 20.0
     load_force_n: float = 0.0
     coulomb_friction_n: float = 5.0
-    viscous_friction_n_s_per_m: float = 100.0
+    viscous_friction_n_s_per_m: float = 300.0
     bleed_discharge_area_m2: float = 0.7e-6     # C_d * A of the bleed restrictor
     polytropic_exponent: float = 1.2
     temperature_k: float = 293.15
@@ -138,18 +148,40 @@ class Cylinder:
         Cylinder, load and bleed parameters.
     state
         Initial state (default: retracted, at atmospheric pressure).
+    valve_params
+        The valve's parameters, for its orifice (C7) in :meth:`step_with_valve`.
     """
 
     def __init__(self, params: CylinderParameters | None = None,
-                 state: CylinderState | None = None) -> None:
+                 state: CylinderState | None = None,
+                 valve_params: ValveParameters | None = None) -> None:
         self.params = params or CylinderParameters()
         self.state = state or CylinderState()
+        self._valve = valve_params
+        self._opening_m = 0.0
+        self._supply_abs_pa = ATMOSPHERIC_PRESSURE_PA
+        self.last_valve_flow_kg_s = 0.0
         self.t_s = 0.0
         self.last_bleed_kg_s = 0.0
 
-    def _derivatives(self, p: float, y: float, v: float, m_in: float
+    def _valve_flow(self, p: float) -> float:
+        """(C7): the valve's orifice at chamber pressure ``p`` [Pa abs]; kg/s into it."""
+        x, p_sup, v = self._opening_m, self._supply_abs_pa, self._valve
+        if x <= 0.0 or v is None:
+            return 0.0
+        if p_sup >= p:
+            return _mass_flow(x, p_sup, p, v.discharge_coefficient, v.orifice_area_gradient_m,
+                              v.supply_temperature_k, v.gas_constant_j_per_kg_k,
+                              v.heat_capacity_ratio)
+        return -_mass_flow(x, p, p_sup, v.discharge_coefficient, v.orifice_area_gradient_m,
+                           v.supply_temperature_k, v.gas_constant_j_per_kg_k,
+                           v.heat_capacity_ratio)
+
+    def _derivatives(self, p: float, y: float, v: float, m_in: float | None
                      ) -> tuple[float, float, float]:
         par = self.params
+        if m_in is None:
+            m_in = self._valve_flow(p)                                            # (C7)
         area = par.piston_area_m2
         volume = par.dead_volume_m3 + area * y                                    # (C1)
         m_out = par.bleed_mass_flow_kg_s(p)                                       # (C3)
@@ -171,16 +203,40 @@ class Cylinder:
             dv = 0.0
         return dp, v, dv
 
+    def step_with_valve(self, dt_s: float, opening_m: float, supply_pressure_pa: float
+                        ) -> CylinderState:
+        """Advance by ``dt_s`` [s] with the valve held at ``opening_m`` [m].
+
+        The valve's flow is evaluated at the chamber pressure of every integration stage
+        (C7), from the supply pressure ``supply_pressure_pa`` (gauge [Pa]) and the
+        valve's orifice parameters given to the constructor.
+        """
+        if self._valve is None:
+            raise ValueError('step_with_valve needs the valve parameters (valve_params=)')
+        for name, value in (('opening_m', opening_m), ('supply_pressure_pa',
+                                                      supply_pressure_pa)):
+            if not math.isfinite(value):
+                raise ValueError(f'{name} = {value!r} is not finite')
+        self._opening_m = max(0.0, opening_m)
+        self._supply_abs_pa = supply_pressure_pa + ATMOSPHERIC_PRESSURE_PA
+        state = self._integrate(dt_s, None)
+        self.last_valve_flow_kg_s = self._valve_flow(state.pressure_pa)
+        return state
+
     def step(self, dt_s: float, valve_mass_flow_kg_s: float) -> CylinderState:
         """Advance by ``dt_s`` [s] with the valve's mass flow held constant [kg/s].
 
         RK4 with the internal step; stick/slip and the end stops are applied after each
         step, so a velocity that changes sign sticks instead of chattering.
         """
-        if not math.isfinite(dt_s) or dt_s < 0.0:
-            raise ValueError(f'dt_s = {dt_s!r} must be a finite non-negative time')
         if not math.isfinite(valve_mass_flow_kg_s):
             raise ValueError(f'valve mass flow {valve_mass_flow_kg_s!r} is not finite')
+        self.last_valve_flow_kg_s = valve_mass_flow_kg_s
+        return self._integrate(dt_s, valve_mass_flow_kg_s)
+
+    def _integrate(self, dt_s: float, valve_mass_flow_kg_s: float | None) -> CylinderState:
+        if not math.isfinite(dt_s) or dt_s < 0.0:
+            raise ValueError(f'dt_s = {dt_s!r} must be a finite non-negative time')
         par = self.params
         s = self.state
         p, y, v = s.pressure_pa, s.position_m, s.velocity_m_s

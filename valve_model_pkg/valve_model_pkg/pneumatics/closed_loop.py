@@ -1,0 +1,92 @@
+"""The demo's control loop without ROS: controller -> flow_to_duty -> valve model -> cylinder.
+
+The same pieces the nodes run (PositionController, FlowToDutyInverter, ValveStepper,
+Cylinder), connected directly with the node rates and with the delays the messages add
+(one controller period for the command, one valve tick for the opening). Used to tune
+the controller and to test the loop deterministically; the nodes add only transport.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from valve_model_pkg.maps.dutymap import load_map
+from valve_model_pkg.maps.inversion import FlowToDutyInverter
+from valve_model_pkg.model import ElectronicsConfig, ValveParameters, ValveStepper, \
+    load_parameters
+from valve_model_pkg.pneumatics.controller import ControllerGains, PositionController
+from valve_model_pkg.pneumatics.cylinder import Cylinder, CylinderParameters
+
+__all__ = ['LoopResult', 'simulate_closed_loop']
+
+
+@dataclass(frozen=True)
+class LoopResult:
+    """Traces of a closed-loop run, sampled every valve tick (shape (n,) each)."""
+
+    t_s: np.ndarray
+    setpoint_m: np.ndarray
+    position_m: np.ndarray
+    chamber_pressure_pa: np.ndarray   # absolute
+    flow_command_kg_s: np.ndarray
+    valve_flow_kg_s: np.ndarray       # into the chamber, at the chamber pressure (C7)
+    duty: np.ndarray
+    current_a: np.ndarray
+
+
+def simulate_closed_loop(goals: list[tuple[float, float]], *, supply_pressure_pa: float = 4e5,
+                         pwm_frequency_hz: float = 50.0, control_rate_hz: float = 200.0,
+                         valve_rate_hz: float = 1000.0,
+                         gains: ControllerGains | None = None,
+                         plant: CylinderParameters | None = None,
+                         valve: ValveParameters | None = None,
+                         feedback_delay_s: float = 0.0) -> LoopResult:
+    """Run the loop through ``goals`` = [(position [m], hold [s]), ...].
+
+    The valve model advances in ``1/valve_rate_hz`` ticks; the plant integrates each tick
+    with the valve's instantaneous opening (as the cylinder node does with valve/state).
+    ``feedback_delay_s`` delays the position and velocity the controller sees (transport
+    and scheduling delays of the nodes), to check the loop's robustness to them.
+    """
+    valve = valve or load_parameters()
+    plant = plant or CylinderParameters()
+    ctl = PositionController(gains, plant)
+    inverter = FlowToDutyInverter(load_map(), pwm_frequency_hz)
+    stepper = ValveStepper(valve, ElectronicsConfig(), supply_pressure_pa=supply_pressure_pa)
+    stepper.set_command(0.0, pwm_frequency_hz)
+    cyl = Cylinder(plant, valve_params=valve)
+    dt = 1.0 / valve_rate_hz
+    every = max(1, int(round(valve_rate_hz / control_rate_hz)))
+    n = int(round(sum(h for _, h in goals) * valve_rate_hz))
+    out = {k: np.empty(n) for k in LoopResult.__dataclass_fields__}
+    setpoints = np.concatenate([np.full(int(round(h * valve_rate_hz)), g) for g, h in goals])
+    flow_cmd = 0.0
+    duty = 0.0
+    lag = int(round(feedback_delay_s * valve_rate_hz))
+    history = [(0.0, 0.0)] * (lag + 1)  # (position, velocity) ring, oldest first
+    for k in range(n):
+        t = k * dt
+        sp = float(setpoints[min(k, setpoints.size - 1)])
+        history.append((cyl.state.position_m, cyl.state.velocity_m_s))
+        del history[0]
+        if k % every == 0:
+            y_seen, v_seen = history[0]
+            flow_cmd = ctl.update(sp, y_seen, v_seen, every * dt)
+            result = inverter.compute(flow_cmd, supply_pressure_pa,
+                                      cyl.chamber_gauge_pressure_pa)
+            duty = result.duty
+            stepper.set_command(duty, pwm_frequency_hz)
+        stepper.set_pressures(supply_pressure_pa, cyl.chamber_gauge_pressure_pa)
+        stepper.advance_to(t + dt)
+        sample = stepper.sample()
+        cyl.step_with_valve(dt, sample.spool_position_m, supply_pressure_pa)
+        out['t_s'][k] = t + dt
+        out['setpoint_m'][k] = sp
+        out['position_m'][k] = cyl.state.position_m
+        out['chamber_pressure_pa'][k] = cyl.state.pressure_pa
+        out['flow_command_kg_s'][k] = flow_cmd
+        out['valve_flow_kg_s'][k] = cyl.last_valve_flow_kg_s
+        out['duty'][k] = duty
+        out['current_a'][k] = sample.coil_current_a
+    return LoopResult(**out)
