@@ -46,8 +46,10 @@ def table(summary: dict) -> str:
     lines = ['| suite | benchmark | value | reference | ratio | target | met |',
              '|---|---|---|---|---|---|---|']
     for r in summary['results']:
-        ref = f"{_fmt(r.get('reference_value'))} {r.get('unit', '')} ({r.get('reference_name', '')})" \
-            if r.get('reference_name') else ''
+        ref = ''
+        if r.get('reference_name'):
+            ref = (f"{_fmt(r.get('reference_value'))} {r.get('unit', '')} "
+                   f"({r.get('reference_name', '')})")
         met = {True: 'yes', False: '**no**'}.get(r.get('passed'), '')
         lines.append(f"| {r['suite']} | {r['name']} | {_fmt(r.get('value'))} {r.get('unit', '')} "
                      f"| {ref} | {_fmt(r.get('ratio'))} | {r.get('target', '')} | {met} |")

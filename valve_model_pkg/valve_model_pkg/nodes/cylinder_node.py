@@ -9,9 +9,9 @@
 - publishes ``cylinder/joint_states`` (sensor_msgs/JointState, joint ``piston``): position
   [m], velocity [m/s], effort = net pressure force on the piston [N].
 
-The plant (valve_model_pkg.pneumatics.cylinder, equations C1-C6) is advanced on every
-tick to the node's clock with the latest valve flow; the work per tick is bounded like
-the simulator's.
+The plant (valve_model_pkg.pneumatics.cylinder, equations C1-C7) is advanced with every
+valve/state message to that message's stamp, holding the previous opening over the
+interval; a gap longer than ``max_advance_per_tick_s`` is integrated only that far.
 """
 from __future__ import annotations
 
@@ -22,7 +22,6 @@ import sys
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.time import Time
 from sensor_msgs.msg import FluidPressure, JointState
 from valve_msgs.msg import ValveState
 
@@ -35,8 +34,9 @@ from valve_model_pkg.pneumatics.cylinder import (PARAMETER_INFO, Cylinder, Cylin
 
 TOPIC_JOINT_STATES = 'cylinder/joint_states'
 
+
 class CylinderNode(Node):
-    """Pneumatic cylinder plant driven by valve/state mass flow."""
+    """Pneumatic cylinder plant driven by the valve's opening from valve/state."""
 
     def __init__(self) -> None:
         super().__init__('pneumatic_cylinder')
@@ -45,13 +45,11 @@ class CylinderNode(Node):
         for name, (text, low, high) in PARAMETER_INFO.items():
             values[name] = declare_float(self, name, getattr(defaults, name), text, low, high)
         self._params = dataclasses.replace(defaults, **values)
-        self._rate_hz = declare_float(self, 'rate_hz', 1000.0, 'Plant update rate [Hz]',
-                                      10.0, 5000.0)
         pressure_rate = declare_float(self, 'pressure_publish_rate_hz', 200.0,
                                       'Rate of valve/output_pressure [Hz]', 1.0, 5000.0)
         joint_rate = declare_float(self, 'joint_state_rate_hz', 200.0,
                                    'Rate of cylinder/joint_states [Hz] (the plant itself '
-                                   'advances at rate_hz)', 1.0, 5000.0)
+                                   'advances with every valve/state)', 1.0, 5000.0)
         y0 = declare_float(self, 'initial_position_m', 0.0, 'Initial piston position [m]',
                            0.0, self._params.stroke_m)
         self._max_advance_s = declare_float(self, 'max_advance_per_tick_s', 0.05,
@@ -65,12 +63,11 @@ class CylinderNode(Node):
         self._opening_m = 0.0
         self._supply_pa = 0.0
         self._rejected = 0
-        self._last: Time | None = None
+        self._last_stamp_ns: int | None = None
         self._pressure_pub = self.create_publisher(FluidPressure, TOPIC_OUTPUT_PRESSURE,
                                                    PRESSURE_QOS)
         self._joint_pub = self.create_publisher(JointState, TOPIC_JOINT_STATES, 50)
         self.create_subscription(ValveState, TOPIC_STATE, self._on_valve, STATE_QOS)
-        self.create_timer(1.0 / self._rate_hz, self._on_tick)
         self.create_timer(1.0 / pressure_rate, self._publish_pressure)
         self.create_timer(1.0 / joint_rate, self._publish_joint)
         self.get_logger().info(
@@ -79,6 +76,11 @@ class CylinderNode(Node):
             f'spring {self._params.spring_stiffness_n_per_m:g} N/m')
 
     def _on_valve(self, msg: ValveState) -> None:
+        """Advance the plant to this state's stamp with the previous opening held.
+
+        The plant runs on the valve's own sample times (event-driven): no timer of its own,
+        so its coupling to the valve does not depend on how this process is scheduled.
+        """
         opening, supply = float(msg.spool_position), float(msg.supply_pressure)
         if not (math.isfinite(opening) and math.isfinite(supply)):
             self._rejected += 1
@@ -86,22 +88,19 @@ class CylinderNode(Node):
                                       f'supply_pressure {supply!r} not finite; keeping the '
                                       'last valid values', throttle_duration_sec=1.0)
             return
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if self._last_stamp_ns is not None and stamp_ns > self._last_stamp_ns:
+            dt = (stamp_ns - self._last_stamp_ns) * 1e-9
+            if dt > self._max_advance_s:
+                self.get_logger().warning(
+                    f'{dt * 1e3:.1f} ms between valve states; integrating '
+                    f'{self._max_advance_s * 1e3:.0f} ms only', throttle_duration_sec=1.0)
+                dt = self._max_advance_s
+            self._cylinder.step_with_valve(dt, self._opening_m, self._supply_pa)
+        elif self._last_stamp_ns is not None and stamp_ns < self._last_stamp_ns:
+            self.get_logger().warning('valve/state stamps went backwards; plant time restarts')
+        self._last_stamp_ns = stamp_ns
         self._opening_m, self._supply_pa = opening, supply
-
-    def _on_tick(self) -> None:
-        now = self.get_clock().now()
-        if now.nanoseconds == 0:
-            return
-        if self._last is None or now < self._last:
-            self._last = now
-            return
-        dt = (now - self._last).nanoseconds * 1e-9
-        self._last = now
-        if dt > self._max_advance_s:
-            self.get_logger().warning(f'{dt * 1e3:.1f} ms since the last tick; integrating '
-                                      f'{self._max_advance_s * 1e3:.0f} ms only')
-            dt = self._max_advance_s
-        self._cylinder.step_with_valve(dt, self._opening_m, self._supply_pa)
 
     def _publish_joint(self) -> None:
         state = self._cylinder.state

@@ -89,6 +89,11 @@ class ValveSimulatorNode(Node):
         self._params = load_parameters(path)  # refuses a bad file with the field and value
         electronics = dataclasses.replace(ElectronicsConfig(), current_control=current_control,
                                           negative_voltage=capacitor)
+        # Load (or compile) the model's kernel before the clock starts: the first call can
+        # take seconds, which would otherwise show as a gap in the published stream.
+        warm_up = ValveStepper(self._params, electronics, supply_voltage_v=supply_voltage)
+        warm_up.set_command(0.5, 50.0)
+        warm_up.advance_to(0.045)
         self._stepper = ValveStepper(self._params, electronics, supply_voltage_v=supply_voltage)
         self._stepper.set_command(duty, pwm_hz)
         self._stepper.set_pressures(supply_pa, output_pa)

@@ -198,8 +198,9 @@ class Cylinder:
                 + par.viscous_friction_n_s_per_m * v
         dv = (drive - friction) / par.moving_mass_kg                              # (C4)
         # End stops (C6): at a stop, a force pushing into it does not move the piston.
-        if (y <= 0.0 and dv < 0.0 and v <= 0.0) or (y >= par.stroke_m and dv > 0.0
-                                                     and v >= 0.0):
+        at_closed = y <= 0.0 and dv < 0.0 and v <= 0.0
+        at_open = y >= par.stroke_m and dv > 0.0 and v >= 0.0
+        if at_closed or at_open:
             dv = 0.0
         return dp, v, dv
 
@@ -213,8 +214,8 @@ class Cylinder:
         """
         if self._valve is None:
             raise ValueError('step_with_valve needs the valve parameters (valve_params=)')
-        for name, value in (('opening_m', opening_m), ('supply_pressure_pa',
-                                                      supply_pressure_pa)):
+        for name, value in (('opening_m', opening_m),
+                            ('supply_pressure_pa', supply_pressure_pa)):
             if not math.isfinite(value):
                 raise ValueError(f'{name} = {value!r} is not finite')
         self._opening_m = max(0.0, opening_m)
