@@ -205,6 +205,9 @@ def test_bad_map_is_refused_at_start(start_node, tmp_path: Path, case: str) -> N
     assert 'cannot start' in out
 
 
+# Throughput depends on how loaded the machine is (a starved node can fall more than its
+# queue depth behind): rerun before calling it a failure.
+@pytest.mark.flaky(reruns=2)
 def test_keeps_up_with_1khz_flow_and_pressure_streams(start_node, ros, inverter) -> None:
     """The demo drives it with pressures at 1 kHz and flow commands at 100-1000 Hz.
 

@@ -7,11 +7,14 @@ apart.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import sys
+from collections.abc import Callable
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType)
+import rclpy
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -20,7 +23,7 @@ __all__ = [
     'TOPIC_SUPPLY_PRESSURE', 'TOPIC_OUTPUT_PRESSURE', 'TOPIC_FLOW_STATUS', 'TOPIC_DIAGNOSTICS',
     'STATE_QOS', 'COMMAND_QOS', 'PRESSURE_QOS', 'declare_float', 'declare_int', 'declare_bool',
     'declare_string', 'gauge_from_absolute', 'absolute_from_gauge', 'key_values',
-    'DiagnosticLevel',
+    'DiagnosticLevel', 'run_node',
 ]
 
 #: Standard atmosphere [Pa]. sensor_msgs/FluidPressure carries ABSOLUTE pressure, the suite's
@@ -121,9 +124,27 @@ def key_values(**values: object) -> list[KeyValue]:
     return out
 
 
-@dataclass(frozen=True)
-class Pressures:
-    """Supply and output port pressures, gauge [Pa]."""
+def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None,
+             startup_errors: tuple[type[BaseException], ...] = (ValueError, OSError)) -> None:
+    """Spin a node until Ctrl-C or an external shutdown (the Jazzy main of every node).
 
-    supply_pa: float
-    output_pa: float
+    An error of ``startup_errors`` raised while the node is built (a bad parameter, a bad
+    parameter or map file) is logged as fatal with its reason and ends the process with
+    exit code 1: a node never runs on defaults it was not asked for.
+    """
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = make_node()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except startup_errors as err:
+        if node is not None:
+            raise
+        rclpy.logging.get_logger(name).fatal(f'cannot start: {err}')
+        sys.exit(1)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()

@@ -17,10 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import FluidPressure, JointState
 from valve_msgs.msg import ValveState
@@ -28,7 +25,7 @@ from valve_msgs.msg import ValveState
 from valve_model_pkg.model import load_parameters
 from valve_model_pkg.model.orifice import ATMOSPHERIC_PRESSURE_PA
 from valve_model_pkg.nodes.common import (PRESSURE_QOS, STATE_QOS, TOPIC_OUTPUT_PRESSURE,
-                                          TOPIC_STATE, declare_float, declare_string)
+                                          TOPIC_STATE, declare_float, declare_string, run_node)
 from valve_model_pkg.pneumatics.cylinder import (PARAMETER_INFO, Cylinder, CylinderParameters,
                                                  CylinderState)
 
@@ -123,20 +120,7 @@ class CylinderNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C or an external shutdown."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = CylinderNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ValueError, OSError) as err:
-        rclpy.logging.get_logger('pneumatic_cylinder').fatal(f'cannot start: {err}')
-        sys.exit(1)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(CylinderNode, 'pneumatic_cylinder', args)
 
 
 if __name__ == '__main__':

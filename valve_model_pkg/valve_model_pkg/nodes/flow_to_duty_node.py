@@ -37,13 +37,10 @@ Rules (details in docs/maps.md):
 from __future__ import annotations
 
 import math
-import sys
 import time
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import FluidPressure
@@ -56,8 +53,8 @@ from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, 
                                           TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
                                           TOPIC_FLOW_COMMAND, TOPIC_FLOW_STATUS,
                                           TOPIC_OUTPUT_PRESSURE, TOPIC_SUPPLY_PRESSURE,
-                                          DiagnosticLevel, declare_float, declare_string,
-                                          gauge_from_absolute, key_values)
+                                          declare_float, declare_string, DiagnosticLevel,
+                                          gauge_from_absolute, key_values, run_node)
 
 #: Highest main PWM frequency accepted [Hz] (as the simulator).
 MAX_PWM_FREQUENCY_HZ = 1000.0
@@ -336,21 +333,8 @@ def _nearest(values: object, v: float) -> int:
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C or an external shutdown."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = FlowToDutyNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (StartupError, ValueError, OSError) as err:
-        # A bad map or parameter: say which and fail, never run on defaults.
-        rclpy.logging.get_logger('flow_to_duty').fatal(f'cannot start: {err}')
-        sys.exit(1)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(FlowToDutyNode, 'flow_to_duty', args,
+             startup_errors=(StartupError, ValueError, OSError))
 
 
 if __name__ == '__main__':

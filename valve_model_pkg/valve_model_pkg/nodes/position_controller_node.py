@@ -12,17 +12,14 @@ feedforward, in mass flow; flow_to_duty turns the flow into PWM duty.
 from __future__ import annotations
 
 import math
-import sys
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from valve_msgs.msg import FlowCommand
 
 from valve_model_pkg.nodes.common import (COMMAND_QOS, TOPIC_FLOW_COMMAND, declare_bool,
-                                          declare_float)
+                                          declare_float, run_node)
 from valve_model_pkg.nodes.cylinder_node import TOPIC_JOINT_STATES
 from valve_model_pkg.pneumatics.controller import ControllerGains, PositionController
 from valve_model_pkg.pneumatics.cylinder import PARAMETER_INFO, CylinderParameters
@@ -103,20 +100,7 @@ class PositionControllerNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C or an external shutdown."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = PositionControllerNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except ValueError as err:
-        rclpy.logging.get_logger('position_controller').fatal(f'cannot start: {err}')
-        sys.exit(1)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(PositionControllerNode, 'position_controller', args)
 
 
 if __name__ == '__main__':

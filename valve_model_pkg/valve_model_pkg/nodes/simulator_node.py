@@ -20,12 +20,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
 import time
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.time import Time
 from sensor_msgs.msg import FluidPressure
@@ -35,9 +32,9 @@ from valve_model_pkg.model import ElectronicsConfig, ValveStepper, default_param
     load_parameters
 from valve_model_pkg.nodes.common import (COMMAND_QOS, PRESSURE_QOS, STATE_QOS, TOPIC_DIAGNOSTICS,
                                           TOPIC_DUTY_COMMAND, TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
-                                          TOPIC_SUPPLY_PRESSURE, DiagnosticLevel, declare_bool,
-                                          declare_float, declare_string, gauge_from_absolute,
-                                          key_values)
+                                          TOPIC_SUPPLY_PRESSURE, declare_bool, declare_float,
+                                          declare_string, DiagnosticLevel, gauge_from_absolute,
+                                          key_values, run_node)
 
 #: Highest main PWM frequency the drive accepts [Hz]: above it the valve (3.7 ms opening)
 #: can no longer follow and the internal chopper's period becomes comparable.
@@ -302,21 +299,7 @@ class ValveSimulatorNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C or an external shutdown."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = ValveSimulatorNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ValueError, OSError) as err:
-        # A bad parameter or parameter file: say which and fail, never run on defaults.
-        rclpy.logging.get_logger('valve_simulator').fatal(f'cannot start: {err}')
-        sys.exit(1)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(ValveSimulatorNode, 'valve_simulator', args)
 
 
 if __name__ == '__main__':
