@@ -116,7 +116,7 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
         is sampled).
     h_stop_s : float, optional
         Kernel step while the spool rests [s]. Default: the kernel's default, or up to
-        1 ms for multi-second traces, where the slow RL dynamics (tau ~ 10 ms) allow it
+        500 us for multi-second traces, where the slow RL dynamics (tau ~ 10 ms) allow it
         and it keeps the cost of a heating experiment down.
     keep : numpy.ndarray of bool, optional
         Samples at which to report the current (default all). The voltage edges always
@@ -146,7 +146,7 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
         index = None
     if h_stop_s is None:
         h_stop_s = _k.DEFAULT_H_STOP_S if m.duration_s < 0.5 else max(
-            _k.DEFAULT_H_STOP_S, min(1e-3, grid_dt))
+            _k.DEFAULT_H_STOP_S, min(500e-6, grid_dt))
     return TraceSetup(seg_t0_s=seg_t0, seg_v=seg_v, t_end_s=float(t[-1]),
                       grid_t0_s=float(t[0]), grid_dt_s=grid_dt, n_grid=n_grid, index=index,
                       t_s=t, supply_pressure_pa=float(m.supply_pressure_pa),

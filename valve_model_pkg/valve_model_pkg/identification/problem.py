@@ -291,7 +291,7 @@ def _trapezoid_weights(t: np.ndarray, valid: np.ndarray) -> np.ndarray:
 #: Multi-second records are compared at this rate at most: their information is the slow
 #: drift (coil heating), and the simulation cost grows with the number of output samples.
 LONG_RECORD_S = 0.5
-LONG_RECORD_RATE_HZ = 500.0
+LONG_RECORD_RATE_HZ = 1000.0
 
 
 def _decimation(m: Measurement) -> np.ndarray | None:
