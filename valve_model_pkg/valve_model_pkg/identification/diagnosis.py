@@ -211,12 +211,20 @@ def _dbic(base_mae: dict[str, float], aug_mae: dict[str, float], counts: dict[st
     return d + p * math.log(max(total, 2))
 
 
-def _structured_energy(data: FitData, params: ValveParameters) -> float:
-    """Mean over files of the residual energy beyond the noise [A^2]."""
+def _noise_per_file(data: FitData, params: ValveParameters) -> list[float]:
+    """Noise of each file, estimated once from the baseline residual [A]."""
+    return [noise_std(r) for r in data.residuals(params)]
+
+
+def _structured_energy(data: FitData, params: ValveParameters, noise: list[float]) -> float:
+    """Mean over files of the residual energy beyond the noise [A^2].
+
+    The same noise estimate (the baseline's) is used for every model compared, so the
+    difference between two models is not blurred by two noise estimates.
+    """
     vals = []
-    for r in data.residuals(params):
+    for r, s in zip(data.residuals(params), noise):
         ok = np.isfinite(r)
-        s = noise_std(r)
         vals.append(max(float(np.mean(r[ok] ** 2)) - s ** 2, 0.0))
     return float(np.mean(vals))
 
@@ -229,7 +237,9 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
     base_val = val.errors(baseline) if val is not None else None
     counts_val = ({m.name: int(v.sum()) for m, v in zip(val.measurements, val.valid)}
                   if val is not None else {})
-    struct_base = _structured_energy(val if val is not None else fit, baseline)
+    judge = val if val is not None else fit
+    noise = _noise_per_file(judge, baseline)
+    struct_base = _structured_energy(judge, baseline, noise)
     for c in candidates:
         if not c.refitted or c.params is None:
             c.reason = 'not refitted (signature too weak)'
@@ -244,7 +254,7 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
             c.val_cost = sum(aug_val.mae_per_file.values())
             c.val_gain = 1.0 - c.val_cost / sum(base_val.mae_per_file.values())
             c.dbic_val = _dbic(base_val.mae_per_file, aug_val.mae_per_file, counts_val, p)
-        struct_aug = _structured_energy(val if val is not None else fit, c.params)
+        struct_aug = _structured_energy(judge, c.params, noise)
         c.structure_explained = (1.0 - struct_aug / struct_base) if struct_base > 0 else 0.0
         reasons = []
         if not c.dbic_fit < DBIC_THRESHOLD:
@@ -271,12 +281,12 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
                  f'{100 * MIN_VALIDATION_GAIN:g} %; claim if it also removes >= '
                  f'{100 * MIN_EXPLAINED:g} % of the validation residual energy beyond noise'),
     }
-    base_res = (val if val is not None else fit).residuals(baseline)
-    sigma = float(np.median([noise_std(r) for r in base_res]))
+    base_res = judge.residuals(baseline)
+    sigma = float(np.median(noise))
     lb_p = min(ljung_box(r)[1] for r in base_res)
     # Structure: clearly more residual than noise, or a residual far from white.
-    structured = (math.sqrt(struct_base) > STRUCTURE_FRACTION * sigma
-                  or (math.isfinite(lb_p) and lb_p < WHITENESS_P))
+    sizeable = math.sqrt(struct_base) > STRUCTURE_FRACTION * sigma
+    structured = sizeable or (math.isfinite(lb_p) and lb_p < WHITENESS_P)
     numbers['baseline_ljung_box_p_min'] = lb_p
     numbers['baseline_noise_std_a'] = sigma
     unexplained = structured
@@ -297,7 +307,9 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
                             f'{100 * best.val_gain:+.2f} % ({best.reason})')
     else:
         best = kept[0]
-        if best.structure_explained < MIN_EXPLAINED:
+        # The share of structure explained only means something when the baseline
+        # residual has structure; on a near-white residual the two criteria decide alone.
+        if sizeable and best.structure_explained < MIN_EXPLAINED:
             effect, confidence, params = 'none', 'low', baseline
             evidence.append(
                 f'{best.effect} lowers the validation error by {100 * best.val_gain:.1f} % '
@@ -308,7 +320,11 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
             effect, params = best.effect, best.params
             runner = kept[1] if len(kept) > 1 else None
             close = runner is not None and runner.val_gain > 0.8 * best.val_gain
-            confidence = 'medium' if close or best.structure_explained < 0.7 else 'high'
+            weak = not sizeable or best.structure_explained < 0.7
+            confidence = 'medium' if close or weak else 'high'
+            if not sizeable:
+                evidence.append('the baseline residual is hardly above the noise: the effect '
+                                'is small and the hold-out gain is the main evidence')
             evidence.append(
                 f'{best.effect} lowers the validation error by {100 * best.val_gain:.1f} % '
                 f'(fit {100 * best.fit_gain:.1f} %), dBIC fit {best.dbic_fit:.0f}, '
@@ -317,7 +333,7 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
             if runner is not None:
                 evidence.append(f'runner-up {runner.effect}: validation '
                                 f'{100 * runner.val_gain:.1f} %')
-            unexplained = best.structure_explained < 0.9
+            unexplained = sizeable and best.structure_explained < 0.9
     return Diagnosis(effect=effect, confidence=confidence, candidates=ranked,
                      evidence=evidence, numbers=numbers, params=params,
                      unexplained_structure=bool(unexplained))
