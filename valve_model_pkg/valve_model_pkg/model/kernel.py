@@ -15,7 +15,16 @@ exactly instead of being smeared by a step:
   the impact, x is set onto the stop and the velocity to 0 (plastic, the paper) or to
   -e x_dot (``end_stop_bounce``).
 * **Leaving a stop** (the net force changes sign) and, with Coulomb friction, velocity
-  reversals are located by regula falsi (Illinois) on redone steps.
+  reversals are located by regula falsi (Illinois) on redone steps. If a spool released
+  from rest on a stop is back on that stop at the very start of its first free step (the
+  margin was barely positive and falls at once, e.g. under the capacitor pulse at a falling
+  edge: the lift is far below what the interpolant resolves), it stays on the stop for that
+  step instead of being released again at the same instant.
+* **Time always advances.** A pass of the main loop that does not advance time counts as
+  a stall; after ``_STALL_LIMIT`` of them in a row the next step is forced (no release
+  check, the mechanics frozen for one step if needed, pending events stepped past) and
+  counted in ``d[D_N_FORCED]``. A correct kernel never gets there (the tests check 0); the
+  guard exists so the real-time simulator node and the CAN emulator can never hang.
 * While the spool rests on a stop, x and x_dot are frozen and only the coil (and
   temperature) states are integrated: L is constant there, the dynamics are a slow RL
   circuit (tau = L/R ~ 7-11 ms), so steps of ``h_stop`` = 100 us are ~1e-8 accurate and
@@ -162,6 +171,7 @@ D_N_STEPS = 33
 D_SAMPLE_DT = 34
 D_PREV_PERIOD = 35
 D_SAMPLE_T0 = 36
+D_N_FORCED = 37  # steps forced by the no-progress guard (0 unless the kernel has a bug)
 N_D = 40
 
 # Output channels of recorded samples.
@@ -174,6 +184,15 @@ O_MODE = 5
 N_OUT = 6
 
 _EPS_T = 1e-12  # events closer than 1 ps count as simultaneous
+#: A step shorter than this is no progress (an impact found at the step start).
+_H_MIN = 1e-11
+#: Loop passes without advancing time after which the guard forces a step. A correct
+#: pass sequence at one instant needs a handful (events, a release, an impact).
+_STALL_LIMIT = 100
+#: Take a held step when a spool released from rest on a stop is back on it at once
+#: (the fix of the endless release/impact loop). Only tests switch it off, to check the
+#: no-progress guard on the original failure; numba freezes it at compile time.
+_HOLD_ON_RECROSS = True
 _INF = np.inf
 
 
@@ -479,19 +498,35 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
     xmax = p[P_XMAX]
     f_prs = _pressure_force(p[P_A1], p[P_A2], p[P_A3], p[P_A4], d[D_PSUP], d[D_POUT])
     f_c = p[P_FC]
+    t_prog = d[D_T]
+    stall = 0
     while True:
         t = d[D_T]
+        # --- no-progress guard: a pass that does not advance time counts as a stall
+        if t > t_prog:
+            t_prog = t
+            stall = 0
+        else:
+            stall += 1
+        forced = stall > _STALL_LIMIT
         t_ev = min(d[D_NEXT_BOUNDARY], d[D_NEXT_FALL], d[D_NEXT_TICK], d[D_CHOP_OFF],
                    d[D_NEXT_SAMPLE])
         if t_ev <= t + _EPS_T:
             _process_events(t, y, p, d, e, out, avg_out)
-            continue
-        if t >= t_end - _EPS_T:
+            if not forced:
+                continue
+            t_ev = min(d[D_NEXT_BOUNDARY], d[D_NEXT_FALL], d[D_NEXT_TICK], d[D_CHOP_OFF],
+                       d[D_NEXT_SAMPLE])
+        if not t < t_end - _EPS_T:  # (also ends on a NaN time)
             break
         target = min(t_ev, t_end)
+        if forced and not target > t + _EPS_T:
+            # guard: events keep falling on this instant (a period below 1 ps): step past
+            target = min(t + h_free, t_end)
+            d[D_N_FORCED] += 1.0
         mode = int(d[D_MODE])
         phase = int(d[D_PHASE])
-        if mode != MODE_FREE:
+        if mode != MODE_FREE and not forced:
             xs = y[Y_X]
             if _leave_margin(mode, _f_active(y[Y_I], xs, f_prs, p), f_c) > 0.0:
                 d[D_MODE] = MODE_FREE
@@ -518,9 +553,24 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
             s_rev = 2.0
             if f_c > 0.0 and y2 != 0.0 and (z2 == 0.0 or (z2 > 0.0) != (y2 > 0.0)):
                 s_rev = y2 / (y2 - z2)
-            if s_hit <= 1.0 and s_hit <= s_rev:
+            held = MODE_CLOSED if xb == 0.0 else MODE_OPEN
+            if (_HOLD_ON_RECROSS and s_hit <= 1.0 and s_hit <= s_rev and s_hit * h <= _H_MIN
+                    and y1 == xb and y2 == 0.0):
+                # Released from rest on this stop and back on it at the step start: the
+                # held force margin was positive but falls at once (e.g. the capacitor
+                # pulse at a falling edge), so the lift is below what the interpolant
+                # resolves (reported case: 4e-19 m for 32 ns). Freeing the spool again
+                # would repeat this at the same instant forever; it stays on the stop for
+                # the step instead. A margin still positive at the step end releases it.
+                z0, z1, z2, z3, z4 = _rk4(t, h, y0, y1, y2, y3, y4, held, phase, f_prs,
+                                          p, d, e)
+                d[D_N_STEPS] += 1.0
+                z1 = xb
+                z2 = 0.0
+                d[D_MODE] = held
+            elif s_hit <= 1.0 and s_hit <= s_rev:
                 hs = s_hit * h
-                if hs > 1e-11:
+                if hs > _H_MIN:
                     z0, z1, z2, z3, z4 = _rk4(t, hs, y0, y1, y2, y3, y4, mode, phase,
                                               f_prs, p, d, e)
                     d[D_N_STEPS] += 1.0
@@ -535,7 +585,7 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
                     z2 = -p[P_E] * v_imp
                 else:
                     z2 = 0.0
-                    d[D_MODE] = MODE_CLOSED if xb == 0.0 else MODE_OPEN
+                    d[D_MODE] = held
             elif s_rev <= 1.0:
                 # regula falsi on v(t) = 0 with redone steps
                 lo = 0.0
@@ -565,7 +615,9 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
             g1 = _leave_margin(mode, _f_active(z0, y1, f_prs, p), f_c)
             if g1 > 0.0:
                 g0 = _leave_margin(mode, _f_active(y0, y1, f_prs, p), f_c)
-                lo = 0.0
+                # a margin already positive at the start (a held step after an immediate
+                # re-impact, or forced by the guard) brackets no root: release at the end
+                lo = 0.0 if g0 <= 0.0 else h
                 hi = h
                 g_lo = g0
                 g_hi = g1
@@ -598,6 +650,16 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
                     d[D_N_STEPS] += 1.0
                     t_new = t + hi
                 d[D_MODE] = MODE_FREE
+        if forced and t_new <= t:
+            # Last resort, never reached by a correct kernel: this instant has already
+            # taken _STALL_LIMIT passes without progress. Step on with the spool frozen
+            # (x, x_dot kept; coil and temperature integrated) so the call cannot hang.
+            z0, z1, z2, z3, z4 = _rk4(t, h, y0, y1, y2, y3, y4, MODE_STUCK, phase, f_prs,
+                                      p, d, e)
+            d[D_N_STEPS] += 1.0
+            d[D_MODE] = mode
+            t_new = t + h
+            d[D_N_FORCED] += 1.0
         if phase == PH_OFF and z0 < 0.0 and e[_el.E_BLOCK_REVERSE] != 0.0:
             z0 = 0.0
         y[0] = z0
