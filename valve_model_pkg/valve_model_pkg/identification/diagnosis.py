@@ -30,7 +30,7 @@ Three steps after the baseline fit:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -194,9 +194,30 @@ def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, 
         u[first] = frac
         starts.append(u)
     fun = unit_objective(ext, data)
-    res = direct_search(fun, np.array(starts), settings, progress=progress,
+    coarse = replace(settings, restarts=0)
+    res = direct_search(fun, np.array(starts), coarse, progress=progress,
                         label=f'refit {effect}', fixed=np.array([first]))
-    return ext.params(res.u), res.cost, ext
+    # Fine profile around the best trial amount, between its neighbours on the grid, from
+    # the baseline parameters that amount found; then restarts that free everything
+    # (without this second look the free restarts rarely leave the grid value: the effect
+    # and the baseline parameters have to move together).
+    grid = np.array(_PROFILE_FRACTIONS)
+    k = int(np.argmin(np.abs(grid - res.u[first])))
+    lo = grid[k - 1] if k > 0 else 0.0
+    hi = grid[k + 1] if k + 1 < grid.size else 1.0
+    fine = []
+    for frac in (lo + 0.5 * (grid[k] - lo), grid[k] - 0.25 * (grid[k] - lo),
+                 grid[k] + 0.25 * (hi - grid[k]), grid[k] + 0.5 * (hi - grid[k])):
+        u = res.u.copy()
+        u[first] = frac
+        fine.append(u)
+    fine.append(res.u.copy())
+    res2 = direct_search(fun, np.array(fine), replace(settings, initial_step=0.5 *
+                                                      settings.initial_step),
+                         progress=progress, label=f'refit {effect} (fine)',
+                         fixed=np.array([first]))
+    best = res2 if res2.cost <= res.cost else res
+    return ext.params(best.u), best.cost, ext
 
 
 def _dbic(base_mae: dict[str, float], aug_mae: dict[str, float], counts: dict[str, int],
