@@ -250,6 +250,16 @@ def _structured_energy(data: FitData, params: ValveParameters, noise: list[float
     return float(np.mean(vals))
 
 
+def _has_release(m: object) -> bool:
+    """True if the voltage falls to (near) zero after having been on for a while."""
+    v = np.abs(m.voltage_v)
+    on = v > 0.5 * v.max() if v.max() > 0 else np.zeros(v.size, bool)
+    if not on.any():
+        return False
+    first = int(np.argmax(on))
+    return bool(np.any(v[first:] < 0.1 * v.max()))
+
+
 def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
            baseline: ValveParameters) -> Diagnosis:
     """Apply the keep rule (module notes) and decide the diagnosis."""
@@ -355,6 +365,10 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
                 evidence.append(f'runner-up {runner.effect}: validation '
                                 f'{100 * runner.val_gain:.1f} %')
             unexplained = sizeable and best.structure_explained < 0.9
+    if not any(_has_release(m) for m in fit.measurements + (val.measurements if val else [])):
+        evidence.append('no file switches the voltage off after the valve opened: without a '
+                        'closing stroke coulomb_friction acts exactly like a larger spring '
+                        'pre-tension (delta + F_c/k) and cannot be detected')
     return Diagnosis(effect=effect, confidence=confidence, candidates=ranked,
                      evidence=evidence, numbers=numbers, params=params,
                      unexplained_structure=bool(unexplained))
