@@ -339,8 +339,13 @@ class FitData:
         self.weights = [_trapezoid_weights(m.t_s, v)
                         for m, v in zip(self.measurements, self.valid)]
         self.durations = [float(w.sum()) for w in self.weights]
-        self.simulations = 0
+        self._count = [0]  # shared with serial() views, so threads' runs are counted too
         self.parallel = True
+
+    @property
+    def simulations(self) -> int:
+        """Simulations run on this data (views included)."""
+        return self._count[0]
 
     def serial(self) -> 'FitData':
         """A view on the same data whose simulations stay on the calling thread.
@@ -350,7 +355,6 @@ class FitData:
         """
         view = copy.copy(self)
         view.parallel = False
-        view.simulations = 0
         return view
 
     @property
@@ -360,7 +364,7 @@ class FitData:
     def simulate(self, raw: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """Simulated (current, position) of each file, each of shape (m, n_samples)."""
         raw = np.atleast_2d(raw)
-        self.simulations += raw.shape[0] * len(self.setups)
+        self._count[0] += raw.shape[0] * len(self.setups)
         return [simulate_trace_batch(raw, s, parallel=self.parallel) for s in self.setups]
 
     def cost(self, raw: np.ndarray) -> np.ndarray:
@@ -372,7 +376,7 @@ class FitData:
             cur, _ = simulate_trace_batch(raw, setup, parallel=self.parallel)
             err = np.abs(np.where(np.isfinite(m.current_a), m.current_a, 0.0)[None, :] - cur)
             total += err @ w / T
-        self.simulations += raw.shape[0] * len(self.setups)
+        self._count[0] += raw.shape[0] * len(self.setups)
         return np.where(np.isfinite(total), total, np.inf)
 
     def residuals(self, params: ValveParameters) -> list[np.ndarray]:
