@@ -37,9 +37,9 @@ from valve_model_pkg.supervisor import ChildExited, ProcessSpec, Supervisor
 __all__ = ['main', 'BenchRecord', 'record_bench_step', 'DEFAULT_EFFECT_PARAMS']
 
 #: Effect parameters of the emulated valve when --effect-param is not given. Coil heating
-#: is made visible within the 1.5 s records (a real coil's time constant is minutes).
+#: is made visible within the 0.8 s steps (a real coil's time constant is minutes).
 DEFAULT_EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
-    'coil_heating': ('thermal_resistance_k_per_w=5', 'thermal_time_constant_s=1.0'),
+    'coil_heating': ('thermal_resistance_k_per_w=5', 'thermal_time_constant_s=0.5'),
 }
 
 
@@ -49,9 +49,9 @@ class BenchRecord:
 
     name: str
     supply_voltage_v: float
-    pre_s: float = 0.3
-    on_s: float = 1.5
-    post_s: float = 0.3
+    pre_s: float = 0.2
+    on_s: float = 0.8
+    post_s: float = 0.2
 
 
 def _say(text: str) -> None:
@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--effect-param', action='append', default=None, metavar='FIELD=VALUE',
                         help='value of an effect parameter, passed to the emulator (default '
                         'for coil_heating: a small coil that heats noticeably within a '
-                        'second, R_th 5 K/W, tau 1 s)')
+                        'second, R_th 5 K/W, tau 0.5 s)')
     parser.add_argument('--out', type=Path, default=Path('bench_loop_output'))
     parser.add_argument('--quick', action='store_true',
                         help='quick identification settings (fewer starts)')
