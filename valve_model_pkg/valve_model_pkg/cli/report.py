@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
+from valve_model_pkg.interface import ATMOSPHERIC_PRESSURE_PA
 from valve_model_pkg.recording import load_bag, sequence_gaps
 from valve_model_pkg.recording.errors import RecordingError
 
 __all__ = ['main', 'StepResult', 'step_results', 'write_report']
 
-ATMOSPHERIC_PRESSURE_PA = 101_325.0
 
 
 @dataclass(frozen=True)

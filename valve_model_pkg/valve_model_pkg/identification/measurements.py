@@ -27,6 +27,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
+
 from .errors import MeasurementFormatError
 
 __all__ = [
@@ -74,7 +76,7 @@ _NUMERIC_METADATA = (
 _MIN_SAMPLES = 10
 # A step of the time axis longer than this many nominal periods counts as missing samples.
 _GAP_FACTOR = 1.5
-_VACUUM_GAUGE_PA = -101_325.0
+_VACUUM_GAUGE_PA = -ATMOSPHERIC_PRESSURE_PA
 
 
 @dataclass(frozen=True)

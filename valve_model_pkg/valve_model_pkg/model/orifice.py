@@ -10,13 +10,10 @@ import math
 import numpy as np
 from numba import njit
 
+from .constants import ATMOSPHERIC_PRESSURE_PA
 from .parameters import ValveParameters
 
 __all__ = ['ATMOSPHERIC_PRESSURE_PA', 'critical_pressure_ratio', 'orifice_mass_flow']
-
-#: Standard atmosphere, Pa (converts the gauge pressures to absolute ones).
-ATMOSPHERIC_PRESSURE_PA = 101325.0
-
 
 def critical_pressure_ratio(gamma: float = 1.4) -> float:
     """(2 / (gamma + 1))^(gamma / (gamma - 1)); 0.528 for air."""

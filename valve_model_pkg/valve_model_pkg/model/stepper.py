@@ -21,54 +21,12 @@ import numpy as np
 
 from . import kernel as _k
 from .electronics import ElectronicsConfig
-from .orifice import ATMOSPHERIC_PRESSURE_PA, _mass_flow
+from .constants import ATMOSPHERIC_PRESSURE_PA
+from .orifice import _mass_flow
 from .parameters import ParameterError, ValveParameters
+from .sample import ValveSample
 
 __all__ = ['ValveSample', 'ValveStepper']
-
-
-@dataclasses.dataclass(frozen=True)
-class ValveSample:
-    """State of the valve at one instant (SI units, gauge pressures).
-
-    Attributes
-    ----------
-    t_s : float
-        Model time, s.
-    coil_voltage_v : float
-        Voltage the driver applies to the coil, V.
-    coil_current_a : float
-        Coil terminal current, A.
-    spool_position_m : float
-        Spool position, m (0 closed).
-    spool_velocity_m_s : float
-        Spool velocity, m/s.
-    position_avg_m : float
-        Average position over the last complete main PWM period, m (0 before the first).
-    mass_flow_kg_s : float
-        Orifice mass flow from ``position_avg_m``, eq. (12), kg/s.
-    duty : float
-        Duty cycle in effect (the commanded one from the next period start on).
-    pwm_frequency_hz : float
-        PWM frequency in effect, Hz.
-    supply_pressure_pa, output_pressure_pa : float
-        Gauge pressures in effect, Pa.
-    coil_temperature_rise_k : float
-        Coil temperature above the reference (coil_heating), K.
-    """
-
-    t_s: float
-    coil_voltage_v: float
-    coil_current_a: float
-    spool_position_m: float
-    spool_velocity_m_s: float
-    position_avg_m: float
-    mass_flow_kg_s: float
-    duty: float
-    pwm_frequency_hz: float
-    supply_pressure_pa: float
-    output_pressure_pa: float
-    coil_temperature_rise_k: float = 0.0
 
 
 class ValveStepper:

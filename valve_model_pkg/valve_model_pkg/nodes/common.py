@@ -1,8 +1,7 @@
-"""What every node of the suite shares: topic names, QoS profiles, parameter declaration.
+"""What every node of the suite shares: parameter declaration, diagnostics, the main.
 
-The topic names and types here are the suite's contract: the simulator and the CAN driver
-publish the same state on the same topic, so controllers and recordings cannot tell them
-apart.
+The topic names, QoS profiles and constants are defined in :mod:`valve_model_pkg.interface`
+(re-exported here for the nodes' convenience, not redefined).
 """
 from __future__ import annotations
 
@@ -16,7 +15,13 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from valve_model_pkg.interface import (ATMOSPHERIC_PRESSURE_PA, TOPIC_DIAGNOSTICS,
+                                       TOPIC_DUTY_COMMAND, TOPIC_FLOW_COMMAND,
+                                       TOPIC_FLOW_STATUS, TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
+                                       TOPIC_SUPPLY_PRESSURE, absolute_from_gauge,
+                                       gauge_from_absolute)
+from valve_model_pkg.interface.ros import COMMAND_QOS, PRESSURE_QOS, STATE_QOS
 
 __all__ = [
     'ATMOSPHERIC_PRESSURE_PA', 'TOPIC_STATE', 'TOPIC_DUTY_COMMAND', 'TOPIC_FLOW_COMMAND',
@@ -26,30 +31,6 @@ __all__ = [
     'DiagnosticLevel', 'run_node',
 ]
 
-#: Standard atmosphere [Pa]. sensor_msgs/FluidPressure carries ABSOLUTE pressure, the suite's
-#: own messages and the measured-data files carry gauge pressure; this converts between them.
-ATMOSPHERIC_PRESSURE_PA = 101_325.0
-
-TOPIC_STATE = 'valve/state'                      # valve_msgs/ValveState
-TOPIC_DUTY_COMMAND = 'valve/duty_command'        # valve_msgs/DutyCommand
-TOPIC_FLOW_COMMAND = 'valve/flow_command'        # valve_msgs/FlowCommand
-TOPIC_SUPPLY_PRESSURE = 'valve/supply_pressure'  # sensor_msgs/FluidPressure (absolute Pa)
-TOPIC_OUTPUT_PRESSURE = 'valve/output_pressure'  # sensor_msgs/FluidPressure (absolute Pa)
-TOPIC_FLOW_STATUS = 'valve/flow_to_duty_status'  # valve_msgs/FlowToDutyStatus
-TOPIC_DIAGNOSTICS = '/diagnostics'               # diagnostic_msgs/DiagnosticArray
-
-# State at 1 kHz: reliable so that a recorder loses nothing, a deep queue so a slow
-# subscriber does not stall the publisher for a burst.
-STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
-                       reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
-# Commands: reliable; only the latest matters but a few are kept for a recorder.
-COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
-PRESSURE_QOS = COMMAND_QOS
-
-
 class DiagnosticLevel:
     """diagnostic_msgs/DiagnosticStatus levels as bytes (the message field is a byte)."""
 
@@ -57,16 +38,6 @@ class DiagnosticLevel:
     WARN = DiagnosticStatus.WARN
     ERROR = DiagnosticStatus.ERROR
     STALE = DiagnosticStatus.STALE
-
-
-def gauge_from_absolute(absolute_pa: float) -> float:
-    """Gauge pressure [Pa] from an absolute sensor_msgs/FluidPressure reading [Pa]."""
-    return float(absolute_pa) - ATMOSPHERIC_PRESSURE_PA
-
-
-def absolute_from_gauge(gauge_pa: float) -> float:
-    """Absolute pressure [Pa] for a sensor_msgs/FluidPressure message from gauge [Pa]."""
-    return float(gauge_pa) + ATMOSPHERIC_PRESSURE_PA
 
 
 def declare_float(node: Node, name: str, default: float, description: str,

@@ -23,7 +23,7 @@ from sensor_msgs.msg import FluidPressure, JointState
 from valve_msgs.msg import ValveState
 
 from valve_model_pkg.model import load_parameters
-from valve_model_pkg.model.orifice import ATMOSPHERIC_PRESSURE_PA
+from valve_model_pkg.interface import ATMOSPHERIC_PRESSURE_PA
 from valve_model_pkg.nodes.common import (PRESSURE_QOS, STATE_QOS, TOPIC_OUTPUT_PRESSURE,
                                           TOPIC_STATE, declare_float, declare_string, run_node)
 from valve_model_pkg.pneumatics.cylinder import (PARAMETER_INFO, Cylinder, CylinderParameters,

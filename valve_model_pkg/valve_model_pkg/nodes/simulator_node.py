@@ -30,7 +30,8 @@ from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_model_pkg.model import ElectronicsConfig, ValveStepper, default_parameters_path, \
     load_parameters
-from valve_model_pkg.nodes.common import (COMMAND_QOS, PRESSURE_QOS, STATE_QOS, TOPIC_DIAGNOSTICS,
+from valve_model_pkg.interface.ros import state_message
+from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, PRESSURE_QOS, STATE_QOS, TOPIC_DIAGNOSTICS,
                                           TOPIC_DUTY_COMMAND, TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
                                           TOPIC_SUPPLY_PRESSURE, declare_bool, declare_float,
                                           declare_string, DiagnosticLevel, gauge_from_absolute,
@@ -40,7 +41,6 @@ from valve_model_pkg.nodes.common import (COMMAND_QOS, PRESSURE_QOS, STATE_QOS, 
 #: can no longer follow and the internal chopper's period becomes comparable.
 MAX_PWM_FREQUENCY_HZ = 1000.0
 #: Lowest output gauge pressure accepted [Pa]: a perfect vacuum is -1 atm gauge.
-ATMOSPHERE_MARGIN_PA = 101_325.0
 
 
 class ValveSimulatorNode(Node):
@@ -64,7 +64,7 @@ class ValveSimulatorNode(Node):
         output_pa = declare_float(
             self, 'output_pressure_pa', 0.0,
             'Output port pressure, gauge [Pa], used until valve/output_pressure is received',
-            -ATMOSPHERE_MARGIN_PA, 1.0e6)
+            -ATMOSPHERIC_PRESSURE_PA, 1.0e6)
         supply_voltage = declare_float(self, 'supply_voltage_v', 24.0,
                                        'Drive supply voltage [V]', 0.0, 60.0)
         current_control = declare_bool(
@@ -243,23 +243,9 @@ class ValveSimulatorNode(Node):
 
     def _publish_state(self, now: Time) -> None:
         s = self._stepper.sample()
-        msg = ValveState()
-        msg.header.stamp = now.to_msg()
-        msg.header.frame_id = self._frame_id
-        msg.sequence = self._sequence
+        msg = state_message(s, now.to_msg(), self._frame_id, self._sequence,
+                            ValveState.SOURCE_SIMULATOR)
         self._sequence += 1
-        msg.coil_voltage = float(s.coil_voltage_v)
-        msg.coil_current = float(s.coil_current_a)
-        msg.spool_position = float(s.spool_position_m)
-        msg.spool_velocity = float(s.spool_velocity_m_s)
-        msg.spool_position_avg = float(s.position_avg_m)
-        msg.mass_flow = float(s.mass_flow_kg_s)
-        msg.duty = float(s.duty)
-        msg.pwm_frequency = float(s.pwm_frequency_hz)
-        msg.supply_pressure = float(s.supply_pressure_pa)
-        msg.output_pressure = float(s.output_pressure_pa)
-        msg.source = ValveState.SOURCE_SIMULATOR
-        msg.position_measured = False
         self._state_pub.publish(msg)
 
     # --- diagnostics ----------------------------------------------------------------------

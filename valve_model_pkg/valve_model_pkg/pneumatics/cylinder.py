@@ -35,7 +35,8 @@ import math
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
-from valve_model_pkg.model.orifice import ATMOSPHERIC_PRESSURE_PA, _mass_flow
+from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
+from valve_model_pkg.model.orifice import _mass_flow
 from valve_model_pkg.model.parameters import ValveParameters
 
 __all__ = ['CylinderParameters', 'CylinderState', 'Cylinder', 'PARAMETER_INFO']

@@ -1,24 +1,12 @@
 """The suite's topics and their message types, as a recorder needs them (no ROS import).
 
-The names and types repeat the contract of :mod:`valve_model_pkg.nodes.common` (which
-imports rclpy, so it cannot be used here); a node test checks that both agree.
+The names and types are defined once in :mod:`valve_model_pkg.interface`.
 """
 from __future__ import annotations
 
-__all__ = ['SUITE_TOPICS', 'DEFAULT_TOPICS', 'parse_topic_spec']
+from valve_model_pkg.interface import SUITE_TOPICS
 
-#: Topic name (relative, as the nodes use it) -> message type, for every topic of the suite.
-SUITE_TOPICS: dict[str, str] = {
-    'valve/state': 'valve_msgs/msg/ValveState',
-    'valve/duty_command': 'valve_msgs/msg/DutyCommand',
-    'valve/flow_command': 'valve_msgs/msg/FlowCommand',
-    'valve/supply_pressure': 'sensor_msgs/msg/FluidPressure',
-    'valve/output_pressure': 'sensor_msgs/msg/FluidPressure',
-    'valve/flow_to_duty_status': 'valve_msgs/msg/FlowToDutyStatus',
-    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
-    'cylinder/joint_states': 'sensor_msgs/msg/JointState',
-    'cylinder/position_setpoint': 'std_msgs/msg/Float64',
-}
+__all__ = ['SUITE_TOPICS', 'DEFAULT_TOPICS', 'parse_topic_spec']
 
 #: What ``valve_recorder`` records when no topic is given: all of the suite's topics.
 DEFAULT_TOPICS: tuple[str, ...] = tuple(SUITE_TOPICS)

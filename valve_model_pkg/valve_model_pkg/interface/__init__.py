@@ -1,0 +1,50 @@
+"""The suite's interface facts, defined once (no ROS import here).
+
+Topic names and their message types, and the physical constants the messages need, for
+every node, the recorder, the report, the demo and the driver. The ROS objects built from
+them (QoS profiles, the sample -> ``valve_msgs/ValveState`` conversion, log forwarding)
+are in :mod:`valve_model_pkg.interface.ros`.
+
+Topic names are relative, so a namespace (``/left/valve/state``) moves a whole valve.
+"""
+from __future__ import annotations
+
+from valve_model_pkg.model.constants import (ATMOSPHERIC_PRESSURE_PA, absolute_from_gauge,
+                                             gauge_from_absolute)
+
+__all__ = [
+    'ATMOSPHERIC_PRESSURE_PA', 'absolute_from_gauge', 'gauge_from_absolute',
+    'TOPIC_STATE', 'TOPIC_DUTY_COMMAND', 'TOPIC_FLOW_COMMAND', 'TOPIC_SUPPLY_PRESSURE',
+    'TOPIC_OUTPUT_PRESSURE', 'TOPIC_FLOW_STATUS', 'TOPIC_DIAGNOSTICS',
+    'TOPIC_JOINT_STATES', 'TOPIC_POSITION_SETPOINT', 'SUITE_TOPICS',
+    'STATE_QUEUE_DEPTH', 'COMMAND_QUEUE_DEPTH',
+]
+
+TOPIC_STATE = 'valve/state'                      # valve_msgs/ValveState
+TOPIC_DUTY_COMMAND = 'valve/duty_command'        # valve_msgs/DutyCommand
+TOPIC_FLOW_COMMAND = 'valve/flow_command'        # valve_msgs/FlowCommand
+TOPIC_SUPPLY_PRESSURE = 'valve/supply_pressure'  # sensor_msgs/FluidPressure (absolute Pa)
+TOPIC_OUTPUT_PRESSURE = 'valve/output_pressure'  # sensor_msgs/FluidPressure (absolute Pa)
+TOPIC_FLOW_STATUS = 'valve/flow_to_duty_status'  # valve_msgs/FlowToDutyStatus
+TOPIC_DIAGNOSTICS = '/diagnostics'               # diagnostic_msgs/DiagnosticArray
+TOPIC_JOINT_STATES = 'cylinder/joint_states'     # sensor_msgs/JointState
+TOPIC_POSITION_SETPOINT = 'cylinder/position_setpoint'  # std_msgs/Float64 [m]
+
+#: Topic name (relative, as the nodes use it) -> message type, for every topic of the suite.
+SUITE_TOPICS: dict[str, str] = {
+    TOPIC_STATE: 'valve_msgs/msg/ValveState',
+    TOPIC_DUTY_COMMAND: 'valve_msgs/msg/DutyCommand',
+    TOPIC_FLOW_COMMAND: 'valve_msgs/msg/FlowCommand',
+    TOPIC_SUPPLY_PRESSURE: 'sensor_msgs/msg/FluidPressure',
+    TOPIC_OUTPUT_PRESSURE: 'sensor_msgs/msg/FluidPressure',
+    TOPIC_FLOW_STATUS: 'valve_msgs/msg/FlowToDutyStatus',
+    TOPIC_DIAGNOSTICS: 'diagnostic_msgs/msg/DiagnosticArray',
+    TOPIC_JOINT_STATES: 'sensor_msgs/msg/JointState',
+    TOPIC_POSITION_SETPOINT: 'std_msgs/msg/Float64',
+}
+
+#: valve/state at 1 kHz: a deep queue so a slow subscriber (the recorder) does not lose
+#: a burst; 1000 = 1 s of state.
+STATE_QUEUE_DEPTH = 1000
+#: Commands and pressures: only the latest matters to a valve, a few are kept for a recorder.
+COMMAND_QUEUE_DEPTH = 50
