@@ -16,8 +16,9 @@ __all__ = [
     'ATMOSPHERIC_PRESSURE_PA', 'absolute_from_gauge', 'gauge_from_absolute',
     'TOPIC_STATE', 'TOPIC_DUTY_COMMAND', 'TOPIC_FLOW_COMMAND', 'TOPIC_SUPPLY_PRESSURE',
     'TOPIC_OUTPUT_PRESSURE', 'TOPIC_FLOW_STATUS', 'TOPIC_DIAGNOSTICS',
-    'TOPIC_JOINT_STATES', 'TOPIC_POSITION_SETPOINT', 'SUITE_TOPICS',
-    'STATE_QUEUE_DEPTH', 'COMMAND_QUEUE_DEPTH',
+    'TOPIC_JOINT_STATES', 'TOPIC_POSITION_SETPOINT', 'TOPIC_POSITION_GOAL', 'SUITE_TOPICS',
+    'STATE_QUEUE_DEPTH', 'COMMAND_QUEUE_DEPTH', 'JOINT_STATES_QUEUE_DEPTH',
+    'DIAGNOSTICS_QUEUE_DEPTH',
 ]
 
 TOPIC_STATE = 'valve/state'                      # valve_msgs/ValveState
@@ -29,6 +30,7 @@ TOPIC_FLOW_STATUS = 'valve/flow_to_duty_status'  # valve_msgs/FlowToDutyStatus
 TOPIC_DIAGNOSTICS = '/diagnostics'               # diagnostic_msgs/DiagnosticArray
 TOPIC_JOINT_STATES = 'cylinder/joint_states'     # sensor_msgs/JointState
 TOPIC_POSITION_SETPOINT = 'cylinder/position_setpoint'  # std_msgs/Float64 [m]
+TOPIC_POSITION_GOAL = 'cylinder/position_goal'  # std_msgs/Float64 [m]
 
 #: Topic name (relative, as the nodes use it) -> message type, for every topic of the suite.
 SUITE_TOPICS: dict[str, str] = {
@@ -41,6 +43,7 @@ SUITE_TOPICS: dict[str, str] = {
     TOPIC_DIAGNOSTICS: 'diagnostic_msgs/msg/DiagnosticArray',
     TOPIC_JOINT_STATES: 'sensor_msgs/msg/JointState',
     TOPIC_POSITION_SETPOINT: 'std_msgs/msg/Float64',
+    TOPIC_POSITION_GOAL: 'std_msgs/msg/Float64',
 }
 
 #: valve/state at 1 kHz: a deep queue so a slow subscriber (the recorder) does not lose
@@ -48,3 +51,7 @@ SUITE_TOPICS: dict[str, str] = {
 STATE_QUEUE_DEPTH = 1000
 #: Commands and pressures: only the latest matters to a valve, a few are kept for a recorder.
 COMMAND_QUEUE_DEPTH = 50
+#: cylinder/joint_states at 200 Hz: 50 = 0.25 s.
+JOINT_STATES_QUEUE_DEPTH = 50
+#: /diagnostics at about 1 Hz per node.
+DIAGNOSTICS_QUEUE_DEPTH = 10

@@ -12,11 +12,12 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from valve_msgs.msg import ValveState
 
-from valve_model_pkg.interface import COMMAND_QUEUE_DEPTH, STATE_QUEUE_DEPTH
+from valve_model_pkg.interface import (COMMAND_QUEUE_DEPTH, DIAGNOSTICS_QUEUE_DEPTH,
+                                       JOINT_STATES_QUEUE_DEPTH, STATE_QUEUE_DEPTH)
 from valve_model_pkg.model.sample import ValveSample
 
-__all__ = ['STATE_QOS', 'COMMAND_QOS', 'PRESSURE_QOS', 'state_message', 'RosLogHandler',
-           'forward_logging']
+__all__ = ['STATE_QOS', 'COMMAND_QOS', 'PRESSURE_QOS', 'JOINT_STATES_QOS', 'DIAGNOSTICS_QOS',
+           'state_message', 'RosLogHandler', 'forward_logging']
 
 # State at 1 kHz: reliable so that a recorder loses nothing, a deep queue so a slow
 # subscriber does not stall the publisher for a burst.
@@ -28,6 +29,9 @@ COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=COMMAND_QUEUE_DE
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 PRESSURE_QOS = COMMAND_QOS
+#: cylinder/joint_states (200 Hz) and /diagnostics: rclpy's default policies, own depths.
+JOINT_STATES_QOS = QoSProfile(depth=JOINT_STATES_QUEUE_DEPTH)
+DIAGNOSTICS_QOS = QoSProfile(depth=DIAGNOSTICS_QUEUE_DEPTH)
 
 
 def state_message(sample: ValveSample, stamp, frame_id: str, sequence: int,

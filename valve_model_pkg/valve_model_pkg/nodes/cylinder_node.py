@@ -23,13 +23,12 @@ from sensor_msgs.msg import FluidPressure, JointState
 from valve_msgs.msg import ValveState
 
 from valve_model_pkg.model import load_parameters
-from valve_model_pkg.interface import ATMOSPHERIC_PRESSURE_PA
+from valve_model_pkg.interface import ATMOSPHERIC_PRESSURE_PA, TOPIC_JOINT_STATES
+from valve_model_pkg.interface.ros import JOINT_STATES_QOS
 from valve_model_pkg.nodes.common import (PRESSURE_QOS, STATE_QOS, TOPIC_OUTPUT_PRESSURE,
                                           TOPIC_STATE, declare_float, declare_string, run_node)
 from valve_model_pkg.pneumatics.cylinder import (PARAMETER_INFO, Cylinder, CylinderParameters,
                                                  CylinderState)
-
-TOPIC_JOINT_STATES = 'cylinder/joint_states'
 
 
 class CylinderNode(Node):
@@ -63,7 +62,7 @@ class CylinderNode(Node):
         self._last_stamp_ns: int | None = None
         self._pressure_pub = self.create_publisher(FluidPressure, TOPIC_OUTPUT_PRESSURE,
                                                    PRESSURE_QOS)
-        self._joint_pub = self.create_publisher(JointState, TOPIC_JOINT_STATES, 50)
+        self._joint_pub = self.create_publisher(JointState, TOPIC_JOINT_STATES, JOINT_STATES_QOS)
         self.create_subscription(ValveState, TOPIC_STATE, self._on_valve, STATE_QOS)
         self.create_timer(1.0 / pressure_rate, self._publish_pressure)
         self.create_timer(1.0 / joint_rate, self._publish_joint)

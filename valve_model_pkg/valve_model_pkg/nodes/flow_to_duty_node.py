@@ -49,6 +49,7 @@ from valve_msgs.msg import DutyCommand, FlowCommand, FlowToDutyStatus
 from valve_model_pkg.maps import (FlowStatus, FlowToDutyInverter, FlowToDutyResult, MapError,
                                   default_map_path, invalid_flow_reason, load_map)
 from valve_model_pkg.model import default_parameters_path, load_parameters
+from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS
 from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, PRESSURE_QOS,
                                           TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
                                           TOPIC_FLOW_COMMAND, TOPIC_FLOW_STATUS,
@@ -148,7 +149,7 @@ class FlowToDutyNode(Node):
         self._duty_pub = self.create_publisher(DutyCommand, TOPIC_DUTY_COMMAND, COMMAND_QOS)
         self._status_pub = self.create_publisher(FlowToDutyStatus, TOPIC_FLOW_STATUS,
                                                  COMMAND_QOS)
-        self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, DIAGNOSTICS_QOS)
         self.create_subscription(FlowCommand, TOPIC_FLOW_COMMAND, self._on_flow, COMMAND_QOS)
         self.create_subscription(FluidPressure, TOPIC_SUPPLY_PRESSURE, self._on_supply,
                                  PRESSURE_QOS)

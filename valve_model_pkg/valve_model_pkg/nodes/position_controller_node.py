@@ -18,14 +18,13 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from valve_msgs.msg import FlowCommand
 
+from valve_model_pkg.interface import (TOPIC_JOINT_STATES, TOPIC_POSITION_GOAL,
+                                       TOPIC_POSITION_SETPOINT)
+from valve_model_pkg.interface.ros import JOINT_STATES_QOS
 from valve_model_pkg.nodes.common import (COMMAND_QOS, TOPIC_FLOW_COMMAND, declare_bool,
                                           declare_float, run_node)
-from valve_model_pkg.nodes.cylinder_node import TOPIC_JOINT_STATES
 from valve_model_pkg.pneumatics.controller import ControllerGains, PositionController
 from valve_model_pkg.pneumatics.cylinder import PARAMETER_INFO, CylinderParameters
-
-TOPIC_GOAL = 'cylinder/position_goal'
-TOPIC_SETPOINT = 'cylinder/position_setpoint'
 
 
 class PositionControllerNode(Node):
@@ -59,9 +58,10 @@ class PositionControllerNode(Node):
         self._position_m: float | None = None
         self._velocity_m_s = 0.0
         self._flow_pub = self.create_publisher(FlowCommand, TOPIC_FLOW_COMMAND, COMMAND_QOS)
-        self._setpoint_pub = self.create_publisher(Float64, TOPIC_SETPOINT, COMMAND_QOS)
-        self.create_subscription(JointState, TOPIC_JOINT_STATES, self._on_joint, 50)
-        self.create_subscription(Float64, TOPIC_GOAL, self._on_goal, COMMAND_QOS)
+        self._setpoint_pub = self.create_publisher(Float64, TOPIC_POSITION_SETPOINT, COMMAND_QOS)
+        self.create_subscription(JointState, TOPIC_JOINT_STATES, self._on_joint,
+                                 JOINT_STATES_QOS)
+        self.create_subscription(Float64, TOPIC_POSITION_GOAL, self._on_goal, COMMAND_QOS)
         self.create_timer(1.0 / self._rate_hz, self._on_tick)
 
     def _on_goal(self, msg: Float64) -> None:

@@ -31,7 +31,9 @@ from valve_msgs.msg import DutyCommand, ValveState
 from valve_model_pkg.model import ElectronicsConfig, ValveStepper, default_parameters_path, \
     load_parameters
 from valve_model_pkg.interface.ros import state_message
-from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, PRESSURE_QOS, STATE_QOS, TOPIC_DIAGNOSTICS,
+from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS
+from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, PRESSURE_QOS,
+                                          STATE_QOS, TOPIC_DIAGNOSTICS,
                                           TOPIC_DUTY_COMMAND, TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
                                           TOPIC_SUPPLY_PRESSURE, declare_bool, declare_float,
                                           declare_string, DiagnosticLevel, gauge_from_absolute,
@@ -97,7 +99,7 @@ class ValveSimulatorNode(Node):
         self._params_path = path
 
         self._state_pub = self.create_publisher(ValveState, TOPIC_STATE, STATE_QOS)
-        self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, DIAGNOSTICS_QOS)
         self.create_subscription(DutyCommand, TOPIC_DUTY_COMMAND, self._on_duty, COMMAND_QOS)
         self.create_subscription(FluidPressure, TOPIC_SUPPLY_PRESSURE, self._on_supply,
                                  PRESSURE_QOS)
