@@ -42,7 +42,6 @@ from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, 
 #: Highest main PWM frequency the drive accepts [Hz]: above it the valve (3.7 ms opening)
 #: can no longer follow and the internal chopper's period becomes comparable.
 MAX_PWM_FREQUENCY_HZ = 1000.0
-#: Lowest output gauge pressure accepted [Pa]: a perfect vacuum is -1 atm gauge.
 
 
 class ValveSimulatorNode(Node):
@@ -167,13 +166,22 @@ class ValveSimulatorNode(Node):
         gauge = self._pressure_from(msg, 'supply')
         if gauge is not None:
             s = self._stepper.sample()
-            self._stepper.set_pressures(gauge, s.output_pressure_pa)
+            self._set_pressures('supply', gauge, s.output_pressure_pa)
 
     def _on_output(self, msg: FluidPressure) -> None:
         gauge = self._pressure_from(msg, 'output')
         if gauge is not None:
             s = self._stepper.sample()
-            self._stepper.set_pressures(s.supply_pressure_pa, gauge)
+            self._set_pressures('output', s.supply_pressure_pa, gauge)
+
+    def _set_pressures(self, port: str, supply_pa: float, output_pa: float) -> None:
+        # The model refuses pressures it cannot simulate (ParameterError): a message must
+        # never end the node, so that becomes a counted rejection and the last value stays.
+        try:
+            self._stepper.set_pressures(supply_pa, output_pa)
+        except ValueError as err:
+            self._reject(f'{port} pressure rejected by the model: {err}; keeping the last '
+                         'valid value')
 
     # --- real-time loop -------------------------------------------------------------------
     def _on_tick(self) -> None:
