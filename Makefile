@@ -34,7 +34,7 @@ bench: setup
 	@$(ENV) && cd $(ROOT) && python benchmarks/run_all.py
 
 lint: setup
-	@$(ENV) && cd $(ROOT) && python -m flake8 --max-line-length 99 valve_model_pkg valve_driver_pkg tests benchmarks scripts
+	@$(ENV) && cd $(ROOT) && python -m flake8 --max-line-length 99 valve_model_pkg valve_driver_pkg valve_bringup tests benchmarks scripts
 
 clean:
 	rm -rf ros2_ws/build ros2_ws/install ros2_ws/log

@@ -4,7 +4,8 @@
   calls) until the ``ValveCommand`` frame is received by the controller's side of the bus;
 * telemetry-to-message: a ``ValveTelemetry`` frame sent by the controller's side until the
   driver has decoded it, checked it, derived averages and mass flow, and built the
-  ``valve_msgs/ValveState`` (the node's ``state_message``), ready to publish.
+  ``valve_msgs/ValveState`` (``valve_model_pkg.interface.ros.state_message``), ready to
+  publish.
 
 p50 and p99 over 10 000 frames each, one at a time (latency, not throughput), on
 python-can's virtual bus; the same over the tcp_loopback hub (the bus of the demo) for
@@ -34,9 +35,10 @@ from builtin_interfaces.msg import Time  # noqa: E402
 
 from valve_driver_pkg.canbus import TcpLoopbackBus, TcpLoopbackHub  # noqa: E402
 from valve_driver_pkg.driver import CanDriverCore, DriverConfig  # noqa: E402
-from valve_driver_pkg.nodes.can_driver_node import state_message  # noqa: E402
 from valve_driver_pkg.protocol import COMMAND, TELEMETRY, ValveCodec  # noqa: E402
 from valve_model_pkg.model import load_parameters, orifice_mass_flow  # noqa: E402
+from valve_model_pkg.interface.ros import state_message  # noqa: E402
+from valve_msgs.msg import ValveState  # noqa: E402
 
 N_FRAMES = 10_000
 TELEMETRY_PERIOD_MS = 1.0
@@ -87,7 +89,7 @@ def _telemetry_to_message(make_buses) -> np.ndarray:
     stamp = Time()
 
     def on_state(sample) -> None:
-        state_message(sample, stamp, 'valve', 0)
+        state_message(sample, stamp, 'valve', 0, ValveState.SOURCE_CAN)
         arrived[0] = time.perf_counter()
         done.set()
 

@@ -31,7 +31,7 @@ from valve_model_pkg.model import (  # noqa: E402
     ElectronicsConfig, ValveParameters, ValveStepper, load_parameters, simulate_pwm,
     simulate_step, simulate_step_batch,
 )
-from valve_model_pkg.model import kernel as K  # noqa: E402
+from valve_model_pkg import model as K  # noqa: E402  (public names only)
 from valve_model_pkg.model.magnetics import MU_0  # noqa: E402
 
 OUT = ROOT / 'benchmarks' / 'results' / 'model.json'

@@ -5,6 +5,6 @@ set -e
 source /opt/ros/jazzy/setup.bash
 source /ws/install/setup.bash
 if [ "$#" -gt 0 ] && [[ "$1" == *":="* ]]; then
-  exec ros2 launch valve_model_pkg valve_suite.launch.py "$@"
+  exec ros2 launch valve_bringup valve_suite.launch.py "$@"
 fi
 exec "$@"

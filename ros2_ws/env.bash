@@ -31,7 +31,7 @@ case "$-" in *u*) _valve_nounset=1; set +u ;; *) _valve_nounset= ;; esac
 [ -z "$_valve_nounset" ] || set -u
 # ament_python installs console scripts in lib/<pkg> (for `ros2 run`); put them on PATH too
 # so `valve_simulator` works without the ros2 CLI, which the wheels do not provide.
-for _valve_pkg in valve_model_pkg valve_driver_pkg; do
+for _valve_pkg in valve_model_pkg valve_driver_pkg valve_bringup; do
   case ":$PATH:" in
     *":$_valve_ws/install/$_valve_pkg/lib/$_valve_pkg:"*) ;;
     *) export PATH="$_valve_ws/install/$_valve_pkg/lib/$_valve_pkg:$PATH" ;;

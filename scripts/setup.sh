@@ -88,18 +88,26 @@ build_inputs() {
   # (--symlink-install), so editing a module needs no rebuild; adding a package, an entry
   # point, a message, a config or launch file does.
   cd "$ROOT"
-  find valve_msgs valve_model_pkg valve_driver_pkg \
+  find valve_msgs valve_model_pkg valve_driver_pkg valve_bringup \
        \( -name build -o -name install -o -name log -o -name __pycache__ \) -prune -o -type f \
        \( -name 'package.xml' -o -name 'CMakeLists.txt' -o -name '*.msg' -o -name 'setup.py' \
           -o -name 'setup.cfg' -o -path '*/config/*' -o -path '*/launch/*' -o -path '*/resource/*' \
           -o -name '*.dbc' \) -print | LC_ALL=C sort | xargs sha256sum
-  find valve_model_pkg/valve_model_pkg valve_driver_pkg/valve_driver_pkg -type d -name '__pycache__' -prune -o -type d -print | LC_ALL=C sort
+  find valve_model_pkg/valve_model_pkg valve_driver_pkg/valve_driver_pkg valve_bringup/valve_bringup \
+       -type d -name '__pycache__' -prune -o -type d -print | LC_ALL=C sort
+  # A package is a link in ros2_ws/src: adding one is a build input too.
+  ls -l ros2_ws/src | awk '{print $9, $11}'
   echo "$VENV"
 }
 ws_hash="$(build_inputs | sha256sum | cut -d' ' -f1)"
 ws_stamp="$WS/install/.valve-build.sha256"
 if [ ! -f "$ws_stamp" ] || [ "$(cat "$ws_stamp")" != "$ws_hash" ]; then
-  say "building the colcon workspace ros2_ws (valve_msgs, valve_model_pkg, valve_driver_pkg)"
+  say "building the colcon workspace ros2_ws (valve_msgs, valve_model_pkg, valve_driver_pkg, valve_bringup)"
+  # A symlink install keeps links to every source file; a file that moved to another
+  # package (or was deleted) leaves a dangling link that makes setuptools' copy fail.
+  for d in "$WS/build" "$WS/install"; do
+    [ ! -d "$d" ] || find "$d" -xtype l -delete
+  done
   (
     cd "$WS"
     export VIRTUAL_ENV="$VENV" PATH="$VENV/bin:$PATH"

@@ -15,7 +15,7 @@ os.environ['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)
 
 # The ROS-free cores are importable straight from the source tree, even without the
 # colcon overlay (it is a symlink install, so both are the same files).
-for pkg in ('valve_model_pkg', 'valve_driver_pkg'):
+for pkg in ('valve_model_pkg', 'valve_driver_pkg', 'valve_bringup'):
     path = str(REPO_ROOT / pkg)
     if path not in sys.path:
         sys.path.insert(0, path)

@@ -11,11 +11,14 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml', 'README.md']),
-        ('share/' + package_name + '/config', glob('config/*.yaml') + glob('config/*.dbc')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
+    # The DBC files live beside protocol/codec.py, which finds them there.
     package_data={package_name: ['protocol/*.dbc']},
     install_requires=['setuptools'],
+    # `colcon test` runs pytest in this directory (test/: the repository's tests of this
+    # package, see README "Tests and packages").
+    extras_require={'test': ['pytest']},
     zip_safe=False,
     maintainer='valve suite team',
     maintainer_email='valve-suite@example.com',

@@ -14,8 +14,12 @@ setup(
         ('share/' + package_name + '/config', glob('config/*.yaml') + glob('config/*.json')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
-    package_data={package_name: ['config/*.yaml', 'config/*.json']},
+    # config/ is installed to share/ (above), where model.parameters looks for it; the
+    # Python package itself carries no data files.
     install_requires=['setuptools'],
+    # `colcon test` runs pytest in this directory (test/: the repository's tests of this
+    # package, see README "Tests and packages").
+    extras_require={'test': ['pytest']},
     zip_safe=False,
     maintainer='valve suite team',
     maintainer_email='valve-suite@example.com',
@@ -35,8 +39,7 @@ setup(
             'valve_flow_check = valve_model_pkg.cli.flow_check:main',
             'valve_identify = valve_model_pkg.cli.identify:main',
             'valve_report = valve_model_pkg.cli.report:main',
-            'valve_demo = valve_model_pkg.cli.demo:main',
-            'valve_bench_loop = valve_model_pkg.cli.bench_loop:main',
+            # valve_demo and valve_bench_loop start the whole suite: package valve_bringup
         ],
     },
 )

@@ -1,14 +1,14 @@
 """One test, both backends: what a controller sees does not depend on simulator vs CAN.
 
 The backend is chosen exactly as `make demo BACKEND=...` and the launch argument
-`backend:=...` choose it (valve_model_pkg.cli.demo.backend_processes).
+`backend:=...` choose it (valve_bringup.demo.backend_processes).
 """
 from __future__ import annotations
 
 import pytest
 from valve_msgs.msg import ValveState
 
-from valve_model_pkg.cli.demo import backend_processes
+from valve_bringup.demo import backend_processes
 from valve_model_pkg.nodes.probe import StateProbe
 
 pytestmark = pytest.mark.node

@@ -18,10 +18,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
+from rcl_interfaces.msg import Log
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from valve_msgs.msg import DutyCommand, ValveState
 
-from valve_driver_pkg.backend import can_backend_commands, free_loopback_port
+from valve_bringup.backend import can_backend_commands, free_loopback_port
 from valve_driver_pkg.canbus import TcpLoopbackBus
 from valve_driver_pkg.emulator import EmulatorFault, EmulatorRemote
 from valve_driver_pkg.protocol import COMMAND, ValveCodec
@@ -201,10 +203,32 @@ def test_configure_fails_cleanly_without_a_bus(start_node, ros) -> None:
                      driver.log_path.read_text())
 
 
+def test_core_log_records_reach_rosout(start_node, ros) -> None:
+    """The core logs with ``logging``; the node forwards its INFO records to /rosout."""
+    port = free_loopback_port()
+    start_emulator(start_node, port)
+    records: list[Log] = []
+    listener = ros.add(Node('rosout_listener'))
+    # /rosout keeps recent records (transient local): the start-up lines arrive late too.
+    listener.create_subscription(Log, '/rosout', records.append, QoSProfile(
+        depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    driver = start_node('valve_can_driver', '--ros-args', '-p', 'interface:=tcp_loopback',
+                        '-p', f'channel:=127.0.0.1:{port}', '-p', 'autostart:=true')
+
+    def core_line(record: Log) -> bool:
+        return (record.name == 'valve_can_driver' and record.level == Log.INFO
+                and '[valve_driver_pkg.driver.core] CAN bus tcp_loopback' in record.msg)
+
+    ros.wait_for(lambda: any(core_line(r) for r in records), 20.0, 'core INFO on /rosout')
+    assert '[valve_driver_pkg.driver.core] CAN bus tcp_loopback' in driver.output
+    assert driver.stop() == 0
+
+
 frames = st.builds(
     lambda arbitration_id, data, ext: can.Message(arbitration_id=arbitration_id, data=data,
                                                   is_extended_id=ext, check=False),
-    arbitration_id=st.one_of(st.sampled_from([0x140, 0x180, 0x700, 0x141, 0x100, 0x555]),
+    arbitration_id=st.one_of(st.sampled_from([0x690, 0x6A0, 0x6C0, 0x691, 0x680, 0x555]),
                              st.integers(0, 0x7FF)),
     data=st.binary(max_size=8), ext=st.booleans())
 

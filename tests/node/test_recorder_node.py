@@ -192,9 +192,9 @@ def test_sigterm_closes_the_bag_and_bad_arguments_fail(start_node, ros, tmp_path
     assert '/diagnostics' in load_bag(bag)
 
     again = _start_recorder(start_node, bag)  # the bag exists: refused, never overwritten
-    assert again.proc.wait(timeout=60) == 1
+    assert again.proc.wait(timeout=60) == 2  # refused input (exit code rule, issue 10)
     assert 'exists' in again.output
     bad = start_node('valve_recorder', '-o', str(tmp_path / 'b2'), 'x:nope_msgs/msg/Nope')
-    assert bad.proc.wait(timeout=60) == 1
+    assert bad.proc.wait(timeout=60) == 2
     assert 'nope_msgs/msg/Nope' in bad.output
     assert not (tmp_path / 'b2').exists()

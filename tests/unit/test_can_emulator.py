@@ -188,7 +188,7 @@ def test_drop_telemetry_keeps_counting(rig) -> None:
 def test_corrupt_checksum(rig) -> None:
     rig.emu.inject(EmulatorFault.CORRUPT_CHECKSUM)
     rig.emu.step(0.01)
-    telemetry = [f for f in rig.frames() if f.arbitration_id == 0x140]
+    telemetry = [f for f in rig.frames() if f.arbitration_id == 0x690]
     assert len(telemetry) == 11
     for frame in telemetry:
         with pytest.raises(FrameRejected, match='checksum'):
@@ -208,7 +208,7 @@ def test_wrong_length_and_unknown_id(rig) -> None:
     rig.emu.inject(EmulatorFault.UNKNOWN_ID)
     rig.emu.step(0.01)
     frames = rig.frames()
-    telemetry = [f for f in frames if f.arbitration_id == 0x140]
+    telemetry = [f for f in frames if f.arbitration_id == 0x690]
     assert telemetry and all(len(f.data) == 6 for f in telemetry)
     assert sum(1 for f in frames if f.arbitration_id == UNKNOWN_INJECTED_ID) == len(telemetry)
 
@@ -269,7 +269,7 @@ def test_other_node_ids_are_ignored() -> None:
         r.command(0.3)
         assert r.emu.stats['commands'] == 1
         r.emu.step(0.0)
-        assert 0x140 + 3 in [f.arbitration_id for f in r.frames()]
+        assert 0x690 + 3 in [f.arbitration_id for f in r.frames()]
     finally:
         r.close()
 

@@ -15,7 +15,7 @@ from valve_driver_pkg.protocol import (COMMAND, CONTROL, PERIOD, PRESSURE, STATU
                                        parse_error_frame)
 from valve_driver_pkg.protocol.codec import MAX_NODE_ID, RejectReason, frame_checksum
 
-CODEC = ValveCodec(0)
+CODEC = ValveCodec(0, include_test_messages=True)   # the emulator's view: with CONTROL
 
 SAMPLE_SIGNALS = {
     COMMAND: {'Duty': 0.3333, 'PwmFrequency': 50.0, 'Enable': 1, 'ClearFaults': 0},
@@ -51,15 +51,15 @@ def test_round_trip_within_quantisation(name: str) -> None:
         assert frame.signals[signal] == pytest.approx(value, abs=step / 2 + 1e-12), signal
 
 
-@pytest.mark.parametrize('node_id', [0, 1, 17, MAX_NODE_ID])
+@pytest.mark.parametrize('node_id', [0, 1, 9, MAX_NODE_ID])
 def test_node_id_selects_the_frame_ids(node_id: int) -> None:
-    codec = ValveCodec(node_id)
-    assert codec.frame_id(COMMAND) == 0x100 + node_id
-    assert codec.frame_id(TELEMETRY) == 0x140 + node_id
-    assert codec.frame_id(PERIOD) == 0x180 + node_id
-    assert codec.frame_id(PRESSURE) == 0x300 + node_id
-    assert codec.frame_id(STATUS) == 0x700 + node_id
-    assert codec.frame_id(CONTROL) == 0x7C0 + node_id
+    codec = ValveCodec(node_id, include_test_messages=True)
+    assert codec.frame_id(COMMAND) == 0x680 + node_id
+    assert codec.frame_id(TELEMETRY) == 0x690 + node_id
+    assert codec.frame_id(PERIOD) == 0x6A0 + node_id
+    assert codec.frame_id(PRESSURE) == 0x6B0 + node_id
+    assert codec.frame_id(STATUS) == 0x6C0 + node_id
+    assert codec.frame_id(CONTROL) == 0x6D0 + node_id
     msg = codec.encode(TELEMETRY, SAMPLE_SIGNALS[TELEMETRY], 0)
     assert codec.classify(msg.arbitration_id) == (TELEMETRY, node_id)
     assert codec.decode(msg).node_id == node_id
@@ -102,17 +102,17 @@ def _with_checksum(arbitration_id: int, data: bytes) -> can.Message:
     (lambda: can.Message(arbitration_id=0x123, data=bytes(8), is_extended_id=False),
      RejectReason.UNKNOWN_ID),
     (lambda: _valid(node_id=5), RejectReason.UNKNOWN_ID),          # another node's frame
-    (lambda: can.Message(arbitration_id=0x140, data=_valid().data[:6], is_extended_id=False),
+    (lambda: can.Message(arbitration_id=0x690, data=_valid().data[:6], is_extended_id=False),
      RejectReason.WRONG_LENGTH),
-    (lambda: can.Message(arbitration_id=0x140, data=bytes(_valid().data[:7])
+    (lambda: can.Message(arbitration_id=0x690, data=bytes(_valid().data[:7])
                          + bytes([_valid().data[7] ^ 1]), is_extended_id=False),
      RejectReason.CHECKSUM),
-    (lambda: can.Message(arbitration_id=0x140, is_remote_frame=True, dlc=8,
+    (lambda: can.Message(arbitration_id=0x690, is_remote_frame=True, dlc=8,
                          is_extended_id=False), RejectReason.FRAME_TYPE),
-    (lambda: can.Message(arbitration_id=0x140, data=_valid().data, is_extended_id=True),
+    (lambda: can.Message(arbitration_id=0x690, data=_valid().data, is_extended_id=True),
      RejectReason.FRAME_TYPE),
     # DutyActive raw 0xFFFF = 6.5535 > 1, with a correct checksum: range check.
-    (lambda: _with_checksum(0x700, b'\xff\xff' + bytes(_valid(STATUS).data[2:])),
+    (lambda: _with_checksum(0x6C0, b'\xff\xff' + bytes(_valid(STATUS).data[2:])),
      RejectReason.OUT_OF_RANGE),
 ])
 def test_decoder_rejects_with_the_reason(make, reason: RejectReason) -> None:
@@ -125,7 +125,7 @@ def test_decoder_rejects_with_the_reason(make, reason: RejectReason) -> None:
 def test_checksum_covers_the_frame_id() -> None:
     # The same payload under another id (node 1) must not pass as node 0's frame.
     msg = _valid(node_id=1)
-    moved = can.Message(arbitration_id=0x140, data=msg.data, is_extended_id=False)
+    moved = can.Message(arbitration_id=0x690, data=msg.data, is_extended_id=False)
     with pytest.raises(FrameRejected, match='checksum'):
         CODEC.decode(moved)
 
@@ -170,10 +170,10 @@ def test_shipped_dbc_is_found() -> None:
 
 def test_dbc_missing_a_message_is_refused(tmp_path) -> None:
     lines = default_dbc_path().read_text().splitlines()
-    start = lines.index(next(line for line in lines if line.startswith('BO_ 384 ')))
+    start = lines.index(next(line for line in lines if line.startswith('BO_ 1696 ')))
     end = lines.index('', start)
     kept = [line for i, line in enumerate(lines)
-            if not start <= i < end and not line.startswith(('CM_ BO_ 384', 'CM_ SG_ 384'))]
+            if not start <= i < end and not line.startswith(('CM_ BO_ 1696', 'CM_ SG_ 1696'))]
     broken = tmp_path / 'broken.dbc'
     broken.write_text('\n'.join(kept) + '\n')
     with pytest.raises(DbcError, match='ValvePeriod'):
@@ -191,8 +191,8 @@ frames = st.builds(
         is_extended_id=ext, is_remote_frame=remote and not fd and not error,
         is_error_frame=error, is_fd=fd, check=False),
     arbitration_id=st.one_of(st.integers(0, 0x1FFFFFFF),
-                             st.sampled_from([0x100, 0x140, 0x180, 0x300, 0x700, 0x7C0,
-                                              0x141, 0x701])),
+                             st.sampled_from([0x680, 0x690, 0x6A0, 0x6B0, 0x6C0, 0x6D0,
+                                              0x691, 0x6C1])),
     data=st.binary(min_size=0, max_size=64), ext=st.booleans(), remote=st.booleans(),
     error=st.booleans(), fd=st.booleans())
 

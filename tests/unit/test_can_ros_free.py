@@ -1,4 +1,7 @@
-"""The CAN driver's cores import no ROS: protocol, transport, driver logic, emulator, backend."""
+"""The CAN driver's cores import no ROS: protocol, transport, driver logic, emulator.
+
+(The CAN backend as processes moved to valve_bringup.backend: test_core_is_ros_free.)
+"""
 from __future__ import annotations
 
 import subprocess
@@ -9,7 +12,7 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 
 CORES = ('valve_driver_pkg.protocol', 'valve_driver_pkg.canbus', 'valve_driver_pkg.driver',
          'valve_driver_pkg.emulator', 'valve_driver_pkg.emulator.emulator_main',
-         'valve_driver_pkg.backend', 'valve_driver_pkg.errors')
+         'valve_driver_pkg.errors')
 ROS = ('rclpy', 'rcl_interfaces', 'std_msgs', 'sensor_msgs', 'diagnostic_msgs', 'valve_msgs',
        'lifecycle_msgs', 'builtin_interfaces')
 

@@ -16,7 +16,11 @@ CORE_DIRS = [
 ] + [
     REPO_ROOT / 'valve_driver_pkg' / 'valve_driver_pkg' / name
     for name in ('protocol', 'emulator', 'driver', 'canbus')
-] + [REPO_ROOT / 'valve_model_pkg' / 'valve_model_pkg' / 'supervisor.py']
+] + [
+    # What starts the suite: the process supervisor and the CAN backend's command lines.
+    REPO_ROOT / 'valve_bringup' / 'valve_bringup' / name
+    for name in ('supervisor.py', 'backend.py')
+]
 
 ROS_MODULES = ('rclpy', 'rcl_interfaces', 'std_msgs', 'sensor_msgs', 'diagnostic_msgs',
                'valve_msgs', 'lifecycle_msgs', 'builtin_interfaces')
@@ -57,14 +61,14 @@ def test_core_module_does_not_import_ros_at_module_level(path: Path) -> None:
 def test_importing_the_cores_loads_no_ros_module() -> None:
     code = (
         'import sys, importlib, pkgutil\n'
-        'sys.path[:0] = [%r, %r]\n'
-        'import valve_model_pkg, valve_driver_pkg\n'
+        'sys.path[:0] = [%r, %r, %r]\n'
+        'import valve_model_pkg, valve_driver_pkg, valve_bringup\n'
         'for pkg in ("valve_model_pkg.model", "valve_model_pkg.maps",\n'
         '            "valve_model_pkg.identification", "valve_model_pkg.pneumatics",\n'
         '            "valve_model_pkg.recording",\n'
         '            "valve_driver_pkg.protocol", "valve_driver_pkg.emulator",\n'
         '            "valve_driver_pkg.driver", "valve_driver_pkg.canbus",\n'
-        '            "valve_model_pkg.supervisor"):\n'
+        '            "valve_bringup.supervisor", "valve_bringup.backend"):\n'
         '    try:\n'
         '        m = importlib.import_module(pkg)\n'
         '    except ModuleNotFoundError as e:\n'
@@ -74,7 +78,8 @@ def test_importing_the_cores_loads_no_ros_module() -> None:
         '        importlib.import_module(info.name)\n'
         'ros = sorted(n for n in sys.modules if n.split(".")[0] in %r)\n'
         'print(",".join(ros))\n'
-    ) % (str(REPO_ROOT / 'valve_model_pkg'), str(REPO_ROOT / 'valve_driver_pkg'), ROS_MODULES)
+    ) % (str(REPO_ROOT / 'valve_model_pkg'), str(REPO_ROOT / 'valve_driver_pkg'),
+         str(REPO_ROOT / 'valve_bringup'), ROS_MODULES)
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          timeout=300)
     assert out.returncode == 0, out.stderr

@@ -41,8 +41,8 @@ def test_show_reads_an_existing_map(tmp_path: Path, capsys) -> None:
     (['--duty-step', '0.03'], 'whole number'),
     (['--show', '/nonexistent/map.json'], 'no such map file'),
 ])
-def test_bad_input_exits_1_with_the_reason(tmp_path: Path, capsys, argv: list[str],
+def test_bad_input_exits_2_with_the_reason(tmp_path: Path, capsys, argv: list[str],
                                            message: str) -> None:
     code = valve_map(['-o', str(tmp_path / 'm.json'), '--no-figures', '-q'] + argv)
-    assert code == 1
+    assert code == 2  # refused input (the CLI rule: 2 refused input, 1 failure inside)
     assert message in capsys.readouterr().err

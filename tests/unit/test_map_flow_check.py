@@ -86,10 +86,10 @@ def test_cli_reports_per_duty_and_overall(tmp_path: Path, capsys, stepper_flows)
     data = json.loads(out_json.read_text())
     assert len(data['points']) == DUTIES.size and data['rms_error'] < 0.01
     assert png.stat().st_size > 10_000
-    # a bad fit fails the threshold with exit code 2
+    # a bad fit fails the threshold: exit code 1 (a failed check, not refused input)
     bad = write_flow_map(tmp_path / 'bad.csv', DUTIES, supply_pressure_pa=4e5,
                          pwm_frequency_hz=50.0, flow_fraction=DUTIES)
-    assert flow_check_main([str(bad), '--max-rms-percent', '2']) == 2
+    assert flow_check_main([str(bad), '--max-rms-percent', '2']) == 1
 
 
 @pytest.mark.parametrize('text, where, reason', [
@@ -116,12 +116,12 @@ def test_malformed_flow_map_files_name_file_line_and_problem(tmp_path: Path, cap
     with pytest.raises(FlowMapFormatError, match=reason) as info:
         read_flow_map(path)
     assert f'{path}{where}' in str(info.value)
-    assert flow_check_main([str(path)]) == 1
+    assert flow_check_main([str(path)]) == 2  # refused input
     assert reason.split('"')[0] in capsys.readouterr().err
 
 
 def test_frequency_not_in_map_is_an_error(tmp_path: Path, capsys) -> None:
     path = write_flow_map(tmp_path / 'f.csv', DUTIES, supply_pressure_pa=4e5,
                           pwm_frequency_hz=75.0, flow_fraction=DUTIES)
-    assert flow_check_main([str(path)]) == 1
+    assert flow_check_main([str(path)]) == 2  # refused input
     assert '75 Hz is not in the map' in capsys.readouterr().err

@@ -70,24 +70,53 @@ def test_pwm_writes_duty_and_mass_flow(tmp_path: Path) -> None:
     assert main(['--experiment', 'pwm', '--duty', '0.4', '--pwm-frequency', '50',
                  '--duration', '0.06', '--sample-rate', '50000', '--out', str(out)]) == 0
     meta, header, data = read_csv(out)
-    assert header == ['t', 'voltage', 'current', 'position', 'duty', 'mass_flow']
+    # the measured-data format's pwm record: voltage = main PWM input, coil_voltage = coil
+    assert header == ['t', 'voltage', 'coil_voltage', 'current', 'position', 'duty',
+                      'mass_flow']
     assert meta['experiment'] == 'pwm' and float(meta['pwm_frequency_hz']) == 50.0
-    assert np.all(data[:, 4] == 0.4)
-    assert data[:, 5].max() > 0.0 and data[:, 5].min() >= 0.0
-    t, i = data[:, 0], data[:, 2]
+    assert np.all(data[:, 5] == 0.4)
+    assert data[:, 6].max() > 0.0 and data[:, 6].min() >= 0.0
+    t, i = data[:, 0], data[:, 3]
     hold = (t > 0.046) & (t < 0.048)
     np.testing.assert_allclose(i[hold], 0.5, rtol=0.05)
-    assert data[:, 1].min() < -20.0  # the capacitor pulse
+    assert data[:, 2].min() < -20.0  # the capacitor pulse, at the coil terminals
+    on = np.mod(t + 1e-12, 0.02) < 0.4 * 0.02
+    np.testing.assert_array_equal(data[:, 1], np.where(on, 24.0, 0.0))  # main PWM input
     assert (tmp_path / 'fig6.png').exists()
+
+
+def test_pwm_mass_flow_uses_the_mean_over_the_last_complete_period(tmp_path: Path) -> None:
+    """The suite's per-period moving average (as the simulator node publishes it): the
+    mean position over the last complete PWM period, 0 before the first period ends."""
+    from valve_model_pkg.model import PeriodAverager, load_parameters, orifice_mass_flow
+
+    out = tmp_path / 'avg.csv'
+    assert main(['--experiment', 'pwm', '--duty', '0.4', '--pwm-frequency', '50',
+                 '--duration', '0.07', '--sample-rate', '20000', '--out', str(out),
+                 '--no-plot', '-q']) == 0
+    meta, _, data = read_csv(out)
+    t, x, flow = data[:, 0], data[:, 4], data[:, 6]
+    assert np.all(flow[t < 0.02 - 1e-9] == 0.0)
+    # constant inside each period, changing only at period ends
+    for k in range(1, 3):
+        inside = (t >= 0.02 * k + 1e-9) & (t < 0.02 * (k + 1) - 1e-9)
+        assert np.ptp(flow[inside]) == 0.0
+    # the streaming averager on the written positions gives the same means
+    avg = PeriodAverager(0.02)
+    streamed = np.array([avg.update(tt, xx) for tt, xx in zip(t, x)])
+    expected = orifice_mass_flow(streamed, float(meta['supply_pressure_pa']),
+                                 float(meta['output_pressure_pa']), load_parameters())
+    np.testing.assert_allclose(flow, expected, rtol=1e-6, atol=1e-12)
+    assert flow[-1] > 0.0
 
 
 def test_no_capacitor_option(tmp_path: Path) -> None:
     out = tmp_path / 'nc.csv'
     assert main(['--experiment', 'pwm', '--no-capacitor', '--duration', '0.02',
                  '--out', str(out), '--no-plot', '-q']) == 0
-    meta, _, data = read_csv(out)
+    meta, header, data = read_csv(out)
     assert meta['capacitor'] == 'false'
-    assert data[:, 1].min() == 0.0
+    assert data[:, header.index('coil_voltage')].min() == 0.0
 
 
 @pytest.mark.parametrize('argv, message', [

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from valve_model_pkg.supervisor import ChildExited, ProcessSpec, Supervisor
+from valve_bringup.supervisor import ChildExited, ProcessSpec, Supervisor
 
 PY = sys.executable
 
@@ -96,7 +96,7 @@ def test_children_die_when_the_supervisor_is_killed(tmp_path) -> None:
     script = textwrap.dedent(f'''
         import sys, time
         sys.path[:0] = {sys.path!r}
-        from valve_model_pkg.supervisor import ProcessSpec, Supervisor
+        from valve_bringup.supervisor import ProcessSpec, Supervisor
         sup = Supervisor()
         p = sup.start(ProcessSpec("sleeper", [sys.executable, "-c", "import time; time.sleep(60)"]))
         open({str(pidfile)!r}, "w").write(str(p.pid))

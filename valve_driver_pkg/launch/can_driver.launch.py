@@ -13,19 +13,27 @@ from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from valve_driver_pkg.driver.config import DriverConfig
+
+#: The driver's defaults are DriverConfig's (written once); this file only repeats none.
+DEFAULTS = DriverConfig()
+
 
 def generate_launch_description() -> LaunchDescription:
     cfg = LaunchConfiguration
     args = [
-        DeclareLaunchArgument('interface', default_value='socketcan',
+        DeclareLaunchArgument('interface', default_value=DEFAULTS.interface,
                               description='python-can interface'),
-        DeclareLaunchArgument('channel', default_value='can0', description='CAN channel'),
-        DeclareLaunchArgument('bitrate', default_value='500000',
+        DeclareLaunchArgument('channel', default_value=DEFAULTS.channel,
+                              description='CAN channel'),
+        DeclareLaunchArgument('bitrate', default_value=str(DEFAULTS.bitrate),
                               description='Bit rate for adapters that set it [bit/s]'),
-        DeclareLaunchArgument('node_id', default_value='0', description='Controller node id'),
+        DeclareLaunchArgument('node_id', default_value=str(DEFAULTS.node_id),
+                              description='Controller node id 0..15 (ids 0x680 + ...)'),
         DeclareLaunchArgument('params_file', default_value='',
                               description='Valve parameter YAML for the orifice equation'),
-        DeclareLaunchArgument('command_timeout_s', default_value='0.5',
+        DeclareLaunchArgument('command_timeout_s',
+                              default_value=str(DEFAULTS.command_timeout_s),
                               description='Watchdog: no duty command this long -> duty 0 [s]'),
         DeclareLaunchArgument('autostart', default_value='true',
                               description='Configure and activate at start-up'),

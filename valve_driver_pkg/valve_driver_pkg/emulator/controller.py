@@ -29,13 +29,14 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass
-from typing import Protocol
 
 import can
 
-from valve_driver_pkg.errors import FrameRejected, ProtocolEncodeError
+from valve_driver_pkg.emulator.config import (FLAG_HOLD_S, MIN_PRESSURE_PA, PERIOD_REFRESH_S,
+                                              UNKNOWN_INJECTED_ID, ControllerState,
+                                              EmulatorConfig, StepperLike, clamp)
 from valve_driver_pkg.emulator.faults import FaultInjector
+from valve_driver_pkg.errors import FrameRejected, ProtocolEncodeError
 from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, PERIOD, PRESSURE, STATUS,
                                              TELEMETRY, CounterCheck, CounterTracker,
                                              EmulatorFault, ValveCodec)
@@ -45,85 +46,6 @@ __all__ = ['StepperLike', 'EmulatorConfig', 'ControllerEmulator', 'ControllerSta
            'UNKNOWN_INJECTED_ID']
 
 logger = logging.getLogger(__name__)
-
-#: Id of the frames the ``UNKNOWN_ID`` fault puts on the bus (outside every protocol range).
-UNKNOWN_INJECTED_ID = 0x5A5
-#: How long a command fault flag (checksum, counter, range) stays set after the event [s].
-_FLAG_HOLD_S = 1.0
-#: ValvePeriod is repeated at least this often even when nothing changed [s].
-_PERIOD_REFRESH_S = 0.1
-#: Lowest gauge pressure the model accepts [Pa] (lower values are clamped).
-_MIN_PRESSURE_PA = -1.0e5
-
-
-class StepperLike(Protocol):
-    """What the emulator needs of ``valve_model_pkg.model.ValveStepper``."""
-
-    def set_command(self, duty: float, pwm_frequency_hz: float) -> None: ...
-    def set_pressures(self, supply_pa: float, output_pa: float) -> None: ...
-    def advance_to(self, t_s: float) -> None: ...
-    def sample(self): ...
-    def reset(self) -> None: ...
-
-
-class ControllerState:
-    """Values of ``ValveStatus.ControllerState``."""
-
-    INIT = 0       # no command received yet
-    STANDBY = 1    # disabled or watchdog-closed
-    RUNNING = 2    # driving the valve
-    FAULT = 3      # a latched fault keeps the output off
-
-
-@dataclass(frozen=True)
-class EmulatorConfig:
-    """Firmware settings of the emulated controller.
-
-    Attributes
-    ----------
-    node_id : int
-        Node id (frame ids = DBC ids + node id).
-    telemetry_rate_hz : float
-        ``ValveTelemetry`` rate [Hz].
-    status_rate_hz : float
-        ``ValveStatus`` heartbeat rate [Hz].
-    command_timeout_s : float
-        Firmware command watchdog [s]; 0 disables it.
-    position_estimate : bool
-        Report the spool position (``PositionValid=1``); false models a controller
-        without an estimator.
-    accept_control_frames : bool
-        Obey ``EmulatorControl`` frames (fault injection over the bus).
-    supply_voltage_v : float
-        Drive supply voltage reported in the heartbeat [V].
-    overcurrent_a : float
-        Coil current above which the overcurrent fault latches [A].
-    max_burst : int
-        In real time, the most telemetry frames sent at once after a stall; beyond it the
-        frames are skipped (the counter still advances, so the host sees the loss).
-    """
-
-    node_id: int = 0
-    telemetry_rate_hz: float = 1000.0
-    status_rate_hz: float = 10.0
-    command_timeout_s: float = 0.1
-    position_estimate: bool = True
-    accept_control_frames: bool = True
-    supply_voltage_v: float = 24.0
-    overcurrent_a: float = 6.0
-    max_burst: int = 5
-
-    def __post_init__(self) -> None:
-        if not 1.0 <= self.telemetry_rate_hz <= 10_000.0:
-            raise ValueError(f'telemetry_rate_hz {self.telemetry_rate_hz!r} outside [1, 10000]')
-        if not 0.1 <= self.status_rate_hz <= 1000.0:
-            raise ValueError(f'status_rate_hz {self.status_rate_hz!r} outside [0.1, 1000]')
-        if self.command_timeout_s < 0.0:
-            raise ValueError(f'command_timeout_s {self.command_timeout_s!r} is negative')
-
-
-def _clamp(value: float, low: float, high: float) -> float:
-    return low if value < low else high if value > high else value
 
 
 class ControllerEmulator:
@@ -137,7 +59,8 @@ class ControllerEmulator:
         The valve model (``ValveStepper`` or a test double); reset on construction.
     config : EmulatorConfig
     codec : ValveCodec | None
-        Codec for ``config.node_id`` (default: the shipped DBC).
+        Codec for ``config.node_id`` (default: the shipped DBCs, ``valve.dbc`` and the
+        test-only ``valve_test.dbc`` with ``EmulatorControl``).
     fault_seed : int | None
         Seed of the probabilistic fault draws.
     """
@@ -147,7 +70,7 @@ class ControllerEmulator:
                  fault_seed: int | None = None, supply_pressure_pa: float = 400_000.0,
                  output_pressure_pa: float = 0.0) -> None:
         self.config = config or EmulatorConfig()
-        self.codec = codec or ValveCodec(self.config.node_id)
+        self.codec = codec or ValveCodec(self.config.node_id, include_test_messages=True)
         self.bus = bus
         self.stepper = stepper
         self.faults = FaultInjector(fault_seed)
@@ -218,14 +141,14 @@ class ControllerEmulator:
                 if name == COMMAND:
                     self.stats['commands_rejected'] += 1
                     key = 'checksum' if err.reason == 'checksum' else 'range'
-                    self._flag_until[key] = self._model_t + _FLAG_HOLD_S
+                    self._flag_until[key] = self._model_t + FLAG_HOLD_S
                 logger.debug('emulator ignored a frame: %s', err)
                 return
             if name == COMMAND:
                 self._on_command(frame.signals, frame.counter)
             elif name == PRESSURE:
-                supply = max(float(frame.signals['SupplyPressure']), _MIN_PRESSURE_PA)
-                output = max(float(frame.signals['OutputPressure']), _MIN_PRESSURE_PA)
+                supply = max(float(frame.signals['SupplyPressure']), MIN_PRESSURE_PA)
+                output = max(float(frame.signals['OutputPressure']), MIN_PRESSURE_PA)
                 try:
                     self.stepper.set_pressures(supply, output)
                 except ValueError as err:   # the model refused: keep the last pressures
@@ -242,7 +165,7 @@ class ControllerEmulator:
     def _on_command(self, signals: dict, counter: int) -> None:
         if self._command_counter.check(counter) is CounterCheck.FROZEN:
             self.stats['commands_rejected'] += 1
-            self._flag_until['counter'] = self._model_t + _FLAG_HOLD_S
+            self._flag_until['counter'] = self._model_t + FLAG_HOLD_S
             return
         self.stats['commands'] += 1
         self._seen_command = True
@@ -262,7 +185,7 @@ class ControllerEmulator:
         try:
             self.stepper.set_command(self._duty if drive else 0.0, self._pwm_hz)
         except ValueError as err:   # the model refused the command: close the valve
-            self._flag_until['range'] = self._model_t + _FLAG_HOLD_S
+            self._flag_until['range'] = self._model_t + FLAG_HOLD_S
             logger.warning('emulator: command not applied (%s); valve closed', err)
             self.stepper.set_command(0.0, self._pwm_hz if self._pwm_hz > 0 else 50.0)
 
@@ -409,9 +332,9 @@ class ControllerEmulator:
         position = float(s.spool_position_m) if self.config.position_estimate else 0.0
         self._send_period(s)
         signals = {
-            'CoilCurrent': _clamp(current, self._i_lo, self._i_hi),
-            'CoilVoltage': _clamp(float(s.coil_voltage_v), self._v_lo, self._v_hi),
-            'SpoolPosition': _clamp(position, self._x_lo, self._x_hi),
+            'CoilCurrent': clamp(current, self._i_lo, self._i_hi),
+            'CoilVoltage': clamp(float(s.coil_voltage_v), self._v_lo, self._v_hi),
+            'SpoolPosition': clamp(position, self._x_lo, self._x_hi),
             'Enabled': int(self._enabled and not self._timed_out and not self._overcurrent),
             'PositionValid': int(self.config.position_estimate),
             'FaultActive': int(self._fault_active()),
@@ -430,11 +353,11 @@ class ControllerEmulator:
                                    is_extended_id=False, timestamp=time.time()))
 
     def _send_period(self, s) -> None:
-        average = _clamp(float(s.position_avg_m), self._x_lo, self._x_hi)
-        duty = _clamp(float(s.duty), 0.0, 1.0)
-        freq = _clamp(float(s.pwm_frequency_hz), 0.0, self._f_hi)
+        average = clamp(float(s.position_avg_m), self._x_lo, self._x_hi)
+        duty = clamp(float(s.duty), 0.0, 1.0)
+        freq = clamp(float(s.pwm_frequency_hz), 0.0, self._f_hi)
         key = (round(average / 1e-8), round(duty / 1e-4), round(freq / 0.1))
-        if key == self._period_sent and self._model_t - self._period_sent_t < _PERIOD_REFRESH_S:
+        if key == self._period_sent and self._model_t - self._period_sent_t < PERIOD_REFRESH_S:
             return
         msg = self.codec.encode(PERIOD, {'PositionAverage': average, 'DutyActive': duty,
                                          'PwmFrequencyActive': freq},
@@ -453,9 +376,9 @@ class ControllerEmulator:
                  else ControllerState.RUNNING if self._enabled and not self._timed_out
                  else ControllerState.STANDBY)
         signals = {
-            'DutyActive': _clamp(float(s.duty), 0.0, 1.0),
-            'PwmFrequencyActive': _clamp(float(s.pwm_frequency_hz), 0.0, self._f_hi),
-            'SupplyVoltage': _clamp(self.config.supply_voltage_v, 0.0, 63.75),
+            'DutyActive': clamp(float(s.duty), 0.0, 1.0),
+            'PwmFrequencyActive': clamp(float(s.pwm_frequency_hz), 0.0, self._f_hi),
+            'SupplyVoltage': clamp(self.config.supply_voltage_v, 0.0, 63.75),
             'FaultOvercurrent': int(self._overcurrent),
             'FaultUndervoltage': int(self.config.supply_voltage_v < 18.0),
             'FaultCommandTimeout': int(self._timed_out),

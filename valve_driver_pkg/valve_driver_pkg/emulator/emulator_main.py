@@ -13,9 +13,9 @@ Examples::
     # Scheduled faults: go silent 2 s after start for 0.5 s; drop 10 % of telemetry from 4 s.
     valve_controller_emulator --fault silent:2:0.5 --fault drop_telemetry:4:0:0.1
 
-Faults can also be switched at run time with ``EmulatorControl`` frames (id 0x7C0 + node
-id; see the package README), e.g. from a test with
-:func:`valve_driver_pkg.emulator.control_frame`.
+Faults can also be switched at run time with ``EmulatorControl`` frames (id 0x6D0 + node
+id, defined in the test-only ``valve_test.dbc``; see the package README), e.g. from a test
+with :class:`valve_driver_pkg.emulator.EmulatorRemote`.
 
 The program prints ``valve_controller_emulator ready: <interface> <channel> node <n>`` once
 it answers on the bus (with the real port when ``--channel`` asks for port 0) and stops
@@ -63,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     bus.add_argument('--bitrate', type=int, default=500_000, help='bit rate [bit/s]')
     bus.add_argument('--no-hub', action='store_true',
                      help='tcp_loopback: join an existing hub instead of hosting one')
-    bus.add_argument('--node-id', type=int, default=0, help='node id 0..63 (default 0)')
+    bus.add_argument('--node-id', type=int, default=0, help='node id 0..15 (default 0)')
     fw = p.add_argument_group('firmware')
     fw.add_argument('--telemetry-rate-hz', type=float, default=1000.0)
     fw.add_argument('--status-rate-hz', type=float, default=10.0)
@@ -115,7 +115,7 @@ def apply_effects(params, effects: list[str], values: list[str]):
     ----------
     params : ValveParameters
     effects : list of str
-        Effect names (``valve_model_pkg.model.parameters.EFFECTS``).
+        Effect names (``valve_model_pkg.model.EFFECTS``).
     values : list of str
         ``FIELD=VALUE`` items; a field of a named effect without a value gets
         :data:`EFFECT_DEMO_FRACTION` of its identification range (switching field only).
@@ -125,7 +125,7 @@ def apply_effects(params, effects: list[str], values: list[str]):
     ValueError
         Unknown effect or field, a bad number, or a field of an effect not named.
     """
-    from valve_model_pkg.model.parameters import EFFECTS
+    from valve_model_pkg.model import EFFECTS
 
     changes: dict[str, float] = {}
     for item in values:

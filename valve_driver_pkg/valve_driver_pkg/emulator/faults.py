@@ -141,7 +141,7 @@ class EmulatorRemote:
         from valve_driver_pkg.protocol.codec import ValveCodec
 
         self.bus = bus
-        self.codec = codec or ValveCodec(node_id)
+        self.codec = codec or ValveCodec(node_id, include_test_messages=True)
         self._counter = 0
 
     def frame(self, fault: EmulatorFault, active: bool = True, probability: float = 1.0,

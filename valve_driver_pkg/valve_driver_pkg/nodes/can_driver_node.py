@@ -19,12 +19,18 @@ stops sending; cleanup and shutdown close the bus (safe twice). ``autostart:=tru
 configures and activates at start-up (for the demo).
 
 All bus I/O runs on the driver core's threads (:mod:`valve_driver_pkg.driver.core`);
-callbacks here only hand values over.
+callbacks here only hand values over. The parameters, their defaults and ranges are the
+fields of :class:`~valve_driver_pkg.driver.config.DriverConfig` and :class:`NodeOptions`.
+The core's :mod:`logging` records (logger ``valve_driver_pkg``) go to this node's logger
+and so to ``/rosout``.
 """
 from __future__ import annotations
 
+import dataclasses
 import gc
+import logging
 import sys
+from dataclasses import dataclass
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -32,72 +38,57 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 ParameterType)
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleState, Node, TransitionCallbackReturn
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import FluidPressure
 from valve_msgs.msg import DutyCommand, ValveState
 
-from valve_driver_pkg.driver.core import CanDriverCore, DriverConfig, StateSample
+from valve_driver_pkg.driver.config import DriverConfig, setting
+from valve_driver_pkg.driver.core import CanDriverCore
 from valve_driver_pkg.errors import ValveDriverError
+from valve_model_pkg.interface import (TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
+                                       TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
+                                       TOPIC_SUPPLY_PRESSURE, gauge_from_absolute)
+from valve_model_pkg.interface.ros import (COMMAND_QOS, PRESSURE_QOS, STATE_QOS,
+                                           forward_logging, state_message)
+from valve_model_pkg.model.sample import ValveSample
 
-__all__ = ['CanDriverNode', 'main', 'state_message']
+__all__ = ['CanDriverNode', 'NodeOptions', 'main']
 
-# The suite's topic contract (valve_model_pkg.nodes.common holds the same names; they are
-# repeated here so the driver does not pull in the simulator's node helpers).
-TOPIC_STATE = 'valve/state'
-TOPIC_DUTY_COMMAND = 'valve/duty_command'
-TOPIC_SUPPLY_PRESSURE = 'valve/supply_pressure'
-TOPIC_OUTPUT_PRESSURE = 'valve/output_pressure'
-TOPIC_DIAGNOSTICS = '/diagnostics'
-ATMOSPHERIC_PRESSURE_PA = 101_325.0
-STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
-                       reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
-COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
+#: The logger of every ROS-free module of this package (driver core, protocol, bus).
+CORE_LOGGER = 'valve_driver_pkg'
 
-_FLOAT_PARAMS = (
-    # name, default, description, low, high
-    ('command_rate_hz', 100.0, 'ValveCommand refresh rate [Hz] (also sent on every command)',
-     1.0, 1000.0),
-    ('command_timeout_s', 0.5, 'Watchdog: no duty command for this long commands duty 0 [s]; '
-     '0 = off', 0.0, 60.0),
-    ('telemetry_rate_hz', 1000.0, 'Expected ValveTelemetry rate of the controller [Hz]',
-     1.0, 10000.0),
-    ('telemetry_timeout_periods', 2.5, 'Telemetry is lost (ERROR) this many telemetry periods '
-     'after the last valid frame', 1.0, 1000.0),
-    ('status_timeout_s', 0.35, 'ValveStatus heartbeat missing this long is an ERROR [s]',
-     0.01, 60.0),
-    ('pressure_rate_hz', 10.0, 'ValvePressure refresh rate [Hz]', 0.1, 1000.0),
-    ('fault_hold_s', 1.0, 'A rejected frame or clamped command keeps its WARN this long [s]',
-     0.0, 3600.0),
-    ('reopen_period_s', 0.5, 'Pause between attempts to reopen a failed bus [s]', 0.01, 60.0),
-    ('open_timeout_s', 5.0, 'How long configure waits for the bus (tcp_loopback: the hub) [s]',
-     0.0, 120.0),
-    ('pwm_frequency_hz', 50.0, 'PWM frequency in force until a command sets one [Hz]',
-     0.1, 1000.0),
-    ('max_pwm_frequency_hz', 1000.0, 'Commands above this PWM frequency are clamped [Hz]',
-     0.1, 1000.0),
-    ('supply_pressure_pa', 400_000.0, 'Supply pressure, gauge [Pa], until valve/supply_pressure '
-     'is received', 0.0, 1.0e6),
-    ('output_pressure_pa', 0.0, 'Output port pressure, gauge [Pa], until valve/output_pressure '
-     'is received', -ATMOSPHERIC_PRESSURE_PA, 1.0e6),
-    ('diagnostics_period_s', 1.0, 'Period of the diagnostics summary [s]', 0.05, 60.0),
-)
-_INT_PARAMS = (
-    ('bitrate', 500_000, 'CAN bit rate [bit/s] (socketcan: set with ip link instead)',
-     10_000, 1_000_000),
-    ('node_id', 0, 'Controller node id: frame id = DBC id + node id', 0, 63),
-)
-_STRING_PARAMS = (
-    ('interface', 'socketcan', 'python-can interface (socketcan, virtual, pcan, ...) or '
-     'tcp_loopback (the emulator\'s loopback hub)'),
-    ('channel', 'can0', 'Channel: can0, a virtual channel name, or 127.0.0.1:PORT'),
-    ('dbc_path', '', 'DBC file of the protocol; empty = the one shipped with the package'),
-    ('params_file', '', 'Valve parameter YAML for the orifice equation; empty = the model\'s '
-     'default config/valve.yaml'),
-    ('valve_name', 'valve', 'Name of the valve, used as header.frame_id'),
-)
+
+@dataclass(frozen=True)
+class NodeOptions:
+    """The node's own parameters (the driver's are :class:`DriverConfig`)."""
+
+    params_file: str = setting('', 'Valve parameter YAML for the orifice equation; empty = '
+                               'the model\'s default config/valve.yaml')
+    valve_name: str = setting('valve', 'Name of the valve, used as header.frame_id')
+    diagnostics_period_s: float = setting(1.0, 'Period of the diagnostics summary [s]',
+                                          0.05, 60.0)
+    autostart: bool = setting(False, 'Configure and activate at start-up')
+
+
+def _descriptor(field: dataclasses.Field) -> ParameterDescriptor:
+    """The ParameterDescriptor of a settings field: type, description, range."""
+    meta = field.metadata
+    kind = type(field.default)
+    descriptor = ParameterDescriptor(description=meta['description'])
+    if kind is bool:
+        descriptor.type = ParameterType.PARAMETER_BOOL
+    elif kind is int:
+        low, high = meta['range']
+        descriptor.type = ParameterType.PARAMETER_INTEGER
+        descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high),
+                                                 step=1)]
+    elif kind is float:
+        low, high = meta['range']
+        descriptor.type = ParameterType.PARAMETER_DOUBLE
+        descriptor.floating_point_range = [FloatingPointRange(
+            from_value=float(low), to_value=float(high), step=0.0)]
+    else:
+        descriptor.type = ParameterType.PARAMETER_STRING
+    return descriptor
 
 
 class CanDriverNode(Node):
@@ -105,51 +96,33 @@ class CanDriverNode(Node):
 
     def __init__(self, node_name: str = 'valve_can_driver') -> None:
         super().__init__(node_name)
-        for name, default, text, low, high in _FLOAT_PARAMS:
-            self.declare_parameter(name, float(default), ParameterDescriptor(
-                description=text, type=ParameterType.PARAMETER_DOUBLE,
-                floating_point_range=[FloatingPointRange(from_value=float(low),
-                                                         to_value=float(high), step=0.0)]))
-        for name, default, text, low, high in _INT_PARAMS:
-            self.declare_parameter(name, int(default), ParameterDescriptor(
-                description=text, type=ParameterType.PARAMETER_INTEGER,
-                integer_range=[IntegerRange(from_value=low, to_value=high, step=1)]))
-        for name, default, text in _STRING_PARAMS:
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=text, type=ParameterType.PARAMETER_STRING))
-        self.declare_parameter('autostart', False, ParameterDescriptor(
-            description='Configure and activate at start-up', type=ParameterType.PARAMETER_BOOL))
+        for field in dataclasses.fields(DriverConfig) + dataclasses.fields(NodeOptions):
+            self.declare_parameter(field.name, field.default, _descriptor(field))
+        self._log_handler = forward_logging(self, CORE_LOGGER)
         self._core: CanDriverCore | None = None
         self._state_pub = None
         self._diag_pub = None
         self._subs: list = []
         self._timers: list = []
         self._sequence = 0
-        self._frame_id = 'valve'
+        self._frame_id = NodeOptions.valve_name
         self._hardware_id = ''
+
+    def _read(self, settings: type) -> object:
+        """The typed snapshot of a settings dataclass from the parameters."""
+        return settings(**{f.name: self.get_parameter(f.name).value
+                           for f in dataclasses.fields(settings)})
 
     # --- lifecycle ---------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        p = {name: self.get_parameter(name).value
-             for name in [n for n, *_ in _FLOAT_PARAMS + _INT_PARAMS + _STRING_PARAMS]}
-        config = DriverConfig(
-            interface=p['interface'], channel=p['channel'], bitrate=p['bitrate'],
-            node_id=p['node_id'], dbc_path=p['dbc_path'], command_rate_hz=p['command_rate_hz'],
-            command_timeout_s=p['command_timeout_s'],
-            telemetry_period_s=1.0 / p['telemetry_rate_hz'],
-            telemetry_timeout_periods=p['telemetry_timeout_periods'],
-            status_timeout_s=p['status_timeout_s'], pressure_rate_hz=p['pressure_rate_hz'],
-            fault_hold_s=p['fault_hold_s'], reopen_period_s=p['reopen_period_s'],
-            open_timeout_s=p['open_timeout_s'], pwm_frequency_hz=p['pwm_frequency_hz'],
-            max_pwm_frequency_hz=p['max_pwm_frequency_hz'])
-        self._frame_id = p['valve_name']
-        self._hardware_id = f'{config.interface}:{config.channel} node {config.node_id}'
+        config: DriverConfig = self._read(DriverConfig)
+        options: NodeOptions = self._read(NodeOptions)
+        self._frame_id = options.valve_name
+        self._hardware_id = config.hardware_id
         try:
-            mass_flow = _mass_flow_function(p['params_file'])
+            mass_flow = _mass_flow_function(options.params_file)
             core = CanDriverCore(config, mass_flow=mass_flow, on_state=self._publish_state,
-                                 on_diagnostics_changed=self._publish_diagnostics,
-                                 supply_pressure_pa=p['supply_pressure_pa'],
-                                 output_pressure_pa=p['output_pressure_pa'])
+                                 on_diagnostics_changed=self._publish_diagnostics)
             self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
             self._state_pub = self.create_lifecycle_publisher(ValveState, TOPIC_STATE,
                                                               STATE_QOS)
@@ -163,11 +136,12 @@ class CanDriverNode(Node):
             self.create_subscription(DutyCommand, TOPIC_DUTY_COMMAND, self._on_duty,
                                      COMMAND_QOS),
             self.create_subscription(FluidPressure, TOPIC_SUPPLY_PRESSURE,
-                                     lambda m: self._on_pressure(m, 'supply'), COMMAND_QOS),
+                                     lambda m: self._on_pressure(m, 'supply'), PRESSURE_QOS),
             self.create_subscription(FluidPressure, TOPIC_OUTPUT_PRESSURE,
-                                     lambda m: self._on_pressure(m, 'output'), COMMAND_QOS),
+                                     lambda m: self._on_pressure(m, 'output'), PRESSURE_QOS),
         ]
-        self._timers = [self.create_timer(p['diagnostics_period_s'], self._publish_diagnostics)]
+        self._timers = [self.create_timer(options.diagnostics_period_s,
+                                          self._publish_diagnostics)]
         self.get_logger().info(f'configured: {self._hardware_id}, DBC {core.codec.dbc_path}')
         self._publish_diagnostics()
         return TransitionCallbackReturn.SUCCESS
@@ -207,6 +181,11 @@ class CanDriverNode(Node):
             self._core.deactivate()
         self._release()
 
+    def destroy_node(self) -> None:
+        """Stop forwarding the core's log records, then destroy the node."""
+        logging.getLogger(CORE_LOGGER).removeHandler(self._log_handler)
+        super().destroy_node()
+
     def _release(self) -> None:
         """Close the bus and drop the ROS entities; safe to call more than once."""
         core, self._core = self._core, None
@@ -239,7 +218,7 @@ class CanDriverNode(Node):
         core = self._core
         if core is None:
             return
-        gauge = float(msg.fluid_pressure) - ATMOSPHERIC_PRESSURE_PA
+        gauge = gauge_from_absolute(msg.fluid_pressure)
         ok = core.set_pressures(**{f'{port}_pa': gauge}) if msg.fluid_pressure >= 0.0 else False
         if not ok:
             self.get_logger().warning(f'{port} pressure rejected: {msg.fluid_pressure!r} Pa '
@@ -247,12 +226,12 @@ class CanDriverNode(Node):
                                       throttle_duration_sec=1.0)
 
     # --- outputs (called on the driver core's threads) ---------------------------------------
-    def _publish_state(self, s: StateSample) -> None:
+    def _publish_state(self, sample: ValveSample) -> None:
         pub = self._state_pub
         if pub is None:
             return
-        msg = state_message(s, self.get_clock().now().to_msg(), self._frame_id,
-                            self._sequence)
+        msg = state_message(sample, self.get_clock().now().to_msg(), self._frame_id,
+                            self._sequence, ValveState.SOURCE_CAN)
         self._sequence += 1
         self._publish(pub, msg)
 
@@ -279,27 +258,6 @@ class CanDriverNode(Node):
         self._publish(pub, array)
 
 
-def state_message(s: StateSample, stamp, frame_id: str, sequence: int) -> ValveState:
-    """The valve_msgs/ValveState for one driver sample (``stamp``: builtin_interfaces/Time)."""
-    msg = ValveState()
-    msg.header.stamp = stamp
-    msg.header.frame_id = frame_id
-    msg.sequence = sequence
-    msg.coil_voltage = s.coil_voltage_v
-    msg.coil_current = s.coil_current_a
-    msg.spool_position = s.spool_position_m
-    msg.spool_velocity = s.spool_velocity_m_s
-    msg.spool_position_avg = s.position_avg_m
-    msg.mass_flow = s.mass_flow_kg_s
-    msg.duty = s.duty
-    msg.pwm_frequency = s.pwm_frequency_hz
-    msg.supply_pressure = s.supply_pressure_pa
-    msg.output_pressure = s.output_pressure_pa
-    msg.source = ValveState.SOURCE_CAN
-    msg.position_measured = s.position_measured
-    return msg
-
-
 def _text(value: object) -> str:
     return f'{value:.6g}' if isinstance(value, float) else str(value)
 
@@ -319,7 +277,18 @@ def _mass_flow_function(params_file: str):
 
 
 def main(args: list[str] | None = None) -> None:
-    """Run the driver until Ctrl-C or an external shutdown."""
+    """Run the driver until Ctrl-C, SIGTERM or an external shutdown.
+
+    ``--help`` prints the parameters and exits 0 (the node is built, never configured: no
+    bus is opened). Exit codes: 0 normal end (also on SIGINT/SIGTERM), 2 refused start-up
+    input (a parameter outside its range; with autostart, a configuration the driver
+    cannot use), 1 a failure inside.
+    """
+    from valve_model_pkg.nodes.common import (EXIT_FAILURE, EXIT_REFUSED, STARTUP_ERRORS,
+                                              StartupRefused, help_requested,
+                                              print_node_help)
+    if help_requested(args):
+        sys.exit(print_node_help(CanDriverNode, 'valve_can_driver', args))
     # A driver thread waiting for the GIL waits up to the switch interval (5 ms by default),
     # longer than the 1 ms telemetry period the loss detection works with; 0.5 ms keeps the
     # telemetry timeout (2.5 periods) honest.
@@ -328,10 +297,13 @@ def main(args: list[str] | None = None) -> None:
     node = None
     code = 0
     try:
-        node = CanDriverNode()
+        try:
+            node = CanDriverNode()
+        except STARTUP_ERRORS as err:
+            raise StartupRefused(f'cannot start: {err}') from None
         if node.get_parameter('autostart').value:
             if node.trigger_configure() != TransitionCallbackReturn.SUCCESS:
-                raise RuntimeError('autostart: configure failed (see the log above)')
+                raise StartupRefused('autostart: configure failed (see the log above)')
             if node.trigger_activate() != TransitionCallbackReturn.SUCCESS:
                 raise RuntimeError('autostart: activate failed (see the log above)')
         gc.collect()
@@ -339,9 +311,12 @@ def main(args: list[str] | None = None) -> None:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except StartupRefused as err:
+        rclpy.logging.get_logger('valve_can_driver').fatal(str(err))
+        code = EXIT_REFUSED
     except RuntimeError as err:
         rclpy.logging.get_logger('valve_can_driver').fatal(str(err))
-        code = 1
+        code = EXIT_FAILURE
     finally:
         if node is not None:
             node.close_driver()

@@ -2,13 +2,14 @@
 from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, PERIOD, PRESSURE, STATUS,
                                              TELEMETRY, CounterCheck, CounterTracker,
                                              DecodedFrame, EmulatorFault, RejectReason,
-                                             ValveCodec, crc8, default_dbc_path)
+                                             ValveCodec, crc8, default_dbc_path,
+                                             fault_injection_dbc_path)
 from valve_driver_pkg.protocol.error_frames import (BusCondition, ErrorFrameInfo,
                                                     make_error_frame, parse_error_frame)
 
 __all__ = [
     'COMMAND', 'TELEMETRY', 'PERIOD', 'PRESSURE', 'STATUS', 'CONTROL', 'ValveCodec',
     'DecodedFrame', 'RejectReason', 'CounterTracker', 'CounterCheck', 'EmulatorFault', 'crc8',
-    'default_dbc_path', 'BusCondition', 'ErrorFrameInfo', 'make_error_frame',
-    'parse_error_frame',
+    'default_dbc_path', 'fault_injection_dbc_path', 'BusCondition', 'ErrorFrameInfo',
+    'make_error_frame', 'parse_error_frame',
 ]

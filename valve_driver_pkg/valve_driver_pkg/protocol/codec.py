@@ -1,13 +1,17 @@
 """cantools codec of the valve protocol: node ids, CRC-8, rolling counters, strict encoding.
 
 The DBC (``valve.dbc`` beside this module) lists the frames of node 0; node ``n`` uses
-``frame id + n`` for every message (``n`` in ``0..MAX_NODE_ID``). Every frame is 8 bytes
-with the same trailer:
+``frame id + n`` for every message (``n`` in ``0..MAX_NODE_ID``). The default ids,
+0x680-0x6CF, are the block CANopen's predefined connection set leaves free, so the valve
+can share a bus with CANopen devices (see the package README). The test-only
+``EmulatorControl`` message is in ``valve_test.dbc``, loaded only by the emulator and test
+tools (``include_test_messages=True``). Every frame is 8 bytes with the same trailer:
 
 * bits 48..51: ``Counter``, a 4-bit rolling counter, +1 (mod 16) per frame of that message;
-* byte 7: ``Checksum``, CRC-8/SAE-J1850 (polynomial 0x1D, init 0xFF, final xor 0xFF) over
-  the two bytes of the 11-bit frame id (low byte first) followed by data bytes 0..6. The id
-  is part of the checksum so a frame of another node or message can never pass for ours.
+* byte 7: ``Checksum``, CRC-8/SAE-J1850 (polynomial 0x1D, init 0xFF, final xor 0xFF;
+  computed by crccheck's ``Crc8SaeJ1850``) over the two bytes of the 11-bit frame id (low
+  byte first) followed by data bytes 0..6. The id is part of the checksum so a frame of
+  another node or message can never pass for ours.
 
 Encoding is strict: a signal outside its DBC range raises :class:`ProtocolEncodeError`
 naming the signal, the limit and the value (callers clamp first; see the driver core).
@@ -25,13 +29,15 @@ from pathlib import Path
 import can
 import cantools
 from cantools.database.errors import EncodeError
+from crccheck.crc import Crc8SaeJ1850
 
 from valve_driver_pkg.errors import DbcError, FrameRejected, ProtocolEncodeError
 
 __all__ = [
     'COMMAND', 'TELEMETRY', 'PERIOD', 'PRESSURE', 'STATUS', 'CONTROL', 'MESSAGE_NAMES',
-    'MAX_NODE_ID', 'FRAME_LENGTH', 'RejectReason', 'EmulatorFault', 'DecodedFrame', 'ValveCodec',
-    'CounterCheck', 'CounterTracker', 'crc8', 'default_dbc_path',
+    'TEST_MESSAGE_NAMES', 'MAX_NODE_ID', 'FRAME_LENGTH', 'RejectReason', 'EmulatorFault',
+    'DecodedFrame', 'ValveCodec', 'CounterCheck', 'CounterTracker', 'crc8', 'frame_checksum',
+    'default_dbc_path', 'fault_injection_dbc_path',
 ]
 
 COMMAND = 'ValveCommand'          # host -> controller, 100 Hz + on change
@@ -39,11 +45,15 @@ TELEMETRY = 'ValveTelemetry'      # controller -> host, 1 kHz
 PERIOD = 'ValvePeriod'            # controller -> host, per PWM period / on change + 10 Hz
 PRESSURE = 'ValvePressure'        # host -> controller, 10 Hz + on change
 STATUS = 'ValveStatus'            # controller -> host, 10 Hz heartbeat
-CONTROL = 'EmulatorControl'       # tester -> emulator, fault injection (test/demo only)
-MESSAGE_NAMES = (COMMAND, TELEMETRY, PERIOD, PRESSURE, STATUS, CONTROL)
+CONTROL = 'EmulatorControl'       # tester -> emulator, fault injection (valve_test.dbc)
+#: The messages of the protocol (valve.dbc), the only ones the driver knows.
+MESSAGE_NAMES = (COMMAND, TELEMETRY, PERIOD, PRESSURE, STATUS)
+#: Test-only messages (valve_test.dbc): the emulator and test tools add them.
+TEST_MESSAGE_NAMES = (CONTROL,)
 
-#: Highest node id: every message reserves 64 consecutive ids.
-MAX_NODE_ID = 63
+#: Highest node id: every message reserves 16 consecutive ids. 16 valves per bus is more
+#: than a bus carries anyway: one valve's 1 kHz telemetry takes about 25 % of 500 kbit/s.
+MAX_NODE_ID = 15
 #: Every frame of the protocol is a classic CAN frame of 8 bytes.
 FRAME_LENGTH = 8
 _COUNTER_START_BIT = 48
@@ -76,39 +86,23 @@ class EmulatorFault(enum.IntEnum):
     OVERCURRENT = 9
 
 
-def _make_crc8_table(polynomial: int) -> tuple[int, ...]:
-    table = []
-    for byte in range(256):
-        crc = byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ polynomial) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-        table.append(crc)
-    return tuple(table)
-
-
-_CRC8_TABLE = _make_crc8_table(0x1D)
-
-
-def crc8(data: bytes | bytearray, init: int = 0xFF, xor_out: int = 0xFF) -> int:
+def crc8(data: bytes | bytearray) -> int:
     """CRC-8/SAE-J1850 of ``data`` (poly 0x1D, init 0xFF, xorout 0xFF; check(b'123456789') = 0x4B).
+
+    Computed by the maintained ``crccheck`` package (installed with cantools); a test checks
+    it against the catalogue value and a table implementation on random frames.
 
     Parameters
     ----------
     data : bytes
         The bytes to protect.
-    init, xor_out : int
-        Initial register value and final xor (the SAE-J1850 defaults).
 
     Returns
     -------
     int
         The checksum, 0..255.
     """
-    crc = init
-    table = _CRC8_TABLE
-    for byte in data:
-        crc = table[crc ^ byte]
-    return crc ^ xor_out
+    return Crc8SaeJ1850.calc(data)
 
 
 def frame_checksum(arbitration_id: int, data: bytes | bytearray) -> int:
@@ -119,6 +113,11 @@ def frame_checksum(arbitration_id: int, data: bytes | bytearray) -> int:
 def default_dbc_path() -> Path:
     """Path of the protocol's DBC file shipped with the package."""
     return Path(__file__).resolve().with_name('valve.dbc')
+
+
+def fault_injection_dbc_path() -> Path:
+    """Path of the test-only DBC (fault injection); the driver never loads it."""
+    return Path(__file__).resolve().with_name('valve_test.dbc')
 
 
 @dataclass(frozen=True, slots=True)
@@ -156,6 +155,9 @@ class ValveCodec:
     dbc_path : str | Path | None
         DBC file; ``None`` uses the shipped ``valve.dbc``. A custom DBC must keep the
         message names, the 8-byte length and the counter/checksum positions.
+    include_test_messages : bool
+        Also load ``valve_test.dbc`` (``EmulatorControl``, fault injection): for the
+        emulator and test tools only; the driver never does.
 
     Raises
     ------
@@ -165,20 +167,24 @@ class ValveCodec:
         ``node_id`` outside ``0..MAX_NODE_ID``.
     """
 
-    def __init__(self, node_id: int, dbc_path: str | Path | None = None) -> None:
+    def __init__(self, node_id: int, dbc_path: str | Path | None = None, *,
+                 include_test_messages: bool = False) -> None:
         if not 0 <= int(node_id) <= MAX_NODE_ID:
             raise ValueError(f'node id {node_id!r} outside 0..{MAX_NODE_ID}')
         self.node_id = int(node_id)
         self.dbc_path = Path(dbc_path) if dbc_path else default_dbc_path()
         try:
             self._db = cantools.database.load_file(str(self.dbc_path), strict=True)
+            if include_test_messages:
+                self._db.add_dbc_file(str(fault_injection_dbc_path()))
         except (OSError, cantools.database.UnsupportedDatabaseFormatError,
                 cantools.database.Error) as err:
             raise DbcError(f'cannot load DBC {self.dbc_path}: {err}') from err
         self._messages = {}
         self._base_ids = {}
         self._ranges = {}
-        for name in MESSAGE_NAMES:
+        names = MESSAGE_NAMES + (TEST_MESSAGE_NAMES if include_test_messages else ())
+        for name in names:
             try:
                 message = self._db.get_message_by_name(name)
             except KeyError as err:

@@ -1,8 +1,8 @@
 """valve_flow_check: compare a measured flow_map file with the static duty map (Fig. 10).
 
-Reads a ``flow_map`` CSV file (shared measured-data format: columns ``duty`` and
-``mass_flow`` or ``flow_fraction``; metadata ``pwm_frequency_hz``, ``supply_pressure_pa``
-and optionally ``output_pressure_pa``), predicts the flow percentage from the map
+Reads a ``flow_map`` file of the measured-data format (columns ``duty`` and ``mass_flow``
+or ``flow_fraction``; metadata ``pwm_frequency_hz``, ``supply_pressure_pa`` and optionally
+``output_pressure_pa``), predicts the flow percentage from the map
 (x_avg(d) / x_avg(100 %), eq. 12 makes flow proportional to the opening at fixed
 pressures) and prints the error per duty and overall. Optionally draws Fig. 10 and writes
 the comparison as JSON.
@@ -10,10 +10,12 @@ the comparison as JSON.
 Examples::
 
     valve_flow_check bench7_flow.csv
-    valve_flow_check bench7_flow.csv --map my_map.json --plot fig10.png --json out.json
-    valve_flow_check bench7_flow.csv --max-rms-percent 3     # exit 2 if worse
+    valve_flow_check bench7_flow.csv --map my_map.json --plot fig10.png -o out.json
+    valve_flow_check bench7_flow.csv --max-rms-percent 3     # exit 1 if worse
 
-Exit codes: 0 done, 1 bad input (file, map), 2 error above ``--max-rms-percent``.
+Exit codes: 0 done (and within ``--max-rms-percent``), 2 refused input (the file, the map,
+a frequency the map lacks; one line naming file, line and value), 1 a failure inside or
+an rms error above ``--max-rms-percent``.
 """
 from __future__ import annotations
 
@@ -37,21 +39,20 @@ def _parser() -> argparse.ArgumentParser:
                    help='PWM frequency [Hz] if the file does not state it')
     p.add_argument('--supply-pressure-bar', type=float, default=None,
                    help='supply pressure [bar gauge] if the file does not state it')
+    p.add_argument('-o', '--out', default=None,
+                   help='write the comparison to this JSON file')
+    p.add_argument('--json', dest='out', help=argparse.SUPPRESS)  # the old spelling
     p.add_argument('--plot', default=None, help='write Fig. 10 to this PNG')
-    p.add_argument('--json', default=None, help='write the comparison to this JSON file')
     p.add_argument('--max-rms-percent', type=float, default=None,
-                   help='exit with code 2 if the rms error exceeds this [%% of full flow]')
+                   help='exit with code 1 if the rms error exceeds this [%% of full flow]')
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``valve_flow_check``; returns the exit code."""
     args = _parser().parse_args(argv)
-    import numpy as np
-
     from valve_model_pkg.maps import MapError, load_map
-    from valve_model_pkg.maps.flow_check import (compare_flow_map, map_flow_fraction,
-                                                 read_flow_map)
+    from valve_model_pkg.maps.flow_check import compare_flow_map, read_flow_map
     try:
         dmap = load_map(args.map or None)
         if args.params:
@@ -63,20 +64,39 @@ def main(argv: list[str] | None = None) -> int:
             supply_pressure_pa=None if args.supply_pressure_bar is None
             else args.supply_pressure_bar * 1e5)
         result = compare_flow_map(dmap, measured)
-    except KeyError as err:
+    except KeyError as err:  # the file's frequency is not in the map: refused input
         print(f'valve_flow_check: error: {args.flow_map}: {err.args[0]}', file=sys.stderr)
-        return 1
+        return 2
     except (MapError, ValueError, OSError) as err:
+        # FlowMapFormatError and MapFormatError name file, line and value; OSError here
+        # can only come from reading the inputs
+        print(f'valve_flow_check: error: {err}', file=sys.stderr)
+        return 2
+    try:
+        _write_outputs(args, dmap, measured, result)
+    except OSError as err:
         print(f'valve_flow_check: error: {err}', file=sys.stderr)
         return 1
+    if args.max_rms_percent is not None and result.rms_error * 100 > args.max_rms_percent:
+        print(f'valve_flow_check: rms error {result.rms_error * 100:.2f} % exceeds '
+              f'{args.max_rms_percent:g} %', file=sys.stderr)
+        return 1
+    return 0
+
+
+def _write_outputs(args: argparse.Namespace, dmap, measured, result) -> None:  # noqa: ANN001
+    """Print the table; write the JSON (``-o``) and the figure (``--plot``)."""
+    import numpy as np
+
+    from valve_model_pkg.maps.flow_check import map_flow_fraction
     print(f'{measured.path}: {measured.duty.size} points, {measured.pwm_frequency_hz:g} Hz, '
           f'supply {measured.supply_pressure_pa / 1e5:g} bar, output '
           f'{measured.output_pressure_pa / 1e5:g} bar (gauge)')
     print(result.table())
-    if args.json:
-        Path(args.json).write_text(json.dumps(result.as_dict(), indent=1) + '\n',
-                                   encoding='utf-8')
-        print(f'wrote {args.json}')
+    if args.out:
+        Path(args.out).write_text(json.dumps(result.as_dict(), indent=1) + '\n',
+                                  encoding='utf-8')
+        print(f'wrote {args.out}')
     if args.plot:
         from valve_model_pkg.maps.plots import plot_flow_comparison
         fine = np.linspace(0.0, 1.0, 401)
@@ -88,11 +108,6 @@ def main(argv: list[str] | None = None) -> int:
                                    f'{measured.pwm_frequency_hz:g} Hz, '
                                    f'{measured.supply_pressure_pa / 1e5:g} bar (Fig. 10)')
         print(f'wrote {args.plot}')
-    if args.max_rms_percent is not None and result.rms_error * 100 > args.max_rms_percent:
-        print(f'valve_flow_check: rms error {result.rms_error * 100:.2f} % exceeds '
-              f'{args.max_rms_percent:g} %', file=sys.stderr)
-        return 2
-    return 0
 
 
 if __name__ == '__main__':

@@ -2,13 +2,15 @@
 
 Usage::
 
-    valve_identify --fit FILE... [--validate FILE...] [--params YAML] --out DIR
+    valve_identify --fit FILE... [--validate FILE...] [--params YAML] -o DIR
 
-FILE is a CSV file in the shared measured-data format or a rosbag2 bag directory recorded
-from the suite (``/valve/state``). The supply pressure comes from each file's metadata.
-Progress goes to stderr; DIR receives report.json, report.md with PNG plots and
-params.yaml (loadable by valve_simulate / valve_map). Exit status: 0 on success, 2 on
-bad input (the message names file, line and reason), 1 on other failures.
+FILE is a ``step`` or ``pwm`` record of the measured-data format (a ``pwm`` record with its
+``coil_voltage`` column) or a rosbag2 bag directory recorded from the suite
+(``/valve/state``); ``operation`` records are refused for now. The supply pressure comes
+from each file's metadata. Progress goes to stderr; DIR receives report.json, report.md
+with PNG plots and params.yaml (loadable by valve_simulate / valve_map). Exit status: 0 on
+success, 2 on refused input (one line naming file, line and reason), 1 on a failure
+inside.
 """
 from __future__ import annotations
 
@@ -32,7 +34,7 @@ def _parser() -> argparse.ArgumentParser:
                    help='hold-out files for validation and effect selection')
     p.add_argument('--params', metavar='YAML', default=None,
                    help='known parameters (Table 1, orifice); default: the packaged set')
-    p.add_argument('--out', required=True, metavar='DIR', help='output directory')
+    p.add_argument('-o', '--out', required=True, metavar='DIR', help='output directory')
     p.add_argument('--topic', default='/valve/state', help='valve state topic in bags')
     p.add_argument('--valve', default=None, help='frame_id of the valve in multi-valve bags')
     p.add_argument('--no-diagnosis', action='store_true',
@@ -72,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
                 progress(f'{m.name}: {note}')
         base = load_parameters(args.params)
     except (MeasurementFormatError, ParameterError, FileNotFoundError) as err:
-        print(f'valve_identify: {err}', file=sys.stderr)
+        print(f'valve_identify: error: {err}', file=sys.stderr)
         return 2
     settings = IdentifySettings(diagnose=not args.no_diagnosis)
     if args.quick:
@@ -81,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         ident = identify(fit, val, base, settings, progress=progress)
         rep = write_report(ident, args.out, plots=not args.no_plots)
     except IdentificationError as err:
-        print(f'valve_identify: {err}', file=sys.stderr)
+        print(f'valve_identify: error: {err}', file=sys.stderr)
         return 1
     d = rep['diagnosis']
     b, a = rep['baseline'], rep['augmented']

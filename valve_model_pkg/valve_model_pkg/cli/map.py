@@ -11,6 +11,9 @@ Examples::
     valve_map -o out/map.json --params my_valve.yaml
     valve_map --duty-step 0.005 --pressures-bar 0 1 2 3 4 5 6 --frequencies 20 50 100
     valve_map --show valve_model_pkg/config/valve_map.json   # summary + figures only
+
+Exit status: 0 done, 2 refused input (parameter file, grid, map file; one line naming
+it), 1 a failure inside (generation, writing the map).
 """
 from __future__ import annotations
 
@@ -28,8 +31,9 @@ def _parser() -> argparse.ArgumentParser:
         prog='valve_map', description=__doc__.split('\n\n')[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog='Pressures are gauge. Duties and positions are printed in percent.')
-    p.add_argument('-o', '--output', default='valve_map.json',
+    p.add_argument('-o', '--out', default='valve_map.json',
                    help='map file to write (default: %(default)s)')
+    p.add_argument('--output', dest='out', help=argparse.SUPPRESS)  # the old spelling
     p.add_argument('--params', default='',
                    help="valve parameter YAML (default: the paper's, config/valve.yaml)")
     p.add_argument('--duty-step', type=float, default=0.01,
@@ -166,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = _parser().parse_args(argv)
     args.command = ' '.join(['valve_map'] + argv)
-    from valve_model_pkg.maps import MapError, load_map
+    from valve_model_pkg.maps import MapError, MapGenerationError, load_map
     try:
         if args.show:
             dmap = load_map(args.show)
@@ -174,10 +178,14 @@ def main(argv: list[str] | None = None) -> int:
         else:
             dmap = _generate(args)
             out_dir = Path(args.fig_dir) if args.fig_dir else \
-                Path(args.output).resolve().parent
-    except (MapError, ValueError, OSError) as err:
+                Path(args.out).resolve().parent
+    except (MapGenerationError, _WriteError) as err:
         print(f'valve_map: error: {err}', file=sys.stderr)
         return 1
+    except (MapError, ValueError, OSError) as err:
+        # refused input: the parameter file, the grid or the map to show
+        print(f'valve_map: error: {err}', file=sys.stderr)
+        return 2
     print(summary_table(dmap))
     print()
     print(trend_summary(dmap))
@@ -187,6 +195,10 @@ def main(argv: list[str] | None = None) -> int:
         for path in _figures(dmap, args, out_dir):
             print(f'wrote {path}')
     return 0
+
+
+class _WriteError(Exception):
+    """The generated map could not be written (a failure inside, not refused input)."""
 
 
 def _generate(args: argparse.Namespace):  # noqa: ANN202 - DutyMap
@@ -212,7 +224,10 @@ def _generate(args: argparse.Namespace):  # noqa: ANN202 - DutyMap
                                generator={'program': 'valve_map',
                                           'params_file': args.params or 'config/valve.yaml',
                                           'command': args.command})
-    path = dmap.save(args.output)
+    try:
+        path = dmap.save(args.out)
+    except OSError as err:
+        raise _WriteError(f'cannot write {args.out}: {err}') from err
     print(f'wrote {path}: {grid.n_points} grid points in {stats.wall_s:.2f} s '
           f'({stats.runs} points simulated, {stats.simulated_s:.1f} s of model time, '
           f'{stats.threads} workers; '

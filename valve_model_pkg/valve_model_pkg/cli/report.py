@@ -1,12 +1,15 @@
 """valve_report: a Markdown report with plots from a bag recorded from the suite.
 
-    valve_report BAG [--out DIR] [--title TEXT]
+    valve_report BAG [-o DIR] [--title TEXT]
 
 Reads the bag with valve_model_pkg.recording.load_bag (no ROS needed) and writes
 ``DIR/report.md`` with ``DIR/*.png``: piston position and setpoint, chamber pressure,
 commanded and achieved mass flow, PWM duty, coil current; a table per position step
 (settling time, overshoot, steady-state error); and the message count and sequence
 continuity of every topic.
+
+Exit status: 0 written, 2 refused input (no such bag, not a bag of the suite; one line
+naming it), 1 a failure inside (writing the report).
 """
 from __future__ import annotations
 
@@ -22,7 +25,6 @@ from valve_model_pkg.recording import load_bag, sequence_gaps
 from valve_model_pkg.recording.errors import RecordingError
 
 __all__ = ['main', 'StepResult', 'step_results', 'write_report']
-
 
 
 @dataclass(frozen=True)
@@ -212,16 +214,19 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``valve_report``."""
     parser = argparse.ArgumentParser(prog='valve_report', description=__doc__.split('\n')[0])
     parser.add_argument('bag', type=Path, help='bag directory recorded from the suite')
-    parser.add_argument('--out', type=Path, default=None,
+    parser.add_argument('-o', '--out', type=Path, default=None,
                         help='output directory (default: BAG_report)')
     parser.add_argument('--title', default='valve suite run')
     args = parser.parse_args(argv)
     out = args.out or args.bag.with_name(args.bag.name + '_report')
     try:
         report = write_report(args.bag, out, args.title)
-    except (RecordingError, ValueError, OSError) as err:
-        print(f'valve_report: {err}', file=sys.stderr)
+    except (RecordingError, ValueError) as err:  # the bag: refused input
+        print(f'valve_report: error: {err}', file=sys.stderr)
         return 2
+    except OSError as err:  # writing the report
+        print(f'valve_report: error: {err}', file=sys.stderr)
+        return 1
     print(f'valve_report: wrote {report}')
     return 0
 

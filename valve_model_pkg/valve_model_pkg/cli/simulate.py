@@ -1,15 +1,22 @@
 """``valve_simulate``: run a voltage-step or PWM experiment on the valve model.
 
-Writes the trace as CSV in the shared measured-data format (metadata lines, then
-``t,voltage,current,position`` and for PWM also ``duty,mass_flow``) and a PNG plot next to
-it. Examples::
+Writes the trace as a CSV file of the measured-data format (read and written by
+:mod:`valve_model_pkg.dataformat`): metadata lines, then ``t,voltage,current,position``
+for a step; for PWM ``t,voltage,coil_voltage,current,position,duty,mass_flow``, where
+``voltage`` is the main PWM input (supply voltage while the PWM is on, 0 while off),
+``coil_voltage`` the voltage at the coil terminals (chopper and release pulse included)
+and ``mass_flow`` eq. (12) on the suite's per-period moving average of the position (the
+mean over the last complete PWM period, 0 before the first one ends:
+:func:`valve_model_pkg.model.last_period_mean`). A PNG plot goes next
+to it. Examples::
 
-    valve_simulate --experiment step --voltage 24 --out fig4.csv
-    valve_simulate --experiment step --voltage 15 --out fig5.csv
+    valve_simulate --experiment step --voltage 24 -o fig4.csv
+    valve_simulate --experiment step --voltage 15 -o fig5.csv
     valve_simulate --experiment pwm --duty 0.4 --pwm-frequency 50 --duration 0.1 \\
-        --out fig6.csv
+        -o fig6.csv
 
-Progress and results go to stderr; bad input exits with status 2 and a one-line message.
+Progress and results go to stderr. Exit status: 0 written, 2 refused input (a one-line
+message naming the option, file or value), 1 a failure inside (e.g. writing the file).
 """
 from __future__ import annotations
 
@@ -22,13 +29,14 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import dataformat
 from ..model import (
     DEFAULT_SUPPLY_PRESSURE_PA, ElectronicsConfig, ParameterError, SimulationResult,
-    ValveParameters, default_parameters_path, load_parameters, simulate_pwm, simulate_step,
-    step_metrics,
+    ValveParameters, default_parameters_path, last_period_mean, load_parameters,
+    orifice_mass_flow, simulate_pwm, simulate_step, step_metrics,
 )
 
-__all__ = ['main', 'build_parser', 'write_csv', 'write_png']
+__all__ = ['main', 'build_parser', 'write_csv', 'write_png', 'main_pwm_voltage']
 
 _LOG = logging.getLogger('valve_simulate')
 
@@ -84,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help='pwm: switch off the negative-voltage capacitor')
     ap.add_argument('--sample-rate', type=_float, default=100e3,
                     help='output sampling rate, Hz (default 100000)')
-    ap.add_argument('--out', type=Path, default=None,
+    ap.add_argument('-o', '--out', type=Path, default=None,
                     help='CSV file to write (default valve_<experiment>.csv); the PNG is '
                          'written next to it with the suffix .png')
     ap.add_argument('--no-plot', action='store_true', help='do not write the PNG')
@@ -92,19 +100,33 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def main_pwm_voltage(result: SimulationResult) -> np.ndarray:
+    """The main PWM input at each sample [V]: supply voltage while on, 0 while off.
+
+    The first period starts with a rising edge at t = 0 (as :func:`simulate_pwm` drives it).
+    """
+    period = 1.0 / result.pwm_frequency_hz
+    phase = np.mod(result.t_s, period)
+    # a sample a rounding error short of the next rising edge belongs to that edge
+    phase[period - phase < 1e-9 * period] = 0.0
+    return np.where(phase < result.duty * period, result.supply_voltage_v, 0.0)
+
+
 def write_csv(path: Path, result: SimulationResult, metadata: dict[str, object]) -> None:
-    """Write ``result`` in the shared measured-data format (metadata, header, rows)."""
-    cols = [('t', result.t_s), ('voltage', result.voltage_v), ('current', result.current_a),
-            ('position', result.position_m)]
+    """Write ``result`` as a file of the measured-data format (metadata, header, rows)."""
     if result.experiment == 'pwm':
-        cols += [('duty', np.full_like(result.t_s, result.duty)),
-                 ('mass_flow', result.mass_flow_kg_s)]
-    data = np.column_stack([c for _, c in cols])
-    with open(path, 'w', encoding='utf-8', newline='\n') as fh:
-        for key, value in metadata.items():
-            fh.write(f'# {key}: {value}\n')
-        fh.write(','.join(name for name, _ in cols) + '\n')
-        np.savetxt(fh, data, fmt='%.10g', delimiter=',')
+        position_avg = last_period_mean(result.t_s, result.position_m,
+                                        1.0 / result.pwm_frequency_hz)
+        columns = {
+            't': result.t_s, 'voltage': main_pwm_voltage(result),
+            'coil_voltage': result.voltage_v, 'current': result.current_a,
+            'position': result.position_m, 'duty': np.full_like(result.t_s, result.duty),
+            'mass_flow': orifice_mass_flow(position_avg, result.supply_pressure_pa,
+                                           result.output_pressure_pa, result.params)}
+    else:
+        columns = {'t': result.t_s, 'voltage': result.voltage_v, 'current': result.current_a,
+                   'position': result.position_m}
+    dataformat.write_table(path, metadata, columns)
 
 
 def write_png(path: Path, result: SimulationResult, title: str) -> None:
@@ -115,14 +137,21 @@ def write_png(path: Path, result: SimulationResult, title: str) -> None:
 
     t_ms = result.t_s * 1e3
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(8, 7))
-    axes[0].plot(t_ms, result.voltage_v, lw=0.8)
+    if result.experiment == 'pwm':
+        axes[0].plot(t_ms, main_pwm_voltage(result), lw=0.8, color='grey',
+                     label='main PWM input')
+        axes[0].plot(t_ms, result.voltage_v, lw=0.8, label='coil')
+        axes[0].legend(loc='upper right', fontsize=8)
+    else:
+        axes[0].plot(t_ms, result.voltage_v, lw=0.8)
     axes[0].set_ylabel('voltage (V)')
     axes[1].plot(t_ms, result.current_a, lw=0.8, color='C1')
     axes[1].set_ylabel('current (A)')
     axes[2].plot(t_ms, result.position_m * 1e3, lw=0.8, color='C2', label='position')
     if result.experiment == 'pwm':
-        axes[2].plot(t_ms, result.position_avg_m * 1e3, lw=1.0, color='C3', ls='--',
-                     label='moving average (1 PWM period)')
+        avg = last_period_mean(result.t_s, result.position_m, 1.0 / result.pwm_frequency_hz)
+        axes[2].plot(t_ms, avg * 1e3, lw=1.0, color='C3', ls='--',
+                     label='mean over the last complete PWM period')
         axes[2].legend(loc='upper right', fontsize=8)
     else:
         m = step_metrics(result)
@@ -230,7 +259,8 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``valve_simulate``; returns the exit status (0 ok, 2 bad input)."""
+    """Entry point of ``valve_simulate``; returns the exit status (0 ok, 2 refused input,
+    1 a failure inside)."""
     parser = build_parser()
     args = parser.parse_args(argv)  # exits 2 with a usage message on syntax errors
     # own handler on the current stderr (not basicConfig: main may run more than once)
@@ -243,7 +273,8 @@ def main(argv: list[str] | None = None) -> int:
         return _run(args)
     except (_UsageError, ParameterError, FileNotFoundError, IsADirectoryError,
             PermissionError) as err:
-        parser.print_usage(sys.stderr)
+        # refused input: one line naming the option, file or value (argparse's own errors,
+        # raised before this, carry the usage as well)
         print(f'valve_simulate: error: {err}', file=sys.stderr)
         return 2
     except OSError as err:

@@ -2,7 +2,8 @@
 
 Two sources feed the identification:
 
-* bench CSV files in the shared format (``measured-data-format.md``): metadata lines
+* bench CSV files of the measured-data format (``shared/measured-data-format.md`` of the
+  steering repository), read by :mod:`valve_model_pkg.dataformat`: metadata lines
   ``# key: value``, one header row, one row per sample, SI units, gauge pressures;
 * rosbag2 bags recorded from the suite (``valve_msgs/msg/ValveState`` on ``/valve/state``).
 
@@ -20,14 +21,13 @@ not by sample count.
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
 
-from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
+from valve_model_pkg import dataformat
 
 from .errors import MeasurementFormatError
 
@@ -67,16 +67,7 @@ uint8 source
 bool position_measured
 """
 
-_REQUIRED_COLUMNS = ('t', 'voltage', 'current')
-_KNOWN_COLUMNS = ('t', 'voltage', 'current', 'position', 'mass_flow', 'duty')
-_NUMERIC_METADATA = (
-    'supply_pressure_pa', 'output_pressure_pa', 'supply_temperature_k',
-    'pwm_frequency_hz', 'sample_rate_hz',
-)
 _MIN_SAMPLES = 10
-# A step of the time axis longer than this many nominal periods counts as missing samples.
-_GAP_FACTOR = 1.5
-_VACUUM_GAUGE_PA = -ATMOSPHERIC_PRESSURE_PA
 
 
 @dataclass(frozen=True)
@@ -183,59 +174,19 @@ class Measurement:
 
 
 # --------------------------------------------------------------------------------------
-# CSV
+# CSV (the measured-data format, read and written by valve_model_pkg.dataformat)
 # --------------------------------------------------------------------------------------
 
-def _parse_float(path: str, lineno: int, column: str, text: str, *,
-                 allow_missing: bool) -> float:
-    """Parse one CSV field; empty or ``nan`` is a missing value where that is allowed."""
-    token = text.strip()
-    if token == '' or token.lower() in ('nan', 'na', 'null'):
-        if allow_missing:
-            return math.nan
-        raise MeasurementFormatError(path, lineno, f'column {column!r} has no value')
-    try:
-        value = float(token)
-    except ValueError:
-        raise MeasurementFormatError(
-            path, lineno, f'column {column!r}: {token!r} is not a number') from None
-    if not math.isfinite(value):
-        raise MeasurementFormatError(path, lineno, f'column {column!r}: {token!r} is not finite')
-    return value
-
-
 def _check_time_axis(path: str, t: np.ndarray, linenos: Sequence[int] | None) -> None:
-    """Refuse a time axis that is not strictly increasing from at or after zero."""
-    if t[0] < 0.0:
-        raise MeasurementFormatError(
-            path, linenos[0] if linenos else None, f't = {t[0]!r} s is negative')
-    steps = np.diff(t)
-    bad = np.flatnonzero(steps <= 0.0)
-    if bad.size:
-        i = int(bad[0]) + 1
-        where = linenos[i] if linenos else None
-        raise MeasurementFormatError(
-            path, where, f't = {t[i]!r} s does not increase (previous sample t = {t[i - 1]!r} s)'
-            + ('' if linenos else f' at message {i}'))
-
-
-def _gap_notes(t: np.ndarray, nominal_rate_hz: float | None) -> tuple[int, int, list[str]]:
-    """Count steps of the time axis that skip samples; returns (gaps, samples lost, notes)."""
-    dt = np.diff(t)
-    period = 1.0 / nominal_rate_hz if nominal_rate_hz else float(np.median(dt))
-    long_steps = np.flatnonzero(dt > _GAP_FACTOR * period)
-    if long_steps.size == 0:
-        return 0, 0, []
-    lost = int(np.sum(np.round(dt[long_steps] / period) - 1))
-    first = ', '.join(f'{t[i]:.6g} s' for i in long_steps[:5])
-    more = '' if long_steps.size <= 5 else f' (and {long_steps.size - 5} more)'
-    return int(long_steps.size), lost, [
-        f'{long_steps.size} gaps in the time axis (about {lost} missing samples) after '
-        f't = {first}{more}; kept, the model is simulated through them']
+    """The format's time-axis rule, raised as the identification's error type."""
+    try:
+        dataformat.check_time_axis(path, t, linenos)
+    except dataformat.DataFormatError as err:
+        raise MeasurementFormatError(err.path, err.line, err.reason) from err
 
 
 def read_csv(path: str | Path) -> Measurement:
-    """Read a bench measurement in the shared CSV format.
+    """Read a bench measurement (``step`` or ``pwm``) of the measured-data format.
 
     Parameters
     ----------
@@ -245,157 +196,80 @@ def read_csv(path: str | Path) -> Measurement:
     Returns
     -------
     Measurement
-        The trace; ``supply_pressure_pa`` is ``None`` if the metadata lacks it.
+        The trace; ``supply_pressure_pa`` is ``None`` if the metadata lacks it. For a
+        ``pwm`` record, ``voltage_v`` is its ``coil_voltage`` column (the identification
+        drives the coil model with the voltage at the coil terminals).
 
     Raises
     ------
     MeasurementFormatError
-        The file cannot be read or is malformed; the message names the file, the line and
-        the reason.
+        The file cannot be read or is malformed (the message names the file, the line, the
+        key and the value), is a ``flow_map`` or ``operation`` record, has fewer than 10
+        rows, lacks more than half of its current values, or is a ``pwm`` record without
+        ``coil_voltage``.
 
     Notes
     -----
-    A current field that is empty or ``nan`` is a missing sample: it is kept as ``nan``,
-    counted in ``n_missing_values`` and listed in ``notes``. Every other field must be a
-    finite number. ``flow_map`` files carry no time trace and are refused here.
+    The format's rules are applied by :func:`valve_model_pkg.dataformat.read_trace`: a
+    current field that is empty or ``nan`` is a missing sample, kept as ``nan``, counted
+    in ``n_missing_values`` and listed in ``notes``; every other field must be a finite
+    number. Identification of ``operation`` records (drive electronics in the loop) is not
+    implemented yet; they are refused with a message saying so.
     """
     spath = str(path)
     try:
-        raw = Path(path).read_bytes()
-    except OSError as err:
-        raise MeasurementFormatError(spath, None, f'cannot be read: {err.strerror}') from err
-    try:
-        text = raw.decode('utf-8-sig')
-    except UnicodeDecodeError as err:
-        lineno = raw[:err.start].count(b'\n') + 1
-        raise MeasurementFormatError(spath, lineno, 'is not UTF-8 text') from err
-
-    metadata: dict[str, str] = {}
-    meta_lines: dict[str, int] = {}
-    header: list[str] | None = None
-    header_line = 0
-    rows: list[list[str]] = []
-    linenos: list[int] = []
-    blank_after_data: int | None = None
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        stripped = line.strip()
-        if header is None:
-            if not stripped:
-                continue
-            if stripped.startswith('#'):
-                body = stripped[1:].strip()
-                if ':' in body:
-                    key, _, value = body.partition(':')
-                    key = key.strip()
-                    if key in metadata:
-                        raise MeasurementFormatError(
-                            spath, lineno, f'metadata key {key!r} given twice '
-                            f'(first on line {meta_lines[key]})')
-                    metadata[key] = value.strip()
-                    meta_lines[key] = lineno
-                # A '#' line without 'key: value' is a free comment: kept out of the data.
-                continue
-            header = [c.strip() for c in stripped.split(',')]
-            header_line = lineno
-            continue
-        if not stripped:
-            if blank_after_data is None:
-                blank_after_data = lineno
-            continue
-        if blank_after_data is not None:
+        record = dataformat.read_record(path)
+        if record.kind == 'flow_map':
+            dataformat.read_trace(path)  # raises the format's own 'is a flow_map' refusal
+    except dataformat.DataFormatError as err:
+        raise MeasurementFormatError(err.path, err.line, err.reason) from err
+    if record.kind == 'operation':
+        raise MeasurementFormatError(
+            spath, None, 'is an operation record; identification from operation records '
+            '(drive electronics in the loop) is not implemented yet: give step or pwm '
+            'records with the coil voltage')
+    n_rows = record.t_s.size
+    if n_rows < _MIN_SAMPLES:
+        raise MeasurementFormatError(
+            spath, None, f'has {n_rows} data rows; at least {_MIN_SAMPLES} are needed')
+    if record.n_missing_values > 0.5 * n_rows:
+        raise MeasurementFormatError(
+            spath, None, f'{record.n_missing_values} of {n_rows} current values are missing')
+    voltage = record.voltage_v
+    notes = list(record.notes)
+    if record.experiment == 'pwm':
+        # A pwm record's 'voltage' is the main PWM input to the drive electronics; the
+        # coil model needs the voltage at the coil terminals.
+        if record.coil_voltage_v is None:
             raise MeasurementFormatError(
-                spath, blank_after_data, 'empty line inside the data (rows follow it)')
-        if stripped.startswith('#'):
+                spath, None, 'is a pwm record without a coil_voltage column; identification '
+                'through the drive electronics is not implemented yet: record coil_voltage')
+        bad = np.flatnonzero(~np.isfinite(record.coil_voltage_v))
+        if bad.size:
             raise MeasurementFormatError(
-                spath, lineno, 'metadata/comment line after the header; metadata must lead')
-        rows.append(line.split(','))
-        linenos.append(lineno)
-
-    if header is None:
-        raise MeasurementFormatError(spath, None, 'has no header row and no data')
-    for key in _NUMERIC_METADATA:
-        if key in metadata:
-            _parse_float(spath, meta_lines[key], key, metadata[key], allow_missing=False)
-    experiment = metadata.get('experiment', 'unknown').strip() or 'unknown'
-    if experiment == 'flow_map' or ('t' not in header and 'duty' in header):
-        raise MeasurementFormatError(
-            spath, header_line, 'is a flow_map file (no time trace); identification needs '
-            'step or pwm traces with columns t, voltage, current')
-    if len(set(header)) != len(header):
-        dup = sorted({c for c in header if header.count(c) > 1})
-        raise MeasurementFormatError(spath, header_line, f'duplicate columns {dup}')
-    missing = [c for c in _REQUIRED_COLUMNS if c not in header]
-    if missing:
-        raise MeasurementFormatError(
-            spath, header_line, f'header lacks required column(s) {missing}; '
-            f'found {header}')
-    unknown = [c for c in header if c not in _KNOWN_COLUMNS]
-
-    ncol = len(header)
-    index = {c: header.index(c) for c in header}
-    data = np.empty((len(rows), ncol))
-    for r, (fields, lineno) in enumerate(zip(rows, linenos)):
-        if len(fields) != ncol:
-            raise MeasurementFormatError(
-                spath, lineno, f'expected {ncol} fields ({",".join(header)}), got {len(fields)}')
-        for c, name in enumerate(header):
-            # Only the measured signals may have holes; time and voltage define the
-            # experiment and must be there.
-            data[r, c] = _parse_float(spath, lineno, name, fields[c],
-                                      allow_missing=name not in ('t', 'voltage'))
-
-    if len(rows) < _MIN_SAMPLES:
-        raise MeasurementFormatError(
-            spath, None, f'has {len(rows)} data rows; at least {_MIN_SAMPLES} are needed')
-    t = data[:, index['t']]
-    _check_time_axis(spath, t, linenos)
-    current = data[:, index['current']]
-    notes: list[str] = []
-    n_missing = int(np.count_nonzero(~np.isfinite(current)))
-    if n_missing:
-        first = [linenos[i] for i in np.flatnonzero(~np.isfinite(current))[:5]]
-        notes.append(f'{n_missing} samples without a current value (lines {first}'
-                     f'{"..." if n_missing > 5 else ""}); kept and excluded from the errors')
-    if n_missing > 0.5 * len(rows):
-        raise MeasurementFormatError(
-            spath, None, f'{n_missing} of {len(rows)} current values are missing')
-    nominal = float(metadata['sample_rate_hz']) if 'sample_rate_hz' in metadata else None
-    if nominal is not None and nominal <= 0.0:
-        raise MeasurementFormatError(
-            spath, meta_lines['sample_rate_hz'], 'sample_rate_hz must be positive')
-    if nominal is not None:
-        actual = 1.0 / float(np.median(np.diff(t)))
-        if abs(actual / nominal - 1.0) > 0.05:
-            notes.append(f'sample_rate_hz says {nominal:g} Hz but the time axis has '
-                         f'{actual:.6g} Hz; the time axis is used')
-            nominal = None
-    n_gaps, _, gap_notes = _gap_notes(t, nominal)
-    notes.extend(gap_notes)
-    if unknown:
-        notes.append(f'columns {unknown} are not part of the format; ignored')
-
-    supply = None
-    if 'supply_pressure_pa' in metadata:
-        supply = float(metadata['supply_pressure_pa'])
-        if supply < _VACUUM_GAUGE_PA:
-            raise MeasurementFormatError(
-                spath, meta_lines['supply_pressure_pa'],
-                f'supply_pressure_pa = {supply:g} Pa is below vacuum (pressures are gauge)')
-    output = float(metadata.get('output_pressure_pa', 0.0))
-    position = data[:, index['position']].copy() if 'position' in index else None
+                spath, int(record.line_numbers[bad[0]]),
+                "column 'coil_voltage' has no value (the model is driven by it)")
+        voltage = record.coil_voltage_v
+        notes.append('pwm record: the coil model is driven by the coil_voltage column')
+    if record.n_missing_values:
+        notes = [n + ' and excluded from the errors' if 'without a current value' in n else n
+                 for n in notes]
     for note in notes:
         _LOG.info('%s: %s', spath, note)
     return Measurement(
-        source=spath, t_s=t.copy(), voltage_v=data[:, index['voltage']].copy(),
-        current_a=current.copy(), supply_pressure_pa=supply, output_pressure_pa=output,
-        experiment=experiment, position_m=position, metadata=metadata, notes=tuple(notes),
-        n_missing_values=n_missing, n_gaps=n_gaps)
+        source=spath, t_s=record.t_s.copy(), voltage_v=voltage.copy(),
+        current_a=record.current_a.copy(), supply_pressure_pa=record.supply_pressure_pa,
+        output_pressure_pa=record.output_pressure_pa, experiment=record.experiment,
+        position_m=None if record.position_m is None else record.position_m.copy(),
+        metadata=dict(record.metadata), notes=tuple(notes),
+        n_missing_values=record.n_missing_values, n_gaps=record.n_gaps)
 
 
 def write_csv(path: str | Path, t_s: np.ndarray, voltage_v: np.ndarray, current_a: np.ndarray,
               metadata: dict[str, object], *, position_m: np.ndarray | None = None,
               precision: int = 7) -> Path:
-    """Write a trace in the shared CSV format.
+    """Write a trace in the measured-data format (:func:`valve_model_pkg.dataformat.
+    write_table`).
 
     Parameters
     ----------
@@ -416,20 +290,10 @@ def write_csv(path: str | Path, t_s: np.ndarray, voltage_v: np.ndarray, current_
     pathlib.Path
         The written file.
     """
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    cols = [np.asarray(t_s, float), np.asarray(voltage_v, float), np.asarray(current_a, float)]
-    names = ['t', 'voltage', 'current']
+    columns: dict[str, np.ndarray] = {'t': t_s, 'voltage': voltage_v, 'current': current_a}
     if position_m is not None:
-        cols.append(np.asarray(position_m, float))
-        names.append('position')
-    fmt = f'%.{precision}g'
-    lines = [f'# {k}: {v}' for k, v in metadata.items()]
-    lines.append(','.join(names))
-    for row in zip(*cols):
-        lines.append(','.join('' if not math.isfinite(v) else fmt % v for v in row))
-    out.write_text('\n'.join(lines) + '\n', encoding='utf-8')
-    return out
+        columns['position'] = position_m
+    return dataformat.write_table(path, metadata, columns, precision=precision)
 
 
 # --------------------------------------------------------------------------------------

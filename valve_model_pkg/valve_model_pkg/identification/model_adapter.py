@@ -1,26 +1,19 @@
-"""ADAPTER: simulate the suite's valve model under a *measured* voltage trace, in batches.
+"""Measurements -> the model's general entry point (:func:`model.simulate_trace_batch`).
 
-The identification needs what the model's public API does not (yet) offer: the response
-to an arbitrary measured coil voltage (a pulse, a PWM train, a bench's own waveform),
-sampled at the measurement's own times, for a whole matrix of parameter vectors at once.
-``simulate_step_batch`` covers a single step from rest only.
-
-This adapter builds that from the model's compiled kernel (``model.kernel``): it runs the
-kernel's own integrator (``_advance``: fixed-step RK4, exact end-stop impacts, every
-effect of :data:`~valve_model_pkg.model.parameters.EFFECTS`) segment by segment, with the
-drive held in its "supply" phase and the supply voltage set to each segment's measured
-level, in a ``numba.prange`` loop over parameter vectors. It therefore simulates exactly
-the model that ``valve_simulate`` and ``valve_map`` use.
-
-What the model should offer natively (and this module would then shrink to a call):
-``simulate_trace_batch(raw_matrix, electronics, t_edges_s, voltages_v, t_samples_s,
-supply_pressure_pa, output_pressure_pa, h_free_s, h_stop_s) -> (current, position)``.
+The identification simulates a whole matrix of parameter vectors under a *measured* coil
+voltage (a pulse, a PWM train, a bench's own waveform), sampled at the measurement's own
+times. The model offers exactly that (:func:`valve_model_pkg.model.simulate_trace_batch`
+with :meth:`~valve_model_pkg.model.InputTrace.coil_voltage`, the bare coil); this module
+only turns a :class:`Measurement` into that call, once per file (:func:`prepare_trace`),
+so the identification simulates exactly the model that ``valve_simulate`` and
+``valve_map`` use.
 
 The measured voltage is read as a zero-order hold: sample ``k``'s value applies from
 ``t[k]`` to ``t[k+1]``. Consecutive samples within a tolerance (0.5 % of the largest
 magnitude) form one segment at their mean level, so a measured (slightly noisy) voltage
 column does not create an edge per sample. The valve starts at rest (closed, no current)
-at ``t = 0``.
+at ``t = 0``. Samples on a uniform grid (missing rows allowed) are simulated on that
+grid; others are interpolated from a grid of at most 20 us.
 """
 from __future__ import annotations
 
@@ -28,11 +21,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
 
-from ..model import kernel as _k
-from ..model.electronics import ElectronicsConfig
-from ..model.parameters import PARAMETER_FIELDS
+from ..model import (DEFAULT_H_FREE_S, DEFAULT_H_STOP_S, PARAMETER_FIELDS, InputTrace,
+                     simulate_trace_batch as simulate_model_trace_batch)
 from .errors import ModelAdapterError
 from .measurements import Measurement
 
@@ -145,8 +136,8 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
         n_grid = int(math.floor((t[-1] - t[0]) / grid_dt)) + 2
         index = None
     if h_stop_s is None:
-        h_stop_s = _k.DEFAULT_H_STOP_S if m.duration_s < 0.5 else max(
-            _k.DEFAULT_H_STOP_S, min(500e-6, grid_dt))
+        h_stop_s = DEFAULT_H_STOP_S if m.duration_s < 0.5 else max(
+            DEFAULT_H_STOP_S, min(500e-6, grid_dt))
     return TraceSetup(seg_t0_s=seg_t0, seg_v=seg_v, t_end_s=float(t[-1]),
                       grid_t0_s=float(t[0]), grid_dt_s=grid_dt, n_grid=n_grid, index=index,
                       t_s=t, supply_pressure_pa=float(m.supply_pressure_pa),
@@ -154,74 +145,8 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
                       h_stop_s=float(h_stop_s))
 
 
-@njit(cache=True)
-def _trace_one(raw_r: np.ndarray, e: np.ndarray, seg_t0: np.ndarray, seg_v: np.ndarray,
-               t_end: float, p_sup: float, p_out: float, grid_t0: float, grid_dt: float,
-               h_free: float, h_stop: float, cur_r: np.ndarray, pos_r: np.ndarray) -> None:
-    n_grid = cur_r.shape[0]
-    n_seg = seg_t0.shape[0]
-    p = _k._derive(raw_r)
-    y = np.zeros(_k.N_Y)
-    d = np.zeros(_k.N_D)
-    d[_k.D_MODE] = _k.MODE_CLOSED
-    # The drive stays in its supply phase; each segment sets the supply level, so the coil
-    # sees the measured voltage (negative levels included) and nothing else.
-    d[_k.D_PHASE] = _k.PH_SUPPLY
-    d[_k.D_MAIN_ON] = 1.0
-    d[_k.D_PSUP] = p_sup
-    d[_k.D_POUT] = p_out
-    d[_k.D_PERIOD] = np.inf
-    d[_k.D_PEND_PERIOD] = np.inf
-    d[_k.D_NEXT_BOUNDARY] = np.inf
-    d[_k.D_NEXT_FALL] = np.inf
-    d[_k.D_NEXT_TICK] = np.inf
-    d[_k.D_CHOP_OFF] = np.inf
-    d[_k.D_NEXT_SAMPLE] = grid_t0
-    d[_k.D_SAMPLE_DT] = grid_dt
-    d[_k.D_SAMPLE_T0] = grid_t0
-    out = np.zeros((n_grid, _k.N_OUT))
-    avg = np.zeros(0)
-    for s in range(n_seg):
-        d[_k.D_VS] = seg_v[s]
-        # Stop 3 ps short of the next edge (the kernel's event tolerance is 1 ps), so a
-        # sample that falls on the edge is recorded under the new voltage, as the model's
-        # own step response does (it matters with eddy currents).
-        t_stop = seg_t0[s + 1] - 3e-12 if s + 1 < n_seg else t_end + 0.5 * grid_dt
-        _k._advance(p, e, y, d, t_stop, h_free, h_stop, out, avg)
-    for k in range(n_grid):
-        cur_r[k] = out[k, _k.O_I]
-        pos_r[k] = out[k, _k.O_X]
-
-
-@njit(cache=True, parallel=True)
-def _trace_batch(raw: np.ndarray, e: np.ndarray, seg_t0: np.ndarray, seg_v: np.ndarray,
-                 t_end: float, p_sup: float, p_out: float, grid_t0: float, grid_dt: float,
-                 h_free: float, h_stop: float, cur: np.ndarray, pos: np.ndarray) -> None:
-    for r in prange(raw.shape[0]):
-        _trace_one(raw[r], e, seg_t0, seg_v, t_end, p_sup, p_out, grid_t0, grid_dt, h_free,
-                   h_stop, cur[r], pos[r])
-
-
-@njit(cache=True, nogil=True)
-def _trace_serial(raw: np.ndarray, e: np.ndarray, seg_t0: np.ndarray, seg_v: np.ndarray,
-                  t_end: float, p_sup: float, p_out: float, grid_t0: float, grid_dt: float,
-                  h_free: float, h_stop: float, cur: np.ndarray, pos: np.ndarray) -> None:
-    for r in range(raw.shape[0]):
-        _trace_one(raw[r], e, seg_t0, seg_v, t_end, p_sup, p_out, grid_t0, grid_dt, h_free,
-                   h_stop, cur[r], pos[r])
-
-
-#: Batches smaller than this run on one thread: waking numba's thread pool for a few runs
-#: costs more than it gains, badly so on a busy machine (measured: 12 ms instead of 2 ms
-#: for one run with another process per core).
-PARALLEL_MIN_BATCH = 8
-
-
-_E_OFF = ElectronicsConfig.off().to_vector()
-
-
 def simulate_trace_batch(raw: np.ndarray, setup: TraceSetup, *,
-                         h_free_s: float = _k.DEFAULT_H_FREE_S, parallel: bool = True
+                         h_free_s: float = DEFAULT_H_FREE_S, parallel: bool = True
                          ) -> tuple[np.ndarray, np.ndarray]:
     """Simulate many parameter vectors under one measured voltage trace.
 
@@ -250,15 +175,15 @@ def simulate_trace_batch(raw: np.ndarray, setup: TraceSetup, *,
             f'parameter matrix has {raw.shape[1]} columns, the model has '
             f'{len(PARAMETER_FIELDS)} fields')
     n = raw.shape[0]
-    cur = np.zeros((n, setup.n_grid))
-    pos = np.zeros((n, setup.n_grid))
-    kernel = _trace_batch if parallel and n >= PARALLEL_MIN_BATCH else _trace_serial
-    kernel(raw, _E_OFF, setup.seg_t0_s, setup.seg_v, setup.t_end_s,
-           setup.supply_pressure_pa, setup.output_pressure_pa, setup.grid_t0_s,
-           setup.grid_dt_s, float(h_free_s), setup.h_stop_s, cur, pos)
+    grid = setup.grid_t0_s + setup.grid_dt_s * np.arange(setup.n_grid)
+    res = simulate_model_trace_batch(
+        raw, InputTrace.coil_voltage(setup.seg_t0_s, setup.seg_v), grid,
+        supply_pressure_pa=setup.supply_pressure_pa,
+        output_pressure_pa=setup.output_pressure_pa, h_free_s=float(h_free_s),
+        h_stop_s=setup.h_stop_s, validate=False, parallel=parallel)
+    cur, pos = res.coil_current_a, res.spool_position_m
     if setup.index is not None:
         return cur[:, setup.index], pos[:, setup.index]
-    grid = setup.grid_t0_s + setup.grid_dt_s * np.arange(setup.n_grid)
     ci = np.empty((n, setup.t_s.size))
     pi = np.empty((n, setup.t_s.size))
     for r in range(n):

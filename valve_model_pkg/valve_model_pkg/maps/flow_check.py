@@ -6,10 +6,12 @@ fixed, eq. (12) makes the flow proportional to the averaged opening x_avg in eit
 (choked: 0.0405 C_d C_A x P_sup / sqrt(T); subsonic: the same times a function of the
 pressure ratio only), so the *flow percentage* (flow over the flow at 100 % duty) equals
 the map's x_avg / x_max divided by its value at 100 % duty (1 whenever the valve opens at
-all). This module reads a measured ``flow_map`` file in the shared data format and
-compares it with the map, point by point and overall.
+all). This module reads a measured ``flow_map`` file of the measured-data format
+(read by :mod:`valve_model_pkg.dataformat`) and compares it with the map, point by point
+and overall.
 
-``flow_map`` file (``/work/shared/measured-data-format.md``)::
+A ``flow_map`` file (the measured-data format, ``shared/measured-data-format.md`` of the
+steering repository)::
 
     # experiment: flow_map
     # supply_pressure_pa: 400000          (gauge)
@@ -30,15 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import dataformat
 from .dutymap import DutyMap
 from .errors import FlowMapFormatError
 from .inversion import OrificeConstants, flow_per_opening
 
 __all__ = ['FlowMap', 'FlowComparison', 'read_flow_map', 'write_flow_map', 'compare_flow_map',
            'map_flow_fraction', 'map_flow_position']
-
-_NUMERIC_META = ('supply_pressure_pa', 'output_pressure_pa', 'pwm_frequency_hz',
-                 'supply_temperature_k', 'sample_rate_hz')
 
 
 @dataclass(frozen=True)
@@ -76,7 +76,12 @@ class FlowMap:
 def read_flow_map(path: str | os.PathLike[str], *,
                   pwm_frequency_hz: float | None = None,
                   supply_pressure_pa: float | None = None) -> FlowMap:
-    """Read a measured ``flow_map`` CSV file, refusing anything malformed.
+    """Read a measured ``flow_map`` file, refusing anything malformed.
+
+    The file is read by :func:`valve_model_pkg.dataformat.read_flow_map` (the rules of the
+    measured-data format); this function adds what the comparison needs: the PWM
+    frequency and supply pressure (from the file or the caller) and, for ``mass_flow``
+    files, a row at duty 1 to scale by.
 
     Parameters
     ----------
@@ -91,66 +96,14 @@ def read_flow_map(path: str | os.PathLike[str], *,
     """
     spath = str(path)
     try:
-        text = Path(path).read_text(encoding='utf-8')
-    except FileNotFoundError as err:
-        raise FlowMapFormatError(spath, None, 'no such file') from err
-    except (OSError, UnicodeDecodeError) as err:
-        raise FlowMapFormatError(spath, None, f'cannot read: {err}') from err
-    meta: dict[str, str] = {}
-    header: list[str] | None = None
-    rows: list[tuple[int, list[str]]] = []
-    for lineno, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if header is None:
-            if not line:
-                continue
-            if line.startswith('#'):
-                body = line[1:].strip()
-                if ':' not in body:
-                    raise FlowMapFormatError(spath, lineno,
-                                             f'metadata line {raw!r} is not "# key: value"')
-                key, value = body.split(':', 1)
-                meta[key.strip()] = value.strip()
-                continue
-            header = [c.strip() for c in line.split(',')]
-            header_line = lineno
-            continue
-        if not line:
-            continue
-        if line.startswith('#'):
-            raise FlowMapFormatError(spath, lineno, 'metadata line after the header row')
-        rows.append((lineno, [c.strip() for c in line.split(',')]))
-    if header is None:
-        raise FlowMapFormatError(spath, None, 'no header row')
-    experiment = meta.get('experiment')
-    if experiment is not None and experiment != 'flow_map':
-        raise FlowMapFormatError(spath, None, f'experiment is {experiment!r}, expected '
-                                              "'flow_map'")
-    if len(set(header)) != len(header):
-        raise FlowMapFormatError(spath, header_line, f'duplicate column in {header}')
-    if 'duty' not in header:
-        raise FlowMapFormatError(spath, header_line, f'no "duty" column (columns {header})')
-    value_col = 'mass_flow' if 'mass_flow' in header else (
-        'flow_fraction' if 'flow_fraction' in header else None)
-    if value_col is None:
-        raise FlowMapFormatError(spath, header_line,
-                                 f'needs a "mass_flow" or "flow_fraction" column (columns '
-                                 f'{header})')
-    if 't' in header:
-        raise FlowMapFormatError(spath, header_line, 'a flow_map file has no "t" column')
-    numeric: dict[str, float] = {}
-    for key in _NUMERIC_META:
-        if key in meta:
-            try:
-                numeric[key] = float(meta[key])
-            except ValueError:
-                raise FlowMapFormatError(spath, None, f'metadata {key} = {meta[key]!r} is not '
-                                                      'a number') from None
-            if not math.isfinite(numeric[key]):
-                raise FlowMapFormatError(spath, None, f'metadata {key} is not finite')
+        record = dataformat.read_flow_map(path)
+    except dataformat.DataFormatError as err:
+        raise FlowMapFormatError(err.path, err.line, err.reason) from err
+    numeric = {'pwm_frequency_hz': record.pwm_frequency_hz,
+               'supply_pressure_pa': record.supply_pressure_pa}
     for key, given in (('pwm_frequency_hz', pwm_frequency_hz),
                        ('supply_pressure_pa', supply_pressure_pa)):
-        if key not in numeric:
+        if numeric[key] is None:
             if given is None:
                 raise FlowMapFormatError(spath, None, f'metadata {key} missing (and not '
                                                       'given on the command line)')
@@ -161,47 +114,21 @@ def read_flow_map(path: str | os.PathLike[str], *,
                                                   f'{given:g} was given')
     if numeric['pwm_frequency_hz'] <= 0.0:
         raise FlowMapFormatError(spath, None, 'pwm_frequency_hz must be positive')
-    i_d, i_v = header.index('duty'), header.index(value_col)
-    duty, value = [], []
-    for lineno, cells in rows:
-        if len(cells) != len(header):
-            raise FlowMapFormatError(spath, lineno, f'{len(cells)} fields, the header has '
-                                                    f'{len(header)}')
-        vals = []
-        for col, idx in (('duty', i_d), (value_col, i_v)):
-            try:
-                v = float(cells[idx])
-            except ValueError:
-                raise FlowMapFormatError(spath, lineno, f'{col} {cells[idx]!r} is not a '
-                                                        'number') from None
-            if not math.isfinite(v):
-                raise FlowMapFormatError(spath, lineno, f'{col} is {cells[idx]!r}, not finite')
-            vals.append(v)
-        if not 0.0 <= vals[0] <= 1.0:
-            raise FlowMapFormatError(spath, lineno, f'duty {vals[0]!r} outside [0, 1]')
-        if vals[1] < 0.0:
-            raise FlowMapFormatError(spath, lineno, f'{value_col} {vals[1]!r} is negative')
-        if duty and vals[0] <= duty[-1]:
-            raise FlowMapFormatError(spath, lineno, f'duty {vals[0]!r} not above the previous '
-                                                    f'row\'s {duty[-1]!r} (rows must ascend)')
-        duty.append(vals[0])
-        value.append(vals[1])
-    if len(duty) < 2:
-        raise FlowMapFormatError(spath, None, f'needs at least 2 rows, has {len(duty)}')
-    d = np.asarray(duty)
-    v = np.asarray(value)
-    if value_col == 'mass_flow':
+    d = record.duty
+    if record.mass_flow_kg_s is not None:
+        v = record.mass_flow_kg_s
         if d[-1] != 1.0:
             raise FlowMapFormatError(spath, None, 'mass_flow file needs a row at duty 1 (the '
                                                   'flow percentage is relative to 100 % duty)')
         if v[-1] <= 0.0:
-            raise FlowMapFormatError(spath, rows[-1][0], 'flow at 100 % duty is not positive')
+            raise FlowMapFormatError(spath, int(record.line_numbers[-1]),
+                                     'flow at 100 % duty is not positive')
         fraction, mass = v / v[-1], v
     else:
-        fraction, mass = v, None
+        fraction, mass = record.flow_fraction, None
     return FlowMap(spath, d, mass, fraction, numeric['supply_pressure_pa'],
-                   numeric.get('output_pressure_pa', 0.0), numeric['pwm_frequency_hz'],
-                   numeric.get('supply_temperature_k'), meta)
+                   record.output_pressure_pa, numeric['pwm_frequency_hz'],
+                   record.supply_temperature_k, record.metadata)
 
 
 def write_flow_map(path: str | os.PathLike[str], duty: np.ndarray, *,
@@ -210,24 +137,19 @@ def write_flow_map(path: str | os.PathLike[str], duty: np.ndarray, *,
                    flow_fraction: np.ndarray | None = None, output_pressure_pa: float = 0.0,
                    supply_temperature_k: float | None = None,
                    metadata: dict[str, str] | None = None) -> Path:
-    """Write a ``flow_map`` file in the shared format (exactly one of the value columns)."""
+    """Write a ``flow_map`` file (exactly one of the value columns) in the measured-data
+    format, through :func:`valve_model_pkg.dataformat.write_table`."""
     if (mass_flow_kg_s is None) == (flow_fraction is None):
         raise ValueError('give exactly one of mass_flow_kg_s and flow_fraction')
     col, values = ('mass_flow', mass_flow_kg_s) if mass_flow_kg_s is not None \
         else ('flow_fraction', flow_fraction)
-    lines = ['# experiment: flow_map']
-    for k, v in (metadata or {}).items():
-        lines.append(f'# {k}: {v}')
-    lines += [f'# supply_pressure_pa: {supply_pressure_pa:.10g}',
-              f'# output_pressure_pa: {output_pressure_pa:.10g}',
-              f'# pwm_frequency_hz: {pwm_frequency_hz:.10g}']
+    meta: dict[str, object] = {'experiment': 'flow_map', **(metadata or {}),
+                               'supply_pressure_pa': float(supply_pressure_pa),
+                               'output_pressure_pa': float(output_pressure_pa),
+                               'pwm_frequency_hz': float(pwm_frequency_hz)}
     if supply_temperature_k is not None:
-        lines.append(f'# supply_temperature_k: {supply_temperature_k:.10g}')
-    lines.append(f'duty,{col}')
-    lines += [f'{float(d):.10g},{float(v):.10g}' for d, v in zip(duty, values)]
-    path = Path(path)
-    path.write_text('\n'.join(lines) + '\n', encoding='utf-8')
-    return path
+        meta['supply_temperature_k'] = float(supply_temperature_k)
+    return dataformat.write_table(path, meta, {'duty': duty, col: values})
 
 
 def map_flow_position(duty_map: DutyMap, duty: float, pwm_frequency_hz: float,

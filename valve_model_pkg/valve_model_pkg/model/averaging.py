@@ -1,13 +1,29 @@
 """Moving average of the spool position over each PWM period (paper Section 5, x_bar).
 
-Offline from a sampled trace (:func:`moving_average`, :func:`period_averages`) and as a
-streaming filter (:class:`PeriodAverager`) for live data.
+The suite's definition (one for the whole suite)
+-----------------------------------------------
+The per-period moving average of the spool position at time t is **the mean position over
+the last complete main PWM period** that ended at or before t, and 0 before the first
+period ends. It is held constant inside a period and changes only at period ends. This is
+what the simulator node and the CAN emulator publish (``ValveState.spool_position_avg``,
+from :class:`~valve_model_pkg.model.ValveStepper`, whose kernel integrates it exactly),
+what ``valve_simulate`` writes (``mass_flow`` from it), and what the duty maps are built
+from. Its implementations:
+
+* :func:`last_period_mean` - offline, on a sampled trace: **the definition**;
+* :class:`PeriodAverager` - streaming, sample by sample: the same values;
+* :func:`period_averages` - the per-period means themselves (one value per period).
+
+:func:`moving_average` is a different quantity, a *trailing* window of one period ending
+at each sample (it moves continuously); it is kept for analyses that want it (paper Fig. 7
+settling) and is not the suite's moving average.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['moving_average', 'period_averages', 'PeriodAverager']
+__all__ = ['hold_period_means', 'last_period_mean', 'moving_average', 'period_averages',
+           'PeriodAverager']
 
 
 def _cumulative_integral(t: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -18,6 +34,9 @@ def _cumulative_integral(t: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 def moving_average(t_s: np.ndarray, x: np.ndarray, period_s: float) -> np.ndarray:
     """Trailing moving average of ``x`` over a window of one PWM period.
+
+    Not the suite's per-period moving average (that is :func:`last_period_mean`): this
+    window ends at each sample and moves continuously.
 
     Parameters
     ----------
@@ -87,8 +106,66 @@ def period_averages(t_s: np.ndarray, x: np.ndarray, period_s: float,
     return ends, (cum(ends) - cum(starts)) / period_s
 
 
+def last_period_mean(t_s: np.ndarray, x: np.ndarray, period_s: float,
+                     t0_s: float = 0.0) -> np.ndarray:
+    """The suite's per-period moving average of ``x`` at every sample (the definition).
+
+    The mean of ``x`` over the last complete period [t0 + kT, t0 + (k+1)T] ending at or
+    before each sample time (within 1e-9 T), 0 before the first period ends: what the
+    simulator node publishes as ``spool_position_avg`` and :class:`PeriodAverager` gives
+    sample by sample.
+
+    Parameters
+    ----------
+    t_s : numpy.ndarray, shape (n,)
+        Sample times, s, increasing.
+    x : numpy.ndarray, shape (n,)
+        Signal (spool position in m), linear between samples.
+    period_s : float
+        Main PWM period, s (1 / PWM frequency).
+    t0_s : float
+        Start of the first period (the first rising edge), s.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+        Held per-period means (:func:`period_averages`), 0 before the first period ends.
+    """
+    t = np.asarray(t_s, dtype=float)
+    ends, means = period_averages(t, x, period_s, t0_s)
+    return hold_period_means(t, ends, means, period_s)
+
+
+def hold_period_means(t_s: np.ndarray, period_end_s: np.ndarray, means: np.ndarray,
+                      period_s: float) -> np.ndarray:
+    """Per-period means held from each period end on (0 before the first end).
+
+    Parameters
+    ----------
+    t_s : numpy.ndarray, shape (n,)
+        Times at which to read the held value, s.
+    period_end_s, means : numpy.ndarray, shape (k,)
+        End time of each complete period, s (increasing), and its mean.
+    period_s : float
+        Period, s (an end counts as reached within 1e-9 of it).
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+    """
+    t = np.asarray(t_s, dtype=float)
+    out = np.zeros_like(t)
+    if len(period_end_s):
+        k = np.searchsorted(period_end_s, t + 1e-9 * period_s, side='right') - 1
+        done = k >= 0
+        out[done] = np.asarray(means)[k[done]]
+    return out
+
+
 class PeriodAverager:
     """Streaming average over fixed PWM periods (trapezoid on the incoming samples).
+
+    The streaming form of the suite's moving average (:func:`last_period_mean`).
 
     Push samples with :meth:`update`; :attr:`value` is the average over the last complete
     period (``initial`` before the first one completes). Periods start at ``t0_s`` and

@@ -38,12 +38,23 @@ on them with a fixed-step RK4 is cheaper and has no tolerance tuning. The conver
 Compilation: every function is ``njit(cache=True)``; the machine code is cached in
 ``__pycache__`` next to this file, so only the first process on a machine compiles
 (about 13 s for everything incl. the parallel batches); later processes load it in about
-1 s. The ``D_*``/``P_*``/``O_*`` layouts below are also used by
-``identification/model_adapter.py``: change them together.
+1 s. This module is internal to ``model/``: the rest of the suite uses the public entry
+points (:func:`~valve_model_pkg.model.simulate_trace_batch` and friends), so the ``D_*``/
+``P_*``/``O_*`` layouts below may change with the kernel. The drive state is initialised
+in one place, :func:`new_drive_state` (compiled body ``_drive_state``).
+
+Reading order of the main loop (``_advance``): process the events due now, release a
+held spool if its force margin is positive, take one RK4 step up to the next event, then
+locate what happened inside it with the two compiled root finders: ``_free_step_events``
+(end-stop impact on the Hermite interpolant, ``_impact``; velocity reversal under
+friction, ``_reversal``) for a moving spool and ``_release`` (Illinois on the held force
+margin) for a held one.
 
 Data layout (all float64 arrays so the compiled code caches and runs in ``prange``):
 ``p`` derived parameters (``_derive``), ``e`` electronics (``electronics.E_*``), ``y``
-the continuous state ``[i_m, x, x_dot, dT, q]`` (q = integral of x, for period averages),
+the continuous state ``[i_m, x, x_dot, dT, q, q_i, q_v]`` (q = integral of x, for period
+averages; q_i, q_v = integrals of the terminal current and voltage, for interval means;
+the three integrals do not feed back into the dynamics),
 ``d`` the discrete drive/mode state (``D_*``).
 """
 from __future__ import annotations
@@ -126,7 +137,9 @@ Y_X = 1
 Y_V = 2
 Y_DT = 3
 Y_Q = 4
-N_Y = 5
+Y_QI = 5       # integral of the terminal current, A s (interval means)
+Y_QV = 6       # integral of the terminal voltage, V s (interval means)
+N_Y = 7
 
 # Drive phases (what the driver applies to the coil).
 PH_OFF = 0        # main PWM low: capacitor pulse or 0 V
@@ -181,7 +194,10 @@ O_X = 2
 O_XDOT = 3
 O_DT = 4
 O_MODE = 5
-N_OUT = 6
+O_QX = 6       # accumulators y[Y_Q], y[Y_QI], y[Y_QV] at the sample (interval means)
+O_QI = 7
+O_QV = 8
+N_OUT = 9
 
 _EPS_T = 1e-12  # events closer than 1 ps count as simultaneous
 #: A step shorter than this is no progress (an impact found at the step start).
@@ -252,7 +268,8 @@ def _voltage(t: float, phase: int, d: np.ndarray, e: np.ndarray) -> float:
 @njit(cache=True)
 def _rhs(t: float, i_m: float, x: float, v: float, d_temp: float, mode: int, phase: int,
          f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray
-         ) -> tuple[float, float, float, float, float]:
+         ) -> tuple[float, float, float, float, float, float, float]:
+    """Derivatives of y = [i_m, x, x_dot, dT, q, q_i, q_v]: eqs. (7), (11) and the sums."""
     ind = _inductance(x, p[P_KL], p[P_L0], p[P_B2])
     slope = _inductance_slope(ind, p[P_KL], p[P_B2])
     r = _resistance(p[P_R], d_temp)
@@ -267,28 +284,31 @@ def _rhs(t: float, i_m: float, x: float, v: float, d_temp: float, mode: int, pha
     if moving:
         f_a = _active_force(_force(i_m, slope, p[P_BETA]), p[P_K], x, p[P_DELTA], f_prs)
         dv = _acceleration(f_a, v, p[P_B], p[P_FC], p[P_M])  # eq. (11)
-        return di, v, dv, ddt, x
-    return di, 0.0, 0.0, ddt, x
+        return di, v, dv, ddt, x, i_t, volt
+    return di, 0.0, 0.0, ddt, x, i_t, volt
 
 
 @njit(cache=True)
-def _rk4(t: float, h: float, y0: float, y1: float, y2: float, y3: float, y4: float,
-         mode: int, phase: int, f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray
-         ) -> tuple[float, float, float, float, float]:
-    a0, a1, a2, a3, a4 = _rhs(t, y0, y1, y2, y3, mode, phase, f_prs, p, d, e)
+def _rk4(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, p: np.ndarray,
+         d: np.ndarray, e: np.ndarray) -> tuple:
+    """One classical RK4 step of length h from the state tuple y (N_Y floats)."""
+    y0, y1, y2, y3, y4, y5, y6 = y
+    a0, a1, a2, a3, a4, a5, a6 = _rhs(t, y0, y1, y2, y3, mode, phase, f_prs, p, d, e)
     hh = 0.5 * h
-    b0, b1, b2, b3, b4 = _rhs(t + hh, y0 + hh * a0, y1 + hh * a1, y2 + hh * a2,
-                              y3 + hh * a3, mode, phase, f_prs, p, d, e)
-    c0, c1, c2, c3, c4 = _rhs(t + hh, y0 + hh * b0, y1 + hh * b1, y2 + hh * b2,
-                              y3 + hh * b3, mode, phase, f_prs, p, d, e)
-    g0, g1, g2, g3, g4 = _rhs(t + h, y0 + h * c0, y1 + h * c1, y2 + h * c2,
-                              y3 + h * c3, mode, phase, f_prs, p, d, e)
+    b0, b1, b2, b3, b4, b5, b6 = _rhs(t + hh, y0 + hh * a0, y1 + hh * a1, y2 + hh * a2,
+                                      y3 + hh * a3, mode, phase, f_prs, p, d, e)
+    c0, c1, c2, c3, c4, c5, c6 = _rhs(t + hh, y0 + hh * b0, y1 + hh * b1, y2 + hh * b2,
+                                      y3 + hh * b3, mode, phase, f_prs, p, d, e)
+    g0, g1, g2, g3, g4, g5, g6 = _rhs(t + h, y0 + h * c0, y1 + h * c1, y2 + h * c2,
+                                      y3 + h * c3, mode, phase, f_prs, p, d, e)
     s = h / 6.0
     return (y0 + s * (a0 + 2.0 * (b0 + c0) + g0),
             y1 + s * (a1 + 2.0 * (b1 + c1) + g1),
             y2 + s * (a2 + 2.0 * (b2 + c2) + g2),
             y3 + s * (a3 + 2.0 * (b3 + c3) + g3),
-            y4 + s * (a4 + 2.0 * (b4 + c4) + g4))
+            y4 + s * (a4 + 2.0 * (b4 + c4) + g4),
+            y5 + s * (a5 + 2.0 * (b5 + c5) + g5),
+            y6 + s * (a6 + 2.0 * (b6 + c6) + g6))
 
 
 @njit(cache=True)
@@ -463,6 +483,9 @@ def _record(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray, e: np.ndarray
         out[k, O_XDOT] = y[Y_V]
         out[k, O_DT] = y[Y_DT]
         out[k, O_MODE] = d[D_MODE]
+        out[k, O_QX] = y[Y_Q]
+        out[k, O_QI] = y[Y_QI]
+        out[k, O_QV] = y[Y_QV]
     d[D_SAMPLE_IDX] = k + 1.0
     if k + 1 >= out.shape[0]:
         d[D_NEXT_SAMPLE] = _INF
@@ -490,14 +513,165 @@ def _process_events(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray, e: np
 
 
 # --------------------------------------------------------------------------------------
+# Root finders inside one RK4 step (the step is redone up to the located instant)
+# --------------------------------------------------------------------------------------
+@njit(cache=True)
+def _impact(t: float, h: float, t_new: float, s_hit: float, xb: float, y: tuple,
+            phase: int, f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray,
+            hold_on_recross: bool) -> tuple:
+    """End-stop impact at fraction ``s_hit`` of the step (found on the Hermite interpolant).
+
+    Returns (t_new, z): the step is redone up to the impact, x set onto the stop xb and
+    the velocity to 0 (plastic, the paper) or -e x_dot (``end_stop_bounce``).
+    """
+    held = MODE_CLOSED if xb == 0.0 else MODE_OPEN
+    if hold_on_recross and s_hit * h <= _H_MIN and y[1] == xb and y[2] == 0.0:
+        # Released from rest on this stop and back on it at the step start: the held
+        # force margin was positive but falls at once (e.g. the capacitor pulse at a
+        # falling edge), so the lift is below what the interpolant resolves (reported
+        # case: 4e-19 m for 32 ns). Freeing the spool again would repeat this at the same
+        # instant forever; it stays on the stop for the step instead. A margin still
+        # positive at the step end releases it.
+        z = _rk4(t, h, y, held, phase, f_prs, p, d, e)
+        d[D_N_STEPS] += 1.0
+        d[D_MODE] = held
+        return t_new, (z[0], xb, 0.0, z[3], z[4], z[5], z[6])
+    hs = s_hit * h
+    if hs > _H_MIN:
+        z = _rk4(t, hs, y, MODE_FREE, phase, f_prs, p, d, e)
+        d[D_N_STEPS] += 1.0
+    else:
+        hs = 0.0
+        z = y
+    v_imp = z[2]
+    v_new = 0.0
+    if p[P_E] > 0.0 and abs(v_imp) > SETTLE_SPEED_M_S and hs > 0.0:
+        v_new = -p[P_E] * v_imp  # bounce with restitution e
+    else:
+        d[D_MODE] = held
+    return t + hs, (z[0], xb, v_new, z[3], z[4], z[5], z[6])
+
+
+@njit(cache=True)
+def _reversal(t: float, h: float, s_rev: float, y: tuple, z: tuple, phase: int,
+              f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray) -> tuple:
+    """Velocity reversal under Coulomb friction: regula falsi on x_dot(t) = 0."""
+    lo = 0.0
+    hi = h
+    v_lo = y[2]
+    v_hi = z[2]
+    hs = h * s_rev
+    for _ in range(30):
+        z = _rk4(t, hs, y, MODE_FREE, phase, f_prs, p, d, e)
+        d[D_N_STEPS] += 1.0
+        if abs(z[2]) < 1e-9 or hi - lo < 1e-12:
+            break
+        if (z[2] > 0.0) == (v_lo > 0.0):
+            lo = hs
+            v_lo = z[2]
+        else:
+            hi = hs
+            v_hi = z[2]
+        hs = lo + (hi - lo) * v_lo / (v_lo - v_hi)
+    if abs(_f_active(z[0], z[1], f_prs, p)) <= p[P_FC]:
+        d[D_MODE] = MODE_STUCK
+    return t + hs, (z[0], z[1], 0.0, z[3], z[4], z[5], z[6])
+
+
+@njit(cache=True)
+def _free_step_events(t: float, h: float, t_new: float, y: tuple, z: tuple, phase: int,
+                      f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray,
+                      hold_on_recross: bool) -> tuple:
+    """End-stop impacts and (with friction) velocity reversals inside a free step."""
+    s_hit = 2.0
+    xb = 0.0
+    if z[1] < 0.0:
+        s_hit = _crossing(h, y[1], y[2], z[1], z[2], 0.0)
+    elif z[1] > p[P_XMAX]:
+        xb = p[P_XMAX]
+        s_hit = _crossing(h, y[1], y[2], z[1], z[2], xb)
+    s_rev = 2.0
+    if p[P_FC] > 0.0 and y[2] != 0.0 and (z[2] == 0.0 or (z[2] > 0.0) != (y[2] > 0.0)):
+        s_rev = y[2] / (y[2] - z[2])
+    if s_hit <= 1.0 and s_hit <= s_rev:
+        return _impact(t, h, t_new, s_hit, xb, y, phase, f_prs, p, d, e, hold_on_recross)
+    if s_rev <= 1.0:
+        return _reversal(t, h, s_rev, y, z, phase, f_prs, p, d, e)
+    return t_new, z
+
+
+@njit(cache=True)
+def _release(t: float, h: float, t_new: float, y: tuple, z: tuple, mode: int, phase: int,
+             f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray) -> tuple:
+    """Leaving a stop (or static friction): Illinois search for the held force margin = 0.
+
+    Returns (t_new, z) unchanged if the margin stays negative over the step, else the step
+    redone up to the release and the mode set to moving.
+    """
+    f_c = p[P_FC]
+    g1 = _leave_margin(mode, _f_active(z[0], y[1], f_prs, p), f_c)
+    if g1 <= 0.0:
+        return t_new, z
+    g0 = _leave_margin(mode, _f_active(y[0], y[1], f_prs, p), f_c)
+    # a margin already positive at the start (a held step after an immediate re-impact,
+    # or forced by the guard) brackets no root: release at the end
+    lo = 0.0 if g0 <= 0.0 else h
+    hi = h
+    g_lo = g0
+    g_hi = g1
+    side = 0
+    for _ in range(40):
+        if hi - lo < 1e-10:
+            break
+        hs = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
+        w = _rk4(t, hs, y, mode, phase, f_prs, p, d, e)
+        d[D_N_STEPS] += 1.0
+        g = _leave_margin(mode, _f_active(w[0], y[1], f_prs, p), f_c)
+        if g > 0.0:
+            hi = hs
+            g_hi = g
+            if side == 1:
+                g_lo *= 0.5  # Illinois modification
+            side = 1
+        else:
+            lo = hs
+            g_lo = g
+            if side == -1:
+                g_hi *= 0.5
+            side = -1
+        if abs(g) < 1e-9:
+            break
+    if hi < h:
+        z = _rk4(t, hi, y, mode, phase, f_prs, p, d, e)
+        d[D_N_STEPS] += 1.0
+        t_new = t + hi
+    d[D_MODE] = MODE_FREE
+    return t_new, z
+
+
+@njit(cache=True)
+def _next_event(d: np.ndarray) -> float:
+    return min(d[D_NEXT_BOUNDARY], d[D_NEXT_FALL], d[D_NEXT_TICK], d[D_CHOP_OFF],
+               d[D_NEXT_SAMPLE])
+
+
+@njit(cache=True)
+def _step_to(t: float, target: float, hmax: float) -> tuple[float, float]:
+    """(t_new, h): equal steps no longer than hmax that land exactly on ``target``."""
+    span = target - t
+    n = math.ceil(span / hmax - 1e-9)
+    h = span / n if n > 1 else span
+    t_new = target if n <= 1 else t + h
+    return t_new, t_new - t
+
+
+# --------------------------------------------------------------------------------------
 # Main loop
 # --------------------------------------------------------------------------------------
 @njit(cache=True)
 def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: float,
              h_free: float, h_stop: float, out: np.ndarray, avg_out: np.ndarray) -> None:
-    xmax = p[P_XMAX]
     f_prs = _pressure_force(p[P_A1], p[P_A2], p[P_A3], p[P_A4], d[D_PSUP], d[D_POUT])
-    f_c = p[P_FC]
     t_prog = d[D_T]
     stall = 0
     while True:
@@ -509,14 +683,12 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
         else:
             stall += 1
         forced = stall > _STALL_LIMIT
-        t_ev = min(d[D_NEXT_BOUNDARY], d[D_NEXT_FALL], d[D_NEXT_TICK], d[D_CHOP_OFF],
-                   d[D_NEXT_SAMPLE])
+        t_ev = _next_event(d)
         if t_ev <= t + _EPS_T:
             _process_events(t, y, p, d, e, out, avg_out)
             if not forced:
                 continue
-            t_ev = min(d[D_NEXT_BOUNDARY], d[D_NEXT_FALL], d[D_NEXT_TICK], d[D_CHOP_OFF],
-                       d[D_NEXT_SAMPLE])
+            t_ev = _next_event(d)
         if not t < t_end - _EPS_T:  # (also ends on a NaN time)
             break
         target = min(t_ev, t_end)
@@ -527,147 +699,64 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
         mode = int(d[D_MODE])
         phase = int(d[D_PHASE])
         if mode != MODE_FREE and not forced:
-            xs = y[Y_X]
-            if _leave_margin(mode, _f_active(y[Y_I], xs, f_prs, p), f_c) > 0.0:
+            if _leave_margin(mode, _f_active(y[Y_I], y[Y_X], f_prs, p), p[P_FC]) > 0.0:
                 d[D_MODE] = MODE_FREE
                 continue
-        hmax = h_free if mode == MODE_FREE else h_stop
-        span = target - t
-        n = math.ceil(span / hmax - 1e-9)
-        h = span / n if n > 1 else span
-        t_new = target if n <= 1 else t + h
-        h = t_new - t
-        y0, y1, y2, y3, y4 = y[0], y[1], y[2], y[3], y[4]
-        z0, z1, z2, z3, z4 = _rk4(t, h, y0, y1, y2, y3, y4, mode, phase, f_prs, p, d, e)
+        t_new, h = _step_to(t, target, h_free if mode == MODE_FREE else h_stop)
+        y_0 = (y[0], y[1], y[2], y[3], y[4], y[5], y[6])
+        z = _rk4(t, h, y_0, mode, phase, f_prs, p, d, e)
         d[D_N_STEPS] += 1.0
         if mode == MODE_FREE:
-            # --- end-stop impacts and (with friction) velocity reversals inside the step
-            s_hit = 2.0
-            xb = 0.0
-            if z1 < 0.0:
-                xb = 0.0
-                s_hit = _crossing(h, y1, y2, z1, z2, 0.0)
-            elif z1 > xmax:
-                xb = xmax
-                s_hit = _crossing(h, y1, y2, z1, z2, xmax)
-            s_rev = 2.0
-            if f_c > 0.0 and y2 != 0.0 and (z2 == 0.0 or (z2 > 0.0) != (y2 > 0.0)):
-                s_rev = y2 / (y2 - z2)
-            held = MODE_CLOSED if xb == 0.0 else MODE_OPEN
-            if (_HOLD_ON_RECROSS and s_hit <= 1.0 and s_hit <= s_rev and s_hit * h <= _H_MIN
-                    and y1 == xb and y2 == 0.0):
-                # Released from rest on this stop and back on it at the step start: the
-                # held force margin was positive but falls at once (e.g. the capacitor
-                # pulse at a falling edge), so the lift is below what the interpolant
-                # resolves (reported case: 4e-19 m for 32 ns). Freeing the spool again
-                # would repeat this at the same instant forever; it stays on the stop for
-                # the step instead. A margin still positive at the step end releases it.
-                z0, z1, z2, z3, z4 = _rk4(t, h, y0, y1, y2, y3, y4, held, phase, f_prs,
-                                          p, d, e)
-                d[D_N_STEPS] += 1.0
-                z1 = xb
-                z2 = 0.0
-                d[D_MODE] = held
-            elif s_hit <= 1.0 and s_hit <= s_rev:
-                hs = s_hit * h
-                if hs > _H_MIN:
-                    z0, z1, z2, z3, z4 = _rk4(t, hs, y0, y1, y2, y3, y4, mode, phase,
-                                              f_prs, p, d, e)
-                    d[D_N_STEPS] += 1.0
-                else:
-                    hs = 0.0
-                    z0, z1, z2, z3, z4 = y0, y1, y2, y3, y4
-                t_new = t + hs
-                z1 = xb
-                # an impact: plastic (paper) or bounce with restitution e
-                v_imp = z2
-                if (p[P_E] > 0.0 and abs(v_imp) > SETTLE_SPEED_M_S and hs > 0.0):
-                    z2 = -p[P_E] * v_imp
-                else:
-                    z2 = 0.0
-                    d[D_MODE] = held
-            elif s_rev <= 1.0:
-                # regula falsi on v(t) = 0 with redone steps
-                lo = 0.0
-                hi = h
-                v_lo = y2
-                v_hi = z2
-                hs = h * s_rev
-                for _ in range(30):
-                    z0, z1, z2, z3, z4 = _rk4(t, hs, y0, y1, y2, y3, y4, mode, phase,
-                                              f_prs, p, d, e)
-                    d[D_N_STEPS] += 1.0
-                    if abs(z2) < 1e-9 or hi - lo < 1e-12:
-                        break
-                    if (z2 > 0.0) == (v_lo > 0.0):
-                        lo = hs
-                        v_lo = z2
-                    else:
-                        hi = hs
-                        v_hi = z2
-                    hs = lo + (hi - lo) * v_lo / (v_lo - v_hi)
-                t_new = t + hs
-                z2 = 0.0
-                if abs(_f_active(z0, z1, f_prs, p)) <= f_c:
-                    d[D_MODE] = MODE_STUCK
+            t_new, z = _free_step_events(t, h, t_new, y_0, z, phase, f_prs, p, d, e,
+                                         _HOLD_ON_RECROSS)
         else:
-            # --- leaving a stop (or static friction): the held force margin turns positive
-            g1 = _leave_margin(mode, _f_active(z0, y1, f_prs, p), f_c)
-            if g1 > 0.0:
-                g0 = _leave_margin(mode, _f_active(y0, y1, f_prs, p), f_c)
-                # a margin already positive at the start (a held step after an immediate
-                # re-impact, or forced by the guard) brackets no root: release at the end
-                lo = 0.0 if g0 <= 0.0 else h
-                hi = h
-                g_lo = g0
-                g_hi = g1
-                side = 0
-                for _ in range(40):
-                    if hi - lo < 1e-10:
-                        break
-                    hs = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
-                    w0, _w1, _w2, _w3, _w4 = _rk4(t, hs, y0, y1, y2, y3, y4, mode, phase,
-                                                  f_prs, p, d, e)
-                    d[D_N_STEPS] += 1.0
-                    g = _leave_margin(mode, _f_active(w0, y1, f_prs, p), f_c)
-                    if g > 0.0:
-                        hi = hs
-                        g_hi = g
-                        if side == 1:
-                            g_lo *= 0.5  # Illinois modification
-                        side = 1
-                    else:
-                        lo = hs
-                        g_lo = g
-                        if side == -1:
-                            g_hi *= 0.5
-                        side = -1
-                    if abs(g) < 1e-9:
-                        break
-                if hi < h:
-                    z0, z1, z2, z3, z4 = _rk4(t, hi, y0, y1, y2, y3, y4, mode, phase,
-                                              f_prs, p, d, e)
-                    d[D_N_STEPS] += 1.0
-                    t_new = t + hi
-                d[D_MODE] = MODE_FREE
+            t_new, z = _release(t, h, t_new, y_0, z, mode, phase, f_prs, p, d, e)
         if forced and t_new <= t:
             # Last resort, never reached by a correct kernel: this instant has already
             # taken _STALL_LIMIT passes without progress. Step on with the spool frozen
             # (x, x_dot kept; coil and temperature integrated) so the call cannot hang.
-            z0, z1, z2, z3, z4 = _rk4(t, h, y0, y1, y2, y3, y4, MODE_STUCK, phase, f_prs,
-                                      p, d, e)
+            z = _rk4(t, h, y_0, MODE_STUCK, phase, f_prs, p, d, e)
             d[D_N_STEPS] += 1.0
             d[D_MODE] = mode
             t_new = t + h
             d[D_N_FORCED] += 1.0
-        if phase == PH_OFF and z0 < 0.0 and e[_el.E_BLOCK_REVERSE] != 0.0:
-            z0 = 0.0
-        y[0] = z0
-        y[1] = z1
-        y[2] = z2
-        y[3] = z3
-        y[4] = z4
+        for k in range(N_Y):
+            y[k] = z[k]
+        if phase == PH_OFF and y[Y_I] < 0.0 and e[_el.E_BLOCK_REVERSE] != 0.0:
+            y[Y_I] = 0.0
         d[D_T] = t_new
+
+
+# --------------------------------------------------------------------------------------
+# Initial drive state: the one place that fills the D_* slots at t = 0
+# --------------------------------------------------------------------------------------
+@njit(cache=True)
+def _drive_state(supply_voltage_v: float, duty: float, period_s: float,
+                 first_period_start_s: float, supply_pressure_pa: float,
+                 output_pressure_pa: float, sample_dt_s: float,
+                 first_sample_s: float) -> np.ndarray:
+    """Compiled body of :func:`new_drive_state` (also called by the batch kernels)."""
+    d = np.zeros(N_D)
+    d[D_MODE] = MODE_CLOSED
+    d[D_PHASE] = PH_OFF
+    d[D_VS] = supply_voltage_v
+    d[D_PSUP] = supply_pressure_pa
+    d[D_POUT] = output_pressure_pa
+    # the duty in force before the first period starts is reported, never applied: the
+    # first period boundary latches the pending command
+    d[D_DUTY] = duty
+    d[D_PERIOD] = period_s
+    d[D_PEND_DUTY] = duty
+    d[D_PEND_PERIOD] = period_s
+    d[D_NEXT_BOUNDARY] = first_period_start_s
+    d[D_NEXT_FALL] = _INF
+    d[D_NEXT_TICK] = _INF
+    d[D_CHOP_OFF] = _INF
+    d[D_NEXT_SAMPLE] = first_sample_s if math.isfinite(sample_dt_s) else _INF
+    d[D_SAMPLE_DT] = sample_dt_s
+    d[D_SAMPLE_T0] = first_sample_s
+    d[D_BOOST_END] = np.nan
+    return d
 
 
 def new_drive_state(supply_voltage_v: float, duty: float, period_s: float,
@@ -676,28 +765,33 @@ def new_drive_state(supply_voltage_v: float, duty: float, period_s: float,
                     first_sample_s: float = 0.0) -> np.ndarray:
     """Initial discrete state: valve closed at rest, capacitor empty, PWM not yet started.
 
-    The first main PWM period starts at ``first_period_start_s`` with (duty, period_s).
-    Samples are recorded at ``first_sample_s + k * sample_dt_s`` (none if inf).
+    The one initialisation of the drive state (the batch kernels and
+    :func:`valve_model_pkg.model.simulate_trace_batch` call its compiled body).
+
+    Parameters
+    ----------
+    supply_voltage_v : float
+        Driver supply voltage, V (the coil voltage of a bare coil in its supply phase).
+    duty : float
+        Main PWM duty in [0, 1] of the first period.
+    period_s : float
+        Main PWM period, s (inf: one endless period, a step or a bare-coil trace).
+    first_period_start_s : float
+        Start (rising edge) of the first main PWM period, s.
+    supply_pressure_pa, output_pressure_pa : float
+        Gauge pressures, Pa.
+    sample_dt_s : float
+        Samples are recorded at ``first_sample_s + k * sample_dt_s`` (none if inf).
+    first_sample_s : float
+        First sample time, s.
+
+    Returns
+    -------
+    numpy.ndarray, shape (N_D,)
     """
-    d = np.zeros(N_D)
-    d[D_MODE] = MODE_CLOSED
-    d[D_PHASE] = PH_OFF
-    d[D_VS] = supply_voltage_v
-    d[D_PSUP] = supply_pressure_pa
-    d[D_POUT] = output_pressure_pa
-    d[D_DUTY] = 0.0
-    d[D_PERIOD] = period_s
-    d[D_PEND_DUTY] = duty
-    d[D_PEND_PERIOD] = period_s
-    d[D_NEXT_BOUNDARY] = first_period_start_s
-    d[D_NEXT_FALL] = np.inf
-    d[D_NEXT_TICK] = np.inf
-    d[D_CHOP_OFF] = np.inf
-    d[D_NEXT_SAMPLE] = first_sample_s if np.isfinite(sample_dt_s) else np.inf
-    d[D_SAMPLE_DT] = sample_dt_s
-    d[D_SAMPLE_T0] = first_sample_s
-    d[D_BOOST_END] = np.nan
-    return d
+    return _drive_state(float(supply_voltage_v), float(duty), float(period_s),
+                        float(first_period_start_s), float(supply_pressure_pa),
+                        float(output_pressure_pa), float(sample_dt_s), float(first_sample_s))
 
 
 def advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: float,
@@ -712,7 +806,8 @@ def advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: f
     e : numpy.ndarray, shape (N_E,)
         ``ElectronicsConfig.to_vector()``.
     y : numpy.ndarray, shape (N_Y,)
-        Continuous state [i_m (A), x (m), x_dot (m/s), dT (K), q (m s)], updated in place.
+        Continuous state [i_m (A), x (m), x_dot (m/s), dT (K), q (m s), q_i (A s),
+        q_v (V s)], updated in place.
     d : numpy.ndarray, shape (N_D,)
         Discrete state (:func:`new_drive_state`), updated in place.
     t_end : float
@@ -720,7 +815,7 @@ def advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: f
     h_free, h_stop : float
         Maximum RK4 step with the spool moving / held, s.
     out : numpy.ndarray, shape (n_samples, N_OUT), optional
-        Sample buffer (columns V, i, x, x_dot, dT, mode).
+        Sample buffer (columns ``O_*``: V, i, x, x_dot, dT, mode, q, q_i, q_v).
     avg_out : numpy.ndarray, shape (n_periods,), optional
         Receives the period-average position of each completed main PWM period, m.
     """
@@ -743,22 +838,9 @@ def _step_batch(raw: np.ndarray, e: np.ndarray, voltage: np.ndarray, p_sup: np.n
     for r in prange(n_runs):
         p = _derive(raw[r])
         y = np.zeros(N_Y)
-        d = np.zeros(N_D)
-        d[D_MODE] = MODE_CLOSED
-        d[D_PHASE] = PH_OFF
-        d[D_VS] = voltage[r]
-        d[D_PSUP] = p_sup[r]
-        d[D_POUT] = p_out[r]
+        # a step is one main PWM period, longer than the run, with duty 1
         big = 2.0 * duration + 1.0
-        d[D_PERIOD] = big
-        d[D_PEND_DUTY] = 1.0
-        d[D_PEND_PERIOD] = big
-        d[D_NEXT_BOUNDARY] = step_time
-        d[D_NEXT_FALL] = _INF
-        d[D_NEXT_TICK] = _INF
-        d[D_CHOP_OFF] = _INF
-        d[D_NEXT_SAMPLE] = 0.0
-        d[D_SAMPLE_DT] = sample_dt
+        d = _drive_state(voltage[r], 1.0, big, step_time, p_sup[r], p_out[r], sample_dt, 0.0)
         out = np.zeros((n_s, N_OUT))
         avg = np.zeros(0)
         _advance(p, e, y, d, duration, h_free, h_stop, out, avg)
@@ -790,21 +872,7 @@ def _pwm_batch(raw: np.ndarray, e: np.ndarray, supply_v: np.ndarray, duty: np.nd
     for r in prange(n_runs):
         p = _derive(raw[r])
         y = np.zeros(N_Y)
-        d = np.zeros(N_D)
-        d[D_MODE] = MODE_CLOSED
-        d[D_PHASE] = PH_OFF
-        d[D_VS] = supply_v[r]
-        d[D_PSUP] = p_sup[r]
-        d[D_POUT] = p_out[r]
-        d[D_PERIOD] = period[r]
-        d[D_PEND_DUTY] = duty[r]
-        d[D_PEND_PERIOD] = period[r]
-        d[D_NEXT_BOUNDARY] = 0.0
-        d[D_NEXT_FALL] = _INF
-        d[D_NEXT_TICK] = _INF
-        d[D_CHOP_OFF] = _INF
-        d[D_NEXT_SAMPLE] = _INF
-        d[D_SAMPLE_DT] = _INF
+        d = _drive_state(supply_v[r], duty[r], period[r], 0.0, p_sup[r], p_out[r], _INF, 0.0)
         out = np.zeros((0, N_OUT))
         row = np.zeros(n_per)
         # one period past the last so the boundary that closes it is processed

@@ -13,7 +13,9 @@ from numba import njit
 from .constants import ATMOSPHERIC_PRESSURE_PA
 from .parameters import ValveParameters
 
-__all__ = ['ATMOSPHERIC_PRESSURE_PA', 'critical_pressure_ratio', 'orifice_mass_flow']
+__all__ = ['ATMOSPHERIC_PRESSURE_PA', 'critical_pressure_ratio', 'mass_flow_absolute',
+           'orifice_mass_flow', 'orifice_mass_flow_scalar']
+
 
 def critical_pressure_ratio(gamma: float = 1.4) -> float:
     """(2 / (gamma + 1))^(gamma / (gamma - 1)); 0.528 for air."""
@@ -37,6 +39,30 @@ def _mass_flow(x: float, p_up: float, p_down: float, c_d: float, c_a: float,
     # subsonic: exponent 2/gamma (the paper prints gamma/gamma, a typo)
     term = ratio ** (2.0 / gamma) - ratio ** ((gamma + 1.0) / gamma)
     return base * math.sqrt(max(0.0, 2.0 * gamma / (r_gas * (gamma - 1.0)) * term))
+
+
+#: eq. (12) for one point with absolute pressures p_up >= p_down and explicit coefficients:
+#: ``mass_flow_absolute(x, p_up_pa, p_down_pa, c_d, c_a_m, temperature_k,
+#: gas_constant_j_per_kg_k, heat_capacity_ratio) -> kg/s`` (compiled; 0 for x <= 0). For
+#: other orifices of the same law (the cylinder's bleed) and hot loops.
+mass_flow_absolute = _mass_flow
+
+
+def orifice_mass_flow_scalar(position_m: float, supply_pressure_pa: float,
+                             output_pressure_pa: float, params: ValveParameters) -> float:
+    """:func:`orifice_mass_flow` for one point without numpy broadcasting, kg/s.
+
+    Gauge pressures in Pa (reversed flow negative), as :func:`orifice_mass_flow`; the
+    simulator node calls this at 1 kHz.
+    """
+    up = supply_pressure_pa + ATMOSPHERIC_PRESSURE_PA
+    down = output_pressure_pa + ATMOSPHERIC_PRESSURE_PA
+    sign = 1.0
+    if down > up:
+        up, down, sign = down, up, -1.0
+    return sign * float(_mass_flow(position_m, up, down, params.discharge_coefficient,
+                                   params.orifice_area_gradient_m, params.supply_temperature_k,
+                                   params.gas_constant_j_per_kg_k, params.heat_capacity_ratio))
 
 
 def orifice_mass_flow(position_m: float | np.ndarray,

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from . import kernel as _k
-from .averaging import moving_average
+from .averaging import hold_period_means, moving_average
 from .electronics import ElectronicsConfig
 from .mechanics import MODE_CLOSED, MODE_OPEN
 from .orifice import orifice_mass_flow
@@ -58,8 +58,10 @@ class SimulationResult:
     mode : numpy.ndarray of int, shape (n,)
         Mechanical mode (mechanics.MODE_*: 0 moving, 1 closed stop, 2 open stop, 3 stuck).
     position_avg_m : numpy.ndarray, shape (n,)
-        Trailing moving average of the position over one PWM period (Section 5), m; for a
-        step run, over 20 ms.
+        The suite's per-period moving average of the position (Section 5), m: the exact
+        mean over the last complete main PWM period, 0 before the first one ends (see
+        :mod:`~valve_model_pkg.model.averaging`). A step run has no PWM period: there, a
+        trailing 20 ms window (:func:`~valve_model_pkg.model.moving_average`).
     period_end_s, period_avg_position_m : numpy.ndarray, shape (k,)
         Exact average position over each completed main PWM period (from the kernel).
     duty, pwm_frequency_hz, supply_voltage_v, supply_pressure_pa, output_pressure_pa : float
@@ -171,12 +173,19 @@ def _run(params: ValveParameters, electronics: ElectronicsConfig, supply_voltage
     t = np.arange(n) * dt
     n_done = min(int(d[_k.D_AVG_IDX]), n_per)
     ends = first_edge_s + period_s * np.arange(1, n_done + 1) if n_done else np.zeros(0)
+    if experiment == 'pwm':
+        # the suite's moving average (averaging.last_period_mean), from the kernel's exact
+        # period means: what ValveStepper and the simulator node publish
+        position_avg = hold_period_means(t, ends, avg[:n_done], period_s)
+    else:
+        # a step has no main PWM period: a trailing window (averaging.moving_average)
+        position_avg = moving_average(t, out[:, _k.O_X], avg_window_s) if n > 1 \
+            else out[:, _k.O_X].copy()
     return SimulationResult(
         t_s=t, voltage_v=out[:, _k.O_V].copy(), current_a=out[:, _k.O_I].copy(),
         position_m=out[:, _k.O_X].copy(), velocity_m_s=out[:, _k.O_XDOT].copy(),
         temperature_rise_k=out[:, _k.O_DT].copy(), mode=out[:, _k.O_MODE].astype(int),
-        position_avg_m=moving_average(t, out[:, _k.O_X], avg_window_s) if n > 1
-        else out[:, _k.O_X].copy(),
+        position_avg_m=position_avg,
         period_end_s=ends, period_avg_position_m=avg[:n_done].copy(),
         duty=float(duty), pwm_frequency_hz=float(1.0 / period_s) if experiment == 'pwm'
         else 0.0,
@@ -259,8 +268,8 @@ def simulate_pwm(params: ValveParameters, electronics: ElectronicsConfig | None 
     Returns
     -------
     SimulationResult
-        ``position_avg_m`` is the trailing one-period moving average; the exact per-period
-        averages are in ``period_avg_position_m``.
+        ``position_avg_m`` is the suite's moving average (the mean over the last
+        complete period, held); the per-period means are in ``period_avg_position_m``.
     """
     if electronics is None:
         electronics = ElectronicsConfig()

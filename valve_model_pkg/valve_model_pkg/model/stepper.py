@@ -14,15 +14,13 @@ up to ``t_s``; ``sample()`` reads the state at the current time without advancin
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 
 from . import kernel as _k
 from .electronics import ElectronicsConfig
-from .constants import ATMOSPHERIC_PRESSURE_PA
-from .orifice import _mass_flow
+from .orifice import orifice_mass_flow_scalar
 from .parameters import ParameterError, ValveParameters
 from .sample import ValveSample
 
@@ -147,25 +145,13 @@ class ValveStepper:
         x_avg = float(d[_k.D_XAVG])
         p_sup = float(d[_k.D_PSUP])
         p_out = float(d[_k.D_POUT])
-        flow = _scalar_flow(x_avg, p_sup, p_out, self._params)
+        flow = orifice_mass_flow_scalar(x_avg, p_sup, p_out, self._params)
         return ValveSample(
             t_s=t, coil_voltage_v=volt, coil_current_a=cur,
             spool_position_m=float(y[_k.Y_X]), spool_velocity_m_s=float(y[_k.Y_V]),
             position_avg_m=x_avg, mass_flow_kg_s=flow, duty=float(d[_k.D_DUTY]),
             pwm_frequency_hz=float(1.0 / d[_k.D_PERIOD]), supply_pressure_pa=p_sup,
             output_pressure_pa=p_out, coil_temperature_rise_k=float(y[_k.Y_DT]))
-
-
-def _scalar_flow(x: float, p_sup: float, p_out: float, params: ValveParameters) -> float:
-    # eq. (12) for one point without numpy broadcasting (the node calls this at 1 kHz)
-    up = p_sup + ATMOSPHERIC_PRESSURE_PA
-    down = p_out + ATMOSPHERIC_PRESSURE_PA
-    sign = 1.0
-    if down > up:
-        up, down, sign = down, up, -1.0
-    return sign * float(_mass_flow(x, up, down, params.discharge_coefficient,
-                                   params.orifice_area_gradient_m, params.supply_temperature_k,
-                                   params.gas_constant_j_per_kg_k, params.heat_capacity_ratio))
 
 
 def _check_command(duty: float, pwm_frequency_hz: float) -> None:

@@ -5,16 +5,21 @@ The topic names, QoS profiles and constants are defined in :mod:`valve_model_pkg
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from typing import Any, NoReturn
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType)
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
 
 from valve_model_pkg.interface import (ATMOSPHERIC_PRESSURE_PA, TOPIC_DIAGNOSTICS,
                                        TOPIC_DUTY_COMMAND, TOPIC_FLOW_COMMAND,
@@ -28,8 +33,11 @@ __all__ = [
     'TOPIC_SUPPLY_PRESSURE', 'TOPIC_OUTPUT_PRESSURE', 'TOPIC_FLOW_STATUS', 'TOPIC_DIAGNOSTICS',
     'STATE_QOS', 'COMMAND_QOS', 'PRESSURE_QOS', 'declare_float', 'declare_int', 'declare_bool',
     'declare_string', 'gauge_from_absolute', 'absolute_from_gauge', 'key_values',
-    'DiagnosticLevel', 'run_node',
+    'DiagnosticLevel', 'run_node', 'help_requested', 'print_node_help', 'parameter_help',
+    'recorded_declarations', 'refuse_start', 'STARTUP_ERRORS', 'StartupRefused', 'EXIT_OK',
+    'EXIT_FAILURE', 'EXIT_REFUSED',
 ]
+
 
 class DiagnosticLevel:
     """diagnostic_msgs/DiagnosticStatus levels as bytes (the message field is a byte)."""
@@ -95,26 +103,174 @@ def key_values(**values: object) -> list[KeyValue]:
     return out
 
 
-def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None,
-             startup_errors: tuple[type[BaseException], ...] = (ValueError, OSError)) -> None:
-    """Spin a node until Ctrl-C or an external shutdown (the Jazzy main of every node).
+#: Exit codes of every node and command of the suite (README, "One rule for commands").
+EXIT_OK = 0        # normal end, also after Ctrl-C (SIGINT) or SIGTERM
+EXIT_FAILURE = 1   # a failure inside
+EXIT_REFUSED = 2   # refused start-up input: a bad parameter, a bad parameter or map file
 
-    An error of ``startup_errors`` raised while the node is built (a bad parameter, a bad
-    parameter or map file) is logged as fatal with its reason and ends the process with
-    exit code 1: a node never runs on defaults it was not asked for.
+
+
+class StartupRefused(Exception):
+    """A node refuses its start-up input (its message names it): exit EXIT_REFUSED."""
+
+
+#: What a node refuses at start-up with one fatal line and EXIT_REFUSED: a value outside
+#: its range (ours: ValueError; rcl's own range check: ParameterException), a file that
+#: cannot be read (OSError), or a node's own StartupRefused.
+STARTUP_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, ParameterException,
+                                                   StartupRefused)
+
+_PARAMETER_TYPES = {
+    ParameterType.PARAMETER_BOOL: 'bool', ParameterType.PARAMETER_INTEGER: 'int',
+    ParameterType.PARAMETER_DOUBLE: 'double', ParameterType.PARAMETER_STRING: 'string',
+    ParameterType.PARAMETER_BYTE_ARRAY: 'byte[]', ParameterType.PARAMETER_BOOL_ARRAY: 'bool[]',
+    ParameterType.PARAMETER_INTEGER_ARRAY: 'int[]',
+    ParameterType.PARAMETER_DOUBLE_ARRAY: 'double[]',
+    ParameterType.PARAMETER_STRING_ARRAY: 'string[]',
+}
+
+
+def help_requested(args: list[str] | None = None) -> bool:
+    """Whether ``-h``/``--help`` is among the node's own (non-ROS) arguments.
+
+    ``args`` is the full argument vector as ``rclpy.init`` takes it (program name first);
+    ``None`` means ``sys.argv``.
     """
+    argv = list(sys.argv if args is None else args)
+    return any(a in ('-h', '--help') for a in remove_ros_args(argv)[1:])
+
+
+@contextlib.contextmanager
+def recorded_declarations() -> Iterator[list[tuple[str, Any, ParameterDescriptor | None]]]:
+    """Record every ``declare_parameter`` call (name, default, descriptor) while active.
+
+    The node's own declarations are the one source of its parameters' names, types,
+    defaults, ranges and descriptions; ``--help`` prints them from here, so the help text
+    cannot drift from what the node declares.
+    """
+    declared: list[tuple[str, Any, ParameterDescriptor | None]] = []
+    original = Node.declare_parameter
+
+    def record(self: Node, name: str, value: Any = None,
+               descriptor: ParameterDescriptor | None = None,
+               ignore_override: bool = False) -> Any:
+        declared.append((name, value, descriptor))
+        return original(self, name, value, descriptor, ignore_override)
+
+    Node.declare_parameter = record  # type: ignore[method-assign]
+    try:
+        yield declared
+    finally:
+        Node.declare_parameter = original  # type: ignore[method-assign]
+
+
+def _range_text(descriptor: ParameterDescriptor | None) -> str:
+    if descriptor is None:
+        return ''
+    if descriptor.floating_point_range:
+        r = descriptor.floating_point_range[0]
+        return f'[{r.from_value:g}, {r.to_value:g}]'
+    if descriptor.integer_range:
+        r = descriptor.integer_range[0]
+        return f'[{r.from_value}, {r.to_value}]'
+    return descriptor.additional_constraints or ''
+
+
+def parameter_help(declared: list[tuple[str, Any, ParameterDescriptor | None]]) -> str:
+    """The parameters as ``--help`` prints them: name, type, default, range, description."""
+    lines = ['parameters (set with --ros-args -p NAME:=VALUE):']
+    for name, default, descriptor in declared:
+        if descriptor is not None and descriptor.type != ParameterType.PARAMETER_NOT_SET:
+            type_name = _PARAMETER_TYPES.get(descriptor.type, str(descriptor.type))
+        else:
+            type_name = type(default).__name__ if default is not None else 'any'
+        range_text = _range_text(descriptor)
+        lines.append(f'  {name}  ({type_name}, default {default!r}'
+                     + (f', range {range_text}' if range_text else '') + ')')
+        description = descriptor.description if descriptor is not None else ''
+        if description:
+            lines.append(f'      {description}')
+    return '\n'.join(lines)
+
+
+def print_node_help(make_node: Callable[[], Node], name: str, args: list[str] | None,
+                    description: str | None = None, usage: str | None = None,
+                    cleanup: Callable[[Node], None] | None = None) -> int:
+    """``--help`` of a node: build it (never spun), print its parameters; return the code.
+
+    The node is constructed with rclpy as it would be at start-up, but not spun, so no
+    timer fires and a lifecycle node is never configured (the CAN driver opens no bus).
+    No running ROS graph is needed. ``cleanup(node)`` runs before the node is destroyed.
+    Returns :data:`EXIT_OK`, or :data:`EXIT_REFUSED` if the construction refused the given
+    parameters (the parameters declared so far are shown).
+    """
+    argv = [a for a in (sys.argv if args is None else args) if a not in ('-h', '--help')]
+    if description is None:
+        module = sys.modules.get(getattr(make_node, '__module__', ''), None)
+        description = (getattr(module, '__doc__', None) or name).strip().split('\n')[0]
+    print(usage or f'usage: {name} [-h] [--ros-args -p NAME:=VALUE ...]')
+    print(f'\n{description}\n')
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    # The node's start-up INFO lines would only interleave with the help text.
+    rclpy.logging.set_logger_level(name, rclpy.logging.LoggingSeverity.WARN)
+    node = None
+    code = EXIT_OK
+    try:
+        with recorded_declarations() as declared:
+            try:
+                node = make_node()
+            except STARTUP_ERRORS as err:
+                print(f'(these parameters refused start-up: {err})')
+                code = EXIT_REFUSED
+        print(parameter_help(declared))
+    finally:
+        if node is not None:
+            if cleanup is not None:
+                cleanup(node)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    print(f'\nexit codes: {EXIT_OK} normal end (also on Ctrl-C/SIGINT and SIGTERM), '
+          f'{EXIT_REFUSED} refused start-up input (one fatal line names it), '
+          f'{EXIT_FAILURE} a failure inside')
+    return code
+
+
+def refuse_start(name: str, err: BaseException) -> NoReturn:
+    """Log one fatal line naming what was refused and exit with :data:`EXIT_REFUSED`."""
+    rclpy.logging.get_logger(name).fatal(f'cannot start: {err}')
+    rclpy.try_shutdown()
+    sys.exit(EXIT_REFUSED)
+
+
+def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None,
+             startup_errors: tuple[type[BaseException], ...] = STARTUP_ERRORS) -> None:
+    """Spin a node until Ctrl-C, SIGTERM or an external shutdown (the main of every node).
+
+    ``-h``/``--help`` prints the node's parameters (:func:`print_node_help`) and exits 0.
+    An error of ``startup_errors`` raised while the node is built (a bad parameter, a bad
+    parameter or map file) is logged as one fatal line with its reason and ends the process
+    with :data:`EXIT_REFUSED` (2): a node never runs on defaults it was not asked for. A
+    failure while running propagates (exit 1). SIGINT and SIGTERM end it with exit 0 and no
+    traceback: rclpy's signal handlers shut the context down and the spin returns.
+    """
+    if help_requested(args):
+        sys.exit(print_node_help(make_node, name, args))
     rclpy.init(args=args)
     node = None
     try:
-        node = make_node()
+        try:
+            node = make_node()
+        except Exception as err:
+            if not rclpy.ok():
+                # SIGINT/SIGTERM arrived while the node was being built: rclpy's handler
+                # shut the context down under it. That is a stop request, not a failure.
+                return
+            if isinstance(err, startup_errors):
+                refuse_start(name, err)
+            raise
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except startup_errors as err:
-        if node is not None:
-            raise
-        rclpy.logging.get_logger(name).fatal(f'cannot start: {err}')
-        sys.exit(1)
     finally:
         if node is not None:
             node.destroy_node()

@@ -55,7 +55,8 @@ from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, 
                                           TOPIC_FLOW_COMMAND, TOPIC_FLOW_STATUS,
                                           TOPIC_OUTPUT_PRESSURE, TOPIC_SUPPLY_PRESSURE,
                                           declare_float, declare_string, DiagnosticLevel,
-                                          gauge_from_absolute, key_values, run_node)
+                                          gauge_from_absolute, key_values, run_node,
+                                          STARTUP_ERRORS)
 
 #: Highest main PWM frequency accepted [Hz] (as the simulator).
 MAX_PWM_FREQUENCY_HZ = 1000.0
@@ -335,7 +336,7 @@ def _nearest(values: object, v: float) -> int:
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C or an external shutdown."""
     run_node(FlowToDutyNode, 'flow_to_duty', args,
-             startup_errors=(StartupError, ValueError, OSError))
+             startup_errors=STARTUP_ERRORS + (StartupError,))
 
 
 if __name__ == '__main__':

@@ -38,11 +38,14 @@ a tenth of a core at 1 kHz instead of a third.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import importlib
+import io
 import logging
 import signal
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass
@@ -60,9 +63,11 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
-from valve_model_pkg.nodes.common import (TOPIC_DIAGNOSTICS, DiagnosticLevel, declare_bool,
-                                          declare_float, declare_int, declare_string,
-                                          key_values)
+from valve_model_pkg.nodes.common import (EXIT_FAILURE, EXIT_OK, EXIT_REFUSED,
+                                          STARTUP_ERRORS, TOPIC_DIAGNOSTICS, DiagnosticLevel,
+                                          declare_bool, declare_float, declare_int,
+                                          declare_string, help_requested, key_values,
+                                          print_node_help)
 from valve_model_pkg.recording import (DEFAULT_TOPICS, BagWriteError, BagWriter,
                                        QueuedBagWriter, RecordingError,
                                        UnknownMessageTypeError, bag_info, ensure_type,
@@ -377,7 +382,10 @@ def _parse_cli(argv: list[str]) -> argparse.Namespace:
     parser.add_argument('topics', nargs='*',
                         help='topics to record, "name" or "name:pkg/msg/Type" (default: all '
                         'of the suite\'s topics)')
-    parser.add_argument('-o', '--output', help='bag directory to create')
+    parser.add_argument('-o', '--out', dest='output',
+                        help='bag directory to create (parameter output); with --recover, '
+                        'the recovered bag')
+    parser.add_argument('--output', dest='output', help=argparse.SUPPRESS)  # old spelling
     parser.add_argument('--flush-period', type=float, metavar='S',
                         help='flush period [s] (parameter flush_period_s)')
     parser.add_argument('--no-fsync', action='store_true', help='do not fsync after flushes')
@@ -392,7 +400,7 @@ def _parse_cli(argv: list[str]) -> argparse.Namespace:
 
 
 def _offline(ns: argparse.Namespace) -> int:
-    """--info / --recover: no ROS needed."""
+    """--info / --recover: no ROS needed. Returns the exit code."""
     try:
         if ns.info:
             print(bag_info(ns.info))
@@ -400,15 +408,41 @@ def _offline(ns: argparse.Namespace) -> int:
             report = recover_bag(ns.recover, ns.output,
                                  compression=ns.compression or 'none')
             print(report.summary())
-    except (RecordingError, OSError) as err:
+    except BagWriteError as err:  # writing the recovered bag failed: a failure inside
         print(f'{NODE_NAME}: {err}', file=sys.stderr)
-        return 1
-    return 0
+        return EXIT_FAILURE
+    except (RecordingError, OSError) as err:  # no such bag, not a bag: refused input
+        print(f'{NODE_NAME}: {err}', file=sys.stderr)
+        return EXIT_REFUSED
+    return EXIT_OK
+
+
+def _print_help(argv: list[str]) -> int:
+    """--help: the command line, then the node's parameters (from its declarations)."""
+    with contextlib.redirect_stdout(io.StringIO()) as text, \
+            contextlib.suppress(SystemExit):
+        _parse_cli(['--help'])
+    usage, _, rest = text.getvalue().partition('\n\n')
+    # The parameters are read from a node built as at start-up; its bag would be created
+    # on construction, so it goes to a scratch directory that is removed again.
+    with tempfile.TemporaryDirectory(prefix='valve_recorder_help_') as scratch:
+        def close(node: RecorderNode) -> None:
+            with contextlib.suppress(RecordingError, OSError):
+                node.close_bag()
+        return print_node_help(
+            lambda: RecorderNode([Parameter('output_dir', value=scratch)]), NODE_NAME, argv,
+            description=rest.strip(), usage=usage, cleanup=close)
 
 
 def main(args: list[str] | None = None) -> None:
-    """Record until Ctrl-C / SIGTERM, or run --info / --recover."""
+    """Record until Ctrl-C / SIGTERM, or run --info / --recover / --help.
+
+    Exit codes: 0 success (also after SIGINT/SIGTERM), 2 refused input (a bad parameter,
+    an existing output directory, no such bag), 1 a failure inside (the writer failed).
+    """
     argv = list(sys.argv if args is None else args)
+    if help_requested(argv):
+        sys.exit(_print_help(argv))
     ns = _parse_cli(remove_ros_args(argv)[1:])
     logging.basicConfig(level=logging.INFO, format='[%(levelname)s] [%(name)s]: %(message)s')
     if ns.info or ns.recover:
@@ -434,23 +468,28 @@ def main(args: list[str] | None = None) -> None:
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
     node = None
-    code = 0
+    code = EXIT_OK
     log = rclpy.logging.get_logger(NODE_NAME)
     executor = SingleThreadedExecutor()
     try:
-        node = RecorderNode(overrides)
-        executor.add_node(node)
-        while not stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-            if node.batch_period_s:
-                stop.wait(node.batch_period_s)
+        try:
+            node = RecorderNode(overrides)
+        except STARTUP_ERRORS + (RecordingError,) as err:
+            # A bad parameter, an existing output directory, an unknown type: say which.
+            log.fatal(f'cannot record: {err}')
+            code = EXIT_REFUSED
+        if node is not None:
+            executor.add_node(node)
+            while not stop.is_set() and rclpy.ok():
+                executor.spin_once(timeout_sec=0.1)
+                if node.batch_period_s:
+                    stop.wait(node.batch_period_s)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ValueError, RecordingError, OSError) as err:
-        # A bad parameter, an existing output directory, an unknown type, a dead writer:
-        # say which and fail.
+        # A dead writer while recording: say which and fail.
         log.fatal(f'cannot record: {err}')
-        code = 1
+        code = EXIT_FAILURE
     finally:
         if node is not None:
             try:
@@ -458,7 +497,7 @@ def main(args: list[str] | None = None) -> None:
             except BagWriteError as err:
                 log.fatal(f'{err}; recover what was flushed with '
                           f'`{NODE_NAME} --recover {node.bag_path}`')
-                code = 1
+                code = EXIT_FAILURE
             executor.remove_node(node)
             node.destroy_node()
         executor.shutdown()

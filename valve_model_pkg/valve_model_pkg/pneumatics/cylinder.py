@@ -36,7 +36,7 @@ from dataclasses import dataclass, fields, replace
 from typing import Any
 
 from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
-from valve_model_pkg.model.orifice import _mass_flow
+from valve_model_pkg.model.orifice import mass_flow_absolute as _mass_flow
 from valve_model_pkg.model.parameters import ValveParameters
 
 __all__ = ['CylinderParameters', 'CylinderState', 'Cylinder', 'PARAMETER_INFO']

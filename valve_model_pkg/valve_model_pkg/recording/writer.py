@@ -3,13 +3,16 @@
 The bag is what ``ros2 bag record -s mcap`` writes, readable by ``ros2 bag info/play``,
 Foxglove, PlotJuggler and rosbags:
 
-* a directory with ``metadata.yaml`` (rosbag2 version 9, as ROS 2 Jazzy writes it) and
-  ``<name>.mcap`` (profile ``ros2``);
+* a directory with ``metadata.yaml`` (rosbag2 version 9 and ``ros_distro: jazzy``, as ROS 2
+  Jazzy writes it) and ``<name>.mcap`` (profile ``ros2``);
 * every topic's message definition embedded as an MCAP schema, encoding ``ros2msg``, with
   its dependencies appended (the form rosbag2 uses), and its RIHS01 type hash in
   ``metadata.yaml``;
 * every topic's offered QoS profiles in ``metadata.yaml`` and in the MCAP channel
-  metadata, so ``ros2 bag play`` offers the same reliability and durability again.
+  metadata, so ``ros2 bag play`` offers the same reliability and durability again;
+* each MCAP channel's metadata holds ``offered_qos_profiles`` and ``topic_type_hash`` (the
+  RIHS01 hash), the two keys rosbag2's MCAP storage plugin writes and reads back as the
+  topic's ``type_description_hash``.
 
 Messages are written as the CDR bytes they arrived in: no deserialisation, nothing lost.
 
@@ -29,29 +32,50 @@ from __future__ import annotations
 import logging
 import os
 import queue
+import re
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
+from io import BytesIO
 from pathlib import Path
 from types import TracebackType
-from typing import Literal
+from typing import Literal, cast
 
-from rosbags.interfaces import Connection, Qos
+from rosbags.interfaces import Connection, ConnectionExtRosbag2, Qos
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
-from rosbags.rosbag2.storage_mcap import McapWriter
+from rosbags.rosbag2.storage_mcap import Channel, McapWriter, write_channel, write_string
 from rosbags.typesys.store import Typestore
 
 from .errors import BagWriteError, RecordingError
 from .typestore import build_typestore, ensure_type, msgdef_and_hash
 
-__all__ = ['BAG_VERSION', 'BagWriter', 'QueuedBagWriter', 'WriterStats', 'absolute_topic']
+__all__ = ['BAG_VERSION', 'ROS_DISTRO', 'BagWriter', 'QueuedBagWriter', 'WriterStats',
+           'absolute_topic']
 
 _LOG = logging.getLogger(__name__)
 
 #: rosbag2 metadata version ROS 2 Jazzy writes (QoS profiles as a YAML list of names).
 BAG_VERSION: Literal[9] = 9
+
+#: The ROS distribution the bags are written for (``ros_distro`` of the bag metadata, as
+#: rosbag2 writes it; rosbags would write its own name there).
+ROS_DISTRO = 'jazzy'
+
+# rosbags writes ``ros_distro: rosbags`` into metadata.yaml and into the MCAP file's
+# ``rosbag2`` metadata record; both are rewritten to :data:`ROS_DISTRO`.
+_ROS_DISTRO_LINE = re.compile(r'^(\s*ros_distro:[ \t]*)\S.*$', re.MULTILINE)
+
+
+def _with_ros_distro(text: str, where: str) -> str:
+    """``text`` (rosbag2 metadata YAML) with ``ros_distro`` set to :data:`ROS_DISTRO`."""
+    new, n = _ROS_DISTRO_LINE.subn(lambda m: m.group(1) + ROS_DISTRO, text)
+    if n != 1:
+        # rosbags is pinned; an upgrade that changes its metadata must fail loudly here
+        raise BagWriteError(f'{where}: expected one ros_distro line in the bag metadata, '
+                            f'found {n}')
+    return new
 
 
 def absolute_topic(topic: str) -> str:
@@ -68,6 +92,31 @@ class _FlushableMcapWriter(McapWriter):
     Relies on ``McapWriter.chunk``, ``close_chunk`` and ``bio`` of rosbags 0.11 (pinned; a
     unit test fails if they change).
     """
+
+    def add_connection(self, connection: Connection, offered_qos_profiles: str) -> None:
+        """Add the channel with the metadata rosbag2's MCAP storage writes.
+
+        rosbags writes ``offered_qos_profiles`` only; rosbag2 (``MCAPStorage::create_topic``)
+        also writes ``topic_type_hash``, the RIHS01 type description hash, which it reads
+        back as the topic's ``type_description_hash``. Otherwise as rosbags'
+        ``McapWriter.add_connection``.
+        """
+        metadata = BytesIO()
+        for key, value in (('offered_qos_profiles', offered_qos_profiles),
+                           ('topic_type_hash', connection.digest)):
+            write_string(metadata, key)
+            write_string(metadata, value)
+        self.channels.append(Channel(
+            connection.id, connection.msgtype, connection.topic,
+            cast(ConnectionExtRosbag2, connection.ext).serialization_format,
+            metadata.getvalue()))
+        self.channel_stats[connection.id] = 0
+        write_channel(self.chunk.bio, self.channels[-1], self.schemas)
+
+    def close(self, version: int, metadata: str) -> None:
+        """Close with ``ros_distro`` in the MCAP ``rosbag2`` record set to :data:`ROS_DISTRO`.
+        """
+        super().close(version, _with_ros_distro(metadata, str(self.path)))
 
     def flush(self, fsync: bool) -> bool:
         """Close the pending chunk if it holds messages; flush (and fsync) the file.
@@ -88,9 +137,18 @@ class _FlushableMcapWriter(McapWriter):
 
 
 class _Rosbag2Writer(Writer):
-    """rosbags' rosbag2 writer using :class:`_FlushableMcapWriter` for MCAP storage."""
+    """rosbags' rosbag2 writer using :class:`_FlushableMcapWriter` for MCAP storage, and
+    ``ros_distro`` in ``metadata.yaml`` set to :data:`ROS_DISTRO`."""
 
     STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: _FlushableMcapWriter}
+
+    def close(self) -> None:
+        """Close as rosbags does, then set ``ros_distro`` in ``metadata.yaml``."""
+        super().close()
+        text = self.metapath.read_text(encoding='utf-8')
+        tmp = self.metapath.with_suffix('.yaml.tmp')
+        tmp.write_text(_with_ros_distro(text, str(self.metapath)), encoding='utf-8')
+        tmp.replace(self.metapath)  # atomic: a reader sees the old or the new file
 
 
 class BagWriter:

@@ -2,7 +2,7 @@
 
 This is what ``make demo`` runs. It starts, each as its own process (the ``launch``
 package is not in the ROS 2 wheels; users with a full ROS install have
-``launch/valve_suite.launch.py``):
+``ros2 launch valve_bringup valve_suite.launch.py``):
 
 - the valve backend: ``valve_simulator`` (``--backend sim``) or the CAN driver with the
   controller emulator (``--backend can``),
@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from valve_model_pkg.supervisor import ChildExited, ProcessSpec, Supervisor
+from valve_bringup.supervisor import ChildExited, ProcessSpec, Supervisor
 
 __all__ = ['main', 'backend_processes', 'suite_processes', 'GOALS']
 
@@ -50,7 +50,7 @@ def backend_processes(backend: str, *, rate_hz: float = 1000.0,
         return [ProcessSpec('valve_simulator', [
             'valve_simulator', '--ros-args', '-p', f'publish_rate_hz:={rate_hz}'])]
     if backend == 'can':
-        from valve_driver_pkg.backend import can_backend_processes  # only when asked for
+        from valve_bringup.backend import can_backend_processes  # only when asked for
         return can_backend_processes(rate_hz=rate_hz, emulator_args=emulator_args)
     raise ValueError(f'unknown backend {backend!r}: expected "sim" or "can"')
 
@@ -78,9 +78,12 @@ class _Watcher:
 
         from valve_msgs.msg import ValveState
 
-        from valve_model_pkg.nodes.common import (COMMAND_QOS, PRESSURE_QOS, STATE_QOS,
-                                                  TOPIC_DUTY_COMMAND, TOPIC_FLOW_COMMAND,
-                                                  TOPIC_OUTPUT_PRESSURE, TOPIC_STATE)
+        from valve_model_pkg.interface import (TOPIC_DUTY_COMMAND, TOPIC_FLOW_COMMAND,
+                                               TOPIC_JOINT_STATES, TOPIC_OUTPUT_PRESSURE,
+                                               TOPIC_POSITION_GOAL, TOPIC_STATE,
+                                               gauge_from_absolute)
+        from valve_model_pkg.interface.ros import (COMMAND_QOS, JOINT_STATES_QOS,
+                                                   PRESSURE_QOS, STATE_QOS)
 
         rclpy.init()
         self.probe = rclpy.create_node('valve_demo')
@@ -94,7 +97,7 @@ class _Watcher:
             self.states += 1
         self._state_sub = self.probe.create_subscription(ValveState, TOPIC_STATE, on_state,
                                                          STATE_QOS)
-        self._goal_pub = self.probe.create_publisher(Float64, 'cylinder/position_goal',
+        self._goal_pub = self.probe.create_publisher(Float64, TOPIC_POSITION_GOAL,
                                                      COMMAND_QOS)
         self.position_m = math.nan
         self.pressure_pa = math.nan
@@ -108,7 +111,7 @@ class _Watcher:
                 self.position_m = msg.position[0]
 
         def on_pressure(msg: FluidPressure) -> None:
-            self.pressure_pa = msg.fluid_pressure - 101_325.0
+            self.pressure_pa = gauge_from_absolute(msg.fluid_pressure)
 
         def on_flow(msg: FlowCommand) -> None:
             self.flow_cmd_sum += msg.mass_flow
@@ -118,7 +121,8 @@ class _Watcher:
             self.duty_sum += msg.duty
             self.duty_n += 1
 
-        self.probe.create_subscription(JointState, 'cylinder/joint_states', on_joint, 50)
+        self.probe.create_subscription(JointState, TOPIC_JOINT_STATES, on_joint,
+                                       JOINT_STATES_QOS)
         self.probe.create_subscription(FluidPressure, TOPIC_OUTPUT_PRESSURE, on_pressure,
                                        PRESSURE_QOS)
         self.probe.create_subscription(FlowCommand, TOPIC_FLOW_COMMAND, on_flow, COMMAND_QOS)
@@ -219,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--backend', choices=('sim', 'can'), default='sim',
                         help='valve/state from the simulator or the CAN driver + emulator')
     parser.add_argument('--rate', type=float, default=1000.0, help='valve/state rate [Hz]')
-    parser.add_argument('--out', type=Path, default=Path('demo_output'),
+    parser.add_argument('-o', '--out', type=Path, default=Path('demo_output'),
                         help='directory for the bag and the report')
     parser.add_argument('--effect', action='append', default=[], metavar='NAME',
                         help='(can backend) the emulator\'s valve carries this physical '

@@ -15,7 +15,7 @@ from __future__ import annotations
 import socket
 from collections.abc import Sequence
 
-from valve_model_pkg.supervisor import ProcessSpec
+from valve_bringup.supervisor import ProcessSpec
 
 __all__ = ['can_backend_processes', 'can_backend_commands', 'free_loopback_port']
 

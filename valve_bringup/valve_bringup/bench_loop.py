@@ -1,6 +1,6 @@
 """valve_bench_loop: close the loop through the bench, over CAN, from recorded bags.
 
-    valve_bench_loop [--effect coil_heating] [--out DIR] [--quick]
+    valve_bench_loop [--effect coil_heating] [-o/--out DIR] [--quick]
 
 1. Bench experiments on the CAN backend: the controller emulator runs a valve that carries
    a physical effect the nominal model lacks (``--effect``); the driver publishes
@@ -32,7 +32,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from valve_model_pkg.supervisor import ChildExited, ProcessSpec, Supervisor
+from valve_bringup.supervisor import ChildExited, ProcessSpec, Supervisor
 
 __all__ = ['main', 'BenchRecord', 'record_bench_step', 'DEFAULT_EFFECT_PARAMS']
 
@@ -64,7 +64,7 @@ def record_bench_step(record: BenchRecord, bag: Path, effect_args: tuple[str, ..
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from valve_driver_pkg.backend import can_backend_processes
+    from valve_bringup.backend import can_backend_processes
     from valve_model_pkg.nodes.probe import StateProbe
 
     emulator_args = ('--no-current-control', '--no-capacitor',
@@ -134,7 +134,8 @@ def main(argv: list[str] | None = None) -> int:
                         help='value of an effect parameter, passed to the emulator (default '
                         'for coil_heating: a small coil that heats noticeably within a '
                         'second, R_th 5 K/W, tau 0.5 s)')
-    parser.add_argument('--out', type=Path, default=Path('bench_loop_output'))
+    parser.add_argument('-o', '--out', type=Path, default=Path('bench_loop_output'),
+                        help='directory for the bags, the identification and the map')
     parser.add_argument('--quick', action='store_true',
                         help='quick identification settings (fewer starts)')
     args = parser.parse_args(argv)

@@ -1,8 +1,8 @@
 """Launch the whole suite: valve backend, flow_to_duty, cylinder plant, controller, recorder.
 
-    ros2 launch valve_model_pkg valve_suite.launch.py                 # simulator backend
-    ros2 launch valve_model_pkg valve_suite.launch.py backend:=can    # CAN driver + emulator
-    ros2 launch valve_model_pkg valve_suite.launch.py record:=true bag_dir:=/bags
+    ros2 launch valve_bringup valve_suite.launch.py                 # simulator backend
+    ros2 launch valve_bringup valve_suite.launch.py backend:=can    # CAN driver + emulator
+    ros2 launch valve_bringup valve_suite.launch.py record:=true bag_dir:=/bags
 
 Arguments:
     backend        sim | can   which node provides valve/state (same topic, same type)

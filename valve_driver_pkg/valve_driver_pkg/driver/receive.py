@@ -1,0 +1,306 @@
+"""The driver's receive tracker: frames in, valve samples out, counters and sequence checks.
+
+:class:`ReceiveTracker` checks and decodes every received frame (on the receive thread),
+follows the rolling counters of the three controller messages, turns each valid
+``ValveTelemetry`` into a :class:`~valve_model_pkg.model.sample.ValveSample`, and
+declares the telemetry lost when it stops (:meth:`check_loss`, on the I/O thread). Its
+state changes only under the driver core's one lock; the sample callback runs outside it.
+
+What is measured and what is derived (see the package README):
+
+====================  ==================================================================
+coil current/voltage  measured: ``ValveTelemetry``, quantised 0.2 mA / 10 mV
+spool position        measured: the controller's estimate (``PositionValid``), 10 nm
+spool velocity        derived: difference of consecutive positions / telemetry period
+position average      measured: ``ValvePeriod`` (the controller's average over the last
+                      complete PWM period); derived if the controller sends none: the
+                      suite's :class:`~valve_model_pkg.model.averaging.PeriodAverager` on
+                      the telemetry positions (periods counted from the first sample)
+mass flow             derived: eq. (12) (``orifice_mass_flow``) from the average position
+duty, PWM frequency   measured: in force at the controller (``ValvePeriod``); without it the
+                      last command sent (duty 0 while the controller reports ``Enabled=0``)
+pressures             the driver's inputs (parameters or pressure topics), also sent to
+                      the controller in ``ValvePressure``
+====================  ==================================================================
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+
+import can
+
+from valve_driver_pkg.driver.bus_link import BusLink
+from valve_driver_pkg.driver.config import DriverConfig
+from valve_driver_pkg.driver.diagnostics import Tally
+from valve_driver_pkg.driver.transmit import TransmitScheduler
+from valve_driver_pkg.errors import FrameRejected
+from valve_driver_pkg.protocol.codec import (COMMAND, PERIOD, PRESSURE, STATUS, TELEMETRY,
+                                             CounterCheck, CounterTracker, RejectReason,
+                                             ValveCodec)
+from valve_model_pkg.model.averaging import PeriodAverager
+from valve_model_pkg.model.sample import ValveSample
+
+__all__ = ['ReceiveTracker', 'MassFlowFunction']
+
+logger = logging.getLogger(__name__)
+
+#: ``f(position_avg_m, supply_pa, output_pa) -> kg/s`` (gauge pressures).
+MassFlowFunction = Callable[[float, float, float], float]
+
+#: Telemetry losses are logged at most this often (the diagnostics count every one) [s].
+_LOG_INTERVAL_S = 5.0
+#: A ValvePeriod older than this no longer counts; the driver's own average is used [s].
+_PERIOD_FRESH_S = 0.5
+#: The telemetry rate is measured over windows of this length [s].
+_RATE_WINDOW_S = 0.5
+
+
+class ReceiveTracker:
+    """Received frames -> counters, sequence checks, controller state and valve samples.
+
+    Parameters
+    ----------
+    config : DriverConfig
+    codec : ValveCodec
+    lock : threading.Condition
+        The driver core's lock.
+    tally : Tally
+        Counters: frames by kind, rejections by reason, counter jumps, lost frames,
+        telemetry losses.
+    link : BusLink
+        Told when valid traffic ends a bus-off.
+    scheduler : TransmitScheduler
+        Read for what was sent (duty, frequency, pressures) and whether the driver is
+        active.
+    mass_flow : MassFlowFunction | None
+        Orifice equation; ``None`` reports 0.
+    on_sample : callable | None
+        ``on_sample(ValveSample)`` on the receive thread for every valid telemetry frame
+        while active.
+    on_change : callable
+        ``on_change()`` when a diagnostic level may have changed (outside the lock).
+    """
+
+    def __init__(self, config: DriverConfig, codec: ValveCodec, lock: threading.Condition,
+                 tally: Tally, link: BusLink, scheduler: TransmitScheduler,
+                 mass_flow: MassFlowFunction | None,
+                 on_sample: Callable[[ValveSample], None] | None,
+                 on_change: Callable[[], None]) -> None:
+        self._config = config
+        self._codec = codec
+        self._lock = lock
+        self._tally = tally
+        self._link = link
+        self._scheduler = scheduler
+        self._mass_flow = mass_flow
+        self._on_sample = on_sample
+        self._on_change = on_change
+        self._telemetry_counter = CounterTracker()
+        self._status_counter = CounterTracker()
+        self._period_counter = CounterTracker()
+        self.frozen_run = 0
+        self.last_valid_mono: float | None = None
+        self.opened_mono = 0.0
+        self.lost = True
+        self.lost_after_s = 0.0
+        self.last_reject = ''
+        self.last_status: dict | None = None
+        self.last_status_mono: float | None = None
+        self.period: tuple[float, float, float, float] | None = None   # avg, duty, f, mono
+        self.rate_hz = 0.0
+        self._rate_window = (time.monotonic(), 0)
+        self._last_loss_log = -math.inf
+        self._losses_logged = 0
+        self._last_sample_t = 0.0
+        self._last_position: float | None = None
+        self._averager: PeriodAverager | None = None
+
+    # --- bus events (lock held by the caller) ------------------------------------------------
+    def on_open(self, now: float) -> None:
+        """A bus was (re)opened: counters start afresh; the loss timer runs from ``now``."""
+        self._telemetry_counter.reset()
+        self._status_counter.reset()
+        self._period_counter.reset()
+        self.opened_mono = now
+
+    @property
+    def frozen_counter(self) -> int | None:
+        """The repeated telemetry counter value (for the diagnostics)."""
+        return self._telemetry_counter.last
+
+    def average_source(self, now: float) -> str:
+        """``'controller'`` while ValvePeriod frames are fresh, else ``'driver'``."""
+        period = self.period
+        return ('controller' if period is not None and now - period[3] <= _PERIOD_FRESH_S
+                else 'driver')
+
+    # --- receive thread ----------------------------------------------------------------------
+    def on_frame(self, msg: can.Message) -> None:
+        """Check, decode and account for one (non-error) frame."""
+        found = self._codec.classify(msg.arbitration_id)
+        with self._lock:
+            if found is not None and found[1] != self._config.node_id:
+                self._tally.count('other_node_frames')   # another valve on the same bus
+                return
+            if found is not None and found[0] in (COMMAND, PRESSURE):
+                self._tally.count('host_frames')   # another host or a test tool: not for us
+                return
+        try:
+            frame = self._codec.decode(msg)
+        except FrameRejected as err:
+            with self._lock:
+                self._reject(err.reason, err.detail)
+            return
+        if frame.name == TELEMETRY:
+            self._on_telemetry(frame.signals, frame.counter)
+        elif frame.name == PERIOD:
+            with self._lock:
+                self._on_period(frame.signals, frame.counter)
+        elif frame.name == STATUS:
+            with self._lock:
+                self._on_status(frame.signals, frame.counter)
+
+    def _reject(self, reason: str, detail: str) -> None:
+        self._tally.count('rejected_total')
+        self._tally.count(f'rejected_{reason}')
+        self._tally.mark('rejected_' + reason, time.monotonic())
+        self.last_reject = detail
+        logger.debug('frame rejected: %s', detail)
+
+    def _on_period(self, signals: dict, counter: int) -> None:
+        if self._period_counter.check(counter) is CounterCheck.FROZEN:
+            self._reject(RejectReason.COUNTER_FROZEN.value,
+                         f'ValvePeriod counter stuck at {counter}')
+            return
+        self._tally.count('period_frames')
+        self.period = (float(signals['PositionAverage']), float(signals['DutyActive']),
+                       float(signals['PwmFrequencyActive']), time.monotonic())
+
+    def _on_status(self, signals: dict, counter: int) -> None:
+        if self._status_counter.check(counter) is CounterCheck.FROZEN:
+            self._reject(RejectReason.COUNTER_FROZEN.value,
+                         f'ValveStatus counter stuck at {counter}')
+            return
+        self._tally.count('status_frames')
+        self.last_status = dict(signals)
+        self.last_status_mono = time.monotonic()
+
+    def _on_telemetry(self, signals: dict, counter: int) -> None:
+        with self._lock:
+            sample, changed = self._track_telemetry(signals, counter)
+        if changed:
+            self._on_change()
+        if sample is not None and self._on_sample is not None:
+            self._on_sample(sample)
+
+    def _track_telemetry(self, signals: dict, counter: int) -> tuple[ValveSample | None, bool]:
+        """Account for one telemetry frame; the sample to hand on and "levels changed"."""
+        now = time.monotonic()
+        cfg = self._config
+        check = self._telemetry_counter.check(counter)
+        if check is CounterCheck.FROZEN:
+            self.frozen_run += 1
+            self._reject(RejectReason.COUNTER_FROZEN.value,
+                         f'ValveTelemetry counter stuck at {counter} ({self.frozen_run} '
+                         'frames)')
+            return None, self.frozen_run == cfg.frozen_counter_limit
+        self.frozen_run = 0
+        was_lost = self.lost
+        if check is CounterCheck.JUMP:
+            self._tally.count('counter_jumps')
+            self._tally.count('frames_lost', self._telemetry_counter.lost)
+            self._tally.mark('counter_jump', now)
+        steps = 1 + self._telemetry_counter.lost
+        if was_lost or check is CounterCheck.FIRST:
+            self._averager = None
+            self._last_position = None
+            steps = 1
+        self._tally.count('telemetry_frames')
+        self.last_valid_mono = now
+        self._link.note_valid_traffic()
+        if was_lost:
+            self.lost = False
+            if self._losses_logged == self._tally.counts['telemetry_losses']:
+                logger.info('telemetry is back')   # only after a loss that was logged
+        period_s = cfg.telemetry_period_s
+        t = self._last_sample_t + steps * period_s
+        self._last_sample_t = t
+        position = float(signals['SpoolPosition'])
+        previous = self._last_position
+        velocity = 0.0 if previous is None else (position - previous) / (steps * period_s)
+        self._last_position = position
+        average = self._driver_average(t, position)
+        scheduler = self._scheduler
+        duty_sent, pwm_hz = scheduler.last_sent_duty, scheduler.pwm_hz
+        supply, output = scheduler.supply_pa, scheduler.output_pa
+        duty = duty_sent if signals['Enabled'] else 0.0
+        if self.average_source(now) == 'controller':
+            average, duty, pwm_hz = self.period[0], self.period[1], self.period[2] or pwm_hz
+        if not scheduler.active:
+            return None, was_lost
+        flow = self._mass_flow(average, supply, output) if self._mass_flow else 0.0
+        return ValveSample(
+            t_s=time.time(), coil_voltage_v=float(signals['CoilVoltage']),
+            coil_current_a=float(signals['CoilCurrent']), spool_position_m=position,
+            spool_velocity_m_s=velocity, position_avg_m=average, mass_flow_kg_s=flow,
+            duty=duty, pwm_frequency_hz=pwm_hz, supply_pressure_pa=supply,
+            output_pressure_pa=output,
+            position_measured=bool(signals['PositionValid'])), was_lost
+
+    def _driver_average(self, t: float, position: float) -> float:
+        """The suite's period average on the telemetry positions (used without ValvePeriod).
+
+        The driver does not know the phase of the controller's PWM, so its periods start
+        at the first sample after a gap; over a full period of a periodic signal the mean
+        does not depend on the phase.
+        """
+        period = 1.0 / self._scheduler.pwm_hz
+        if self._averager is None:
+            self._averager = PeriodAverager(period, t0_s=t)
+        else:
+            self._averager.set_period(period)
+        return self._averager.update(t, position)
+
+    # --- I/O thread --------------------------------------------------------------------------
+    def loss_deadline(self) -> float | None:
+        """When the telemetry will count as lost if no frame comes (None: lost already)."""
+        if self.lost or self.last_valid_mono is None:
+            return None
+        return self.last_valid_mono + self._config.telemetry_timeout_s
+
+    def check_loss(self, now: float) -> bool:
+        """Declare the telemetry lost if it stopped; True if that happened now."""
+        timeout = self._config.telemetry_timeout_s
+        with self._lock:
+            last = self.last_valid_mono
+            reference = last if last is not None else self.opened_mono
+            if self.lost or now - reference <= timeout:
+                return False
+            self.lost = True
+            self.lost_after_s = now - reference
+            self._tally.count('telemetry_losses')
+            losses = self._tally.counts['telemetry_losses']
+            log = now - self._last_loss_log >= _LOG_INTERVAL_S
+            if log:
+                suppressed = losses - self._losses_logged - 1
+                self._last_loss_log = now
+                self._losses_logged = losses
+        if log:
+            logger.error('telemetry lost: no valid ValveTelemetry for %.2f ms (limit %.2f '
+                         'ms)%s', self.lost_after_s * 1e3, timeout * 1e3,
+                         f'; {suppressed} more losses since the last message'
+                         if suppressed > 0 else '')
+        return True
+
+    def update_rate(self, now: float) -> None:
+        """Measure the telemetry rate over the last window (I/O thread)."""
+        with self._lock:
+            start, count = self._rate_window
+            if now - start >= _RATE_WINDOW_S:
+                frames = self._tally.counts['telemetry_frames']
+                self.rate_hz = (frames - count) / (now - start)
+                self._rate_window = (now, frames)

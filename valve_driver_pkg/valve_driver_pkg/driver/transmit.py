@@ -1,0 +1,264 @@
+"""The driver's transmit scheduler: duty command, port pressures, the command watchdog.
+
+:class:`TransmitScheduler` keeps what the host wants the controller to do and decides
+when ``ValveCommand`` and ``ValvePressure`` go out: at once on a change, and at their
+refresh rates. Callers (the node's callbacks) only store values and wake the I/O thread;
+the I/O thread calls :meth:`check_watchdog` and :meth:`send_due`. Every attribute
+changes only under the driver core's one lock; frames are encoded and sent outside it.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+from valve_driver_pkg.driver.bus_link import BusLink
+from valve_driver_pkg.driver.config import DriverConfig
+from valve_driver_pkg.driver.diagnostics import Tally
+from valve_driver_pkg.errors import ProtocolEncodeError
+from valve_driver_pkg.protocol.codec import COMMAND, PRESSURE, ValveCodec
+
+__all__ = ['CommandResult', 'TransmitScheduler']
+
+logger = logging.getLogger(__name__)
+
+#: While inactive the I/O thread looks again after this long [s].
+_IDLE_S = 0.05
+
+
+@dataclass(frozen=True, slots=True)
+class CommandResult:
+    """What ``set_command`` did with a duty command."""
+
+    accepted: bool
+    duty: float
+    pwm_frequency_hz: float
+    clamped: bool
+    message: str
+
+
+class TransmitScheduler:
+    """Command and pressure state, and when their frames are due.
+
+    Parameters
+    ----------
+    config : DriverConfig
+    codec : ValveCodec
+    lock : threading.Condition
+        The driver core's lock (and the I/O thread's wake-up).
+    tally : Tally
+        Counters: ``commands_*``, ``command_frames_sent``, ``pressure_frames_sent``,
+        ``watchdog_trips``, ``internal_errors`` (an encode error: a bug, never sent raw).
+    """
+
+    def __init__(self, config: DriverConfig, codec: ValveCodec, lock: threading.Condition,
+                 tally: Tally) -> None:
+        self._config = config
+        self._codec = codec
+        self._lock = lock
+        self._tally = tally
+        f_lo, f_hi = codec.signal_range(COMMAND, 'PwmFrequency')
+        self._f_min, self._f_max = f_lo, min(f_hi, config.max_pwm_frequency_hz)
+        self._p_lo, self._p_hi = codec.signal_range(PRESSURE, 'SupplyPressure')
+        self._command_period = 1.0 / config.command_rate_hz
+        self._pressure_period = 1.0 / config.pressure_rate_hz
+        self.active = False
+        self.duty = 0.0
+        self.pwm_hz = min(max(config.pwm_frequency_hz, self._f_min), self._f_max)
+        self.supply_pa = float(config.supply_pressure_pa)
+        self.output_pa = float(config.output_pressure_pa)
+        self.watchdog_tripped = False
+        self.disable_pending = False     # deactivate(): one "disable" frame still to send
+        self.last_sent_duty = 0.0
+        self.last_command_note = ''
+        self._last_command_mono: float | None = None
+        self._command_dirty = False
+        self._pressure_dirty = True
+        self._command_gen = 0            # +1 per change; a send clears "dirty" only if unchanged
+        self._pressure_gen = 0
+        self._next_command_t = 0.0
+        self._next_pressure_t = 0.0
+        self._tx_counter = 0
+        self._pressure_counter = 0
+
+    # --- the caller's side (any thread) ------------------------------------------------------
+    def mark_dirty(self) -> None:
+        """Send both frames at once (activation, a reopened bus). Lock held."""
+        self._command_dirty = self._pressure_dirty = True
+        self._command_gen += 1
+        self._pressure_gen += 1
+        self._lock.notify_all()
+
+    def activate(self) -> None:
+        """Start sending; duty 0 until a command arrives. Lock held."""
+        self.duty = 0.0
+        self._last_command_mono = None
+        self.watchdog_tripped = False
+        self.active = True
+        self.disable_pending = False
+        self.mark_dirty()
+
+    def deactivate(self) -> bool:
+        """Ask for one duty-0 frame with ``Enable=0``, then silence. Lock held.
+
+        Returns
+        -------
+        bool
+            False if the scheduler was not active (nothing to send).
+        """
+        if not self.active:
+            return False
+        self.active = False
+        self.duty = 0.0
+        self.disable_pending = True
+        self._lock.notify_all()
+        return True
+
+    @property
+    def command(self) -> tuple[float, float]:
+        """``(duty, pwm_frequency_hz)`` the driver sends (0 while the watchdog holds)."""
+        with self._lock:
+            return (0.0 if self.watchdog_tripped else self.duty), self.pwm_hz
+
+    def set_command(self, duty: float, pwm_frequency_hz: float = 0.0) -> CommandResult:
+        """Take a duty command (DutyCommand semantics); never raises, never sends raw.
+
+        Non-finite values and a negative frequency are rejected (the last valid command
+        stays); a duty outside [0, 1] and a frequency outside the protocol's range are
+        clamped. Frequency 0 keeps the frequency in force. Both are counted and reported.
+        """
+        duty = float(duty)
+        freq = float(pwm_frequency_hz)
+        with self._lock:
+            now = time.monotonic()
+            self._tally.count('commands_received')
+            if not (math.isfinite(duty) and math.isfinite(freq)) or freq < 0.0:
+                self._tally.count('commands_rejected')
+                self._tally.mark('command_rejected', now)
+                note = (f'duty command rejected: duty={duty!r}, pwm_frequency={freq!r} '
+                        '(not finite or negative frequency); keeping the last valid command')
+                self.last_command_note = note
+                return CommandResult(False, self.duty, self.pwm_hz, False, note)
+            notes = []
+            if freq == 0.0:
+                freq = self.pwm_hz
+            elif not self._f_min <= freq <= self._f_max:
+                clamped_f = min(max(freq, self._f_min), self._f_max)
+                notes.append(f'pwm_frequency {freq!r} Hz outside [{self._f_min:g}, '
+                             f'{self._f_max:g}] clamped to {clamped_f:g}')
+                freq = clamped_f
+            if not 0.0 <= duty <= 1.0:
+                clamped_d = min(max(duty, 0.0), 1.0)
+                notes.append(f'duty {duty!r} outside [0, 1] clamped to {clamped_d:g}')
+                duty = clamped_d
+            if notes:
+                self._tally.count('commands_clamped')
+                self._tally.mark('command_clamped', now)
+                self.last_command_note = '; '.join(notes)
+            self.duty, self.pwm_hz = duty, freq
+            self._last_command_mono = now
+            if self.watchdog_tripped:
+                logger.info('duty commands are back; watchdog released')
+            self.watchdog_tripped = False
+            self._command_dirty = True
+            self._command_gen += 1
+            self._lock.notify_all()
+            return CommandResult(True, duty, freq, bool(notes), '; '.join(notes))
+
+    def set_pressures(self, supply_pa: float | None = None,
+                      output_pa: float | None = None) -> bool:
+        """Set the port pressures (gauge Pa); a non-finite value is rejected (False)."""
+        with self._lock:
+            for value in (supply_pa, output_pa):
+                if value is not None and not math.isfinite(value):
+                    return False
+            if supply_pa is not None:
+                self.supply_pa = float(supply_pa)
+            if output_pa is not None:
+                self.output_pa = float(output_pa)
+            self._pressure_dirty = True
+            self._pressure_gen += 1
+            self._lock.notify_all()
+            return True
+
+    # --- I/O thread --------------------------------------------------------------------------
+    def check_watchdog(self, now: float) -> bool:
+        """Trip the duty watchdog if commands stopped; True if it tripped now."""
+        limit = self._config.command_timeout_s
+        with self._lock:
+            if not (self.active and limit > 0.0 and not self.watchdog_tripped
+                    and self._last_command_mono is not None
+                    and now - self._last_command_mono > limit):
+                return False
+            self.watchdog_tripped = True
+            self._tally.count('watchdog_trips')
+            self._command_dirty = True
+            self._command_gen += 1
+        logger.warning('watchdog: no duty command for %.3f s; valve commanded closed', limit)
+        return True
+
+    def next_due(self) -> float:
+        """Monotonic time of the next scheduled frame. Lock held."""
+        return min(self._next_command_t, self._next_pressure_t)
+
+    def urgent(self) -> bool:
+        """A frame must go out now (new command, disable, new pressures). Lock held."""
+        return (self._command_dirty or self.disable_pending
+                or (self._pressure_dirty and self.active))
+
+    def send_due(self, now: float, link: BusLink) -> None:
+        """Send the frames that are due on ``link`` (I/O thread)."""
+        with self._lock:
+            disabling = self.disable_pending
+            send_command = disabling or (self.active and (self._command_dirty
+                                                          or now >= self._next_command_t))
+            send_pressure = self.active and (self._pressure_dirty
+                                             or now >= self._next_pressure_t)
+            enable = self.active and not disabling
+            duty = 0.0 if (self.watchdog_tripped or not enable) else self.duty
+            freq = self.pwm_hz
+            supply = min(max(self.supply_pa, self._p_lo), self._p_hi)
+            output = min(max(self.output_pa, self._p_lo), self._p_hi)
+            command_gen, pressure_gen = self._command_gen, self._pressure_gen
+            if not self.active and not disabling:
+                self._next_command_t = self._next_pressure_t = now + _IDLE_S
+        if not link.usable:
+            return
+        if send_command:
+            sent = self._send(link, COMMAND, {'Duty': duty, 'PwmFrequency': freq,
+                                              'Enable': int(enable), 'ClearFaults': 0},
+                              self._tx_counter)
+            with self._lock:
+                self._tx_counter = (self._tx_counter + 1) & 0xF
+                if self._command_gen == command_gen:   # else a newer command is waiting
+                    self._command_dirty = False
+                self._next_command_t = now + self._command_period
+                if sent:
+                    self._tally.count('command_frames_sent')
+                    self.last_sent_duty = duty
+                if disabling:   # only the frame built as "disable" completes deactivate()
+                    self.disable_pending = False
+                    self._lock.notify_all()
+        if send_pressure:
+            sent = self._send(link, PRESSURE, {'SupplyPressure': supply,
+                                               'OutputPressure': output},
+                              self._pressure_counter)
+            with self._lock:
+                self._pressure_counter = (self._pressure_counter + 1) & 0xF
+                if self._pressure_gen == pressure_gen:
+                    self._pressure_dirty = False
+                self._next_pressure_t = now + self._pressure_period
+                if sent:
+                    self._tally.count('pressure_frames_sent')
+
+    def _send(self, link: BusLink, name: str, signals: dict, counter: int) -> bool:
+        try:
+            msg = self._codec.encode(name, signals, counter)
+        except ProtocolEncodeError as err:   # clamped before: this is a bug, never send raw
+            with self._lock:
+                self._tally.count('internal_errors')
+            logger.error('not sent: %s', err)
+            return False
+        return link.send(msg)

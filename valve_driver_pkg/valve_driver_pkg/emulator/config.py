@@ -1,0 +1,88 @@
+"""Settings and state names of the emulated controller firmware (ROS-free)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+__all__ = ['StepperLike', 'ControllerState', 'EmulatorConfig', 'UNKNOWN_INJECTED_ID',
+           'FLAG_HOLD_S', 'PERIOD_REFRESH_S', 'MIN_PRESSURE_PA', 'clamp']
+
+#: Id of the frames the ``UNKNOWN_ID`` fault puts on the bus (outside every protocol range).
+UNKNOWN_INJECTED_ID = 0x5A5
+#: How long a command fault flag (checksum, counter, range) stays set after the event [s].
+FLAG_HOLD_S = 1.0
+#: ValvePeriod is repeated at least this often even when nothing changed [s].
+PERIOD_REFRESH_S = 0.1
+#: Lowest gauge pressure the model accepts [Pa] (lower values are clamped).
+MIN_PRESSURE_PA = -1.0e5
+
+
+def clamp(value: float, low: float, high: float) -> float:
+    """``value`` limited to ``[low, high]``."""
+    return low if value < low else high if value > high else value
+
+
+class StepperLike(Protocol):
+    """What the emulator needs of ``valve_model_pkg.model.ValveStepper``."""
+
+    def set_command(self, duty: float, pwm_frequency_hz: float) -> None: ...
+    def set_pressures(self, supply_pa: float, output_pa: float) -> None: ...
+    def advance_to(self, t_s: float) -> None: ...
+    def sample(self): ...
+    def reset(self) -> None: ...
+
+
+class ControllerState:
+    """Values of ``ValveStatus.ControllerState``."""
+
+    INIT = 0       # no command received yet
+    STANDBY = 1    # disabled or watchdog-closed
+    RUNNING = 2    # driving the valve
+    FAULT = 3      # a latched fault keeps the output off
+
+
+@dataclass(frozen=True)
+class EmulatorConfig:
+    """Firmware settings of the emulated controller.
+
+    Attributes
+    ----------
+    node_id : int
+        Node id (frame ids = DBC ids + node id).
+    telemetry_rate_hz : float
+        ``ValveTelemetry`` rate [Hz].
+    status_rate_hz : float
+        ``ValveStatus`` heartbeat rate [Hz].
+    command_timeout_s : float
+        Firmware command watchdog [s]; 0 disables it.
+    position_estimate : bool
+        Report the spool position (``PositionValid=1``); false models a controller
+        without an estimator.
+    accept_control_frames : bool
+        Obey ``EmulatorControl`` frames (fault injection over the bus).
+    supply_voltage_v : float
+        Drive supply voltage reported in the heartbeat [V].
+    overcurrent_a : float
+        Coil current above which the overcurrent fault latches [A].
+    max_burst : int
+        In real time, the most telemetry frames sent at once after a stall; beyond it the
+        frames are skipped (the counter still advances, so the host sees the loss).
+    """
+
+    node_id: int = 0
+    telemetry_rate_hz: float = 1000.0
+    status_rate_hz: float = 10.0
+    command_timeout_s: float = 0.1
+    position_estimate: bool = True
+    accept_control_frames: bool = True
+    supply_voltage_v: float = 24.0
+    overcurrent_a: float = 6.0
+    max_burst: int = 5
+
+    def __post_init__(self) -> None:
+        if not 1.0 <= self.telemetry_rate_hz <= 10_000.0:
+            raise ValueError(f'telemetry_rate_hz {self.telemetry_rate_hz!r} outside [1, 10000]')
+        if not 0.1 <= self.status_rate_hz <= 1000.0:
+            raise ValueError(f'status_rate_hz {self.status_rate_hz!r} outside [0.1, 1000]')
+        if self.command_timeout_s < 0.0:
+            raise ValueError(f'command_timeout_s {self.command_timeout_s!r} is negative')

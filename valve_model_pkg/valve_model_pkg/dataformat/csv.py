@@ -1,0 +1,820 @@
+"""Read and write files of the measured-data format, every kind, with one set of rules.
+
+The rules (from the measured-data format document, ``shared/measured-data-format.md`` of
+the steering repository) as this module applies them to every kind:
+
+* UTF-8 text (a byte-order mark is accepted), comma separated, ``.`` as decimal point.
+* Leading metadata lines ``# key: value``; a key given twice is refused. A leading ``#``
+  line without ``key: value`` is a free comment. Blank lines before the header are
+  skipped. Unknown keys are kept.
+* One header row; duplicate column names are refused; the kind (metadata
+  ``experiment``) decides the required columns; unknown columns are kept out of the
+  record and listed in its notes.
+* One row per sample (per operating point in a ``flow_map``). Every row has as many
+  fields as the header. A ``#`` line or an empty line followed by more rows inside the
+  data is refused; empty lines at the end are not.
+* Every field is a finite number in SI units. Only *measured* signals may lack a value
+  (empty, ``nan``, ``na`` or ``null``): it is kept as ``nan``, counted, and named in the
+  notes. Nothing is dropped.
+* ``t`` starts at or after 0 and increases strictly; ``duty`` lies in [0, 1].
+* Numeric metadata must be finite numbers; ``sample_rate_hz``, ``pwm_frequency_hz``,
+  ``supply_voltage_v`` and ``supply_temperature_k`` must be positive, pressures (gauge)
+  not below vacuum. A time axis that disagrees with ``sample_rate_hz`` by more than 5 %
+  is noted (the time axis is used), as are gaps longer than 1.5 sample periods.
+
+Every refusal is a :class:`DataFormatError` whose message names the file, the line (when
+the problem has one), and the key or column and the value.
+"""
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..model.constants import ATMOSPHERIC_PRESSURE_PA
+
+__all__ = [
+    'EXPERIMENTS', 'FORMAT_NAME', 'DataFormatError', 'TraceRecord', 'OperationRecord',
+    'FlowMapRecord', 'check_time_axis', 'read_record', 'read_trace', 'read_operation',
+    'read_flow_map', 'write_table', 'write_record',
+]
+
+#: How documents and messages refer to the format (never by a path on some machine).
+FORMAT_NAME = 'the measured-data format'
+
+#: Values of the ``experiment`` metadata key.
+EXPERIMENTS = ('step', 'pwm', 'operation', 'flow_map')
+
+# --- column and metadata tables of the format --------------------------------------------
+#: Columns of a time trace of the bench (step, pwm), required first.
+_TRACE_REQUIRED = ('t', 'voltage', 'current')
+_TRACE_OPTIONAL = ('coil_voltage', 'position', 'mass_flow', 'duty')
+#: Columns of an operational record.
+_OPERATION_REQUIRED = ('t', 'duty', 'pwm_frequency_hz', 'current')
+_OPERATION_OPTIONAL = ('supply_pressure', 'output_pressure')
+#: Columns of a flow map (``duty`` plus exactly one value column).
+_FLOW_VALUE_COLUMNS = ('mass_flow', 'flow_fraction')
+#: Measured signals: the only columns that may lack a value in a row.
+_MAY_BE_MISSING = frozenset({'current', 'coil_voltage', 'position', 'mass_flow',
+                             'supply_pressure', 'output_pressure'})
+
+_NUMERIC_METADATA = ('supply_pressure_pa', 'output_pressure_pa', 'supply_temperature_k',
+                     'pwm_frequency_hz', 'sample_rate_hz', 'supply_voltage_v')
+_POSITIVE_METADATA = ('supply_temperature_k', 'pwm_frequency_hz', 'sample_rate_hz',
+                      'supply_voltage_v')
+_PRESSURE_METADATA = ('supply_pressure_pa', 'output_pressure_pa')
+_CURRENT_AVERAGING = ('instantaneous', 'interval_mean')
+_MISSING_TOKENS = ('', 'nan', 'na', 'null')
+
+#: A step of the time axis longer than this many nominal periods counts as missing rows.
+_GAP_FACTOR = 1.5
+#: Largest relative difference of the time axis from ``sample_rate_hz`` taken as agreement.
+_RATE_TOLERANCE = 0.05
+_VACUUM_GAUGE_PA = -ATMOSPHERIC_PRESSURE_PA
+
+
+class DataFormatError(ValueError):
+    """A file that breaks the measured-data format.
+
+    Parameters
+    ----------
+    path : str
+        The file that was refused.
+    line : int or None
+        1-based line of the problem; ``None`` when it concerns the whole file.
+    reason : str
+        What is wrong, naming the key or column and the value.
+    key : str, optional
+        The metadata key or column concerned.
+    value : str, optional
+        The offending text as found in the file.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], line: int | None, reason: str, *,
+                 key: str | None = None, value: str | None = None) -> None:
+        self.path = str(path)
+        self.line = line
+        self.reason = reason
+        self.key = key
+        self.value = value
+        where = f'{self.path}:{line}' if line is not None else self.path
+        super().__init__(f'{where}: {reason}')
+
+
+# --- records --------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TraceRecord:
+    """A ``step`` or ``pwm`` record: the bench's time trace.
+
+    Attributes
+    ----------
+    path : str
+    experiment : str
+        ``step``, ``pwm`` or ``unknown`` (no ``experiment`` key).
+    t_s : numpy.ndarray, shape (n,)
+        Sample times [s], strictly increasing from at or after 0.
+    voltage_v : numpy.ndarray, shape (n,)
+        ``step``: voltage at the coil terminals; ``pwm``: the main PWM input voltage [V].
+    current_a : numpy.ndarray, shape (n,)
+        Coil current [A]; ``nan`` where the file has no value.
+    coil_voltage_v, position_m, mass_flow_kg_s, duty : numpy.ndarray or None, shape (n,)
+        Optional columns [V], [m], [kg/s], [1]; ``None`` when the file lacks them.
+    metadata : dict of str to str
+        Every ``# key: value`` line, unknown keys included.
+    supply_pressure_pa : float or None
+        Gauge [Pa], from the metadata.
+    output_pressure_pa : float
+        Gauge [Pa] (0 when the file does not say).
+    nominal_sample_rate_hz : float or None
+        ``sample_rate_hz`` of the metadata.
+    line_numbers : numpy.ndarray of int, shape (n,)
+        File line of each row.
+    notes : tuple of str
+        What the reader noticed and kept (missing values, gaps, rate, unknown columns).
+    n_missing_values : int
+        Rows whose current is missing.
+    n_gaps : int
+        Steps of the time axis longer than 1.5 nominal periods.
+    """
+
+    path: str
+    experiment: str
+    t_s: np.ndarray
+    voltage_v: np.ndarray
+    current_a: np.ndarray
+    coil_voltage_v: np.ndarray | None = None
+    position_m: np.ndarray | None = None
+    mass_flow_kg_s: np.ndarray | None = None
+    duty: np.ndarray | None = None
+    metadata: dict[str, str] = field(default_factory=dict)
+    supply_pressure_pa: float | None = None
+    output_pressure_pa: float = 0.0
+    nominal_sample_rate_hz: float | None = None
+    line_numbers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    notes: tuple[str, ...] = ()
+    n_missing_values: int = 0
+    n_gaps: int = 0
+
+    kind = 'trace'
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The record's columns by their names in the format (present ones only)."""
+        cols = {'t': self.t_s, 'voltage': self.voltage_v, 'current': self.current_a}
+        for name, values in (('coil_voltage', self.coil_voltage_v),
+                             ('position', self.position_m),
+                             ('mass_flow', self.mass_flow_kg_s), ('duty', self.duty)):
+            if values is not None:
+                cols[name] = values
+        return cols
+
+
+@dataclass(frozen=True)
+class OperationRecord:
+    """An ``operation`` record: what a valve in service reports.
+
+    Attributes
+    ----------
+    path : str
+    t_s : numpy.ndarray, shape (n,)
+        Sample times [s], strictly increasing from at or after 0.
+    duty : numpy.ndarray, shape (n,)
+        Main PWM duty in force at each sample [1].
+    pwm_frequency_hz : numpy.ndarray, shape (n,)
+        Main PWM frequency in force at each sample [Hz].
+    current_a : numpy.ndarray, shape (n,)
+        Coil current [A] (interval means with ``current_averaging: interval_mean``);
+        ``nan`` where missing.
+    supply_pressure_pa, output_pressure_pa : numpy.ndarray or None, shape (n,)
+        Gauge pressures per sample [Pa]: the column, else the metadata value repeated,
+        else ``None`` (supply) or zeros (output).
+    supply_voltage_v : float or None
+        Drive supply voltage [V] from the metadata.
+    current_averaging : str
+        ``instantaneous`` or ``interval_mean``.
+    starts_at_rest : bool
+        Whether the record begins with duty 0 for at least one PWM period (the reader's
+        assumption is also stated in :attr:`notes`).
+    pressure_columns : tuple of str
+        Which of ``supply_pressure`` and ``output_pressure`` the file has as columns.
+    metadata, nominal_sample_rate_hz, line_numbers, notes, n_missing_values, n_gaps
+        As in :class:`TraceRecord`.
+    """
+
+    path: str
+    t_s: np.ndarray
+    duty: np.ndarray
+    pwm_frequency_hz: np.ndarray
+    current_a: np.ndarray
+    supply_pressure_pa: np.ndarray | None = None
+    output_pressure_pa: np.ndarray | None = None
+    supply_voltage_v: float | None = None
+    current_averaging: str = 'instantaneous'
+    starts_at_rest: bool = False
+    pressure_columns: tuple[str, ...] = ()
+    metadata: dict[str, str] = field(default_factory=dict)
+    nominal_sample_rate_hz: float | None = None
+    line_numbers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    notes: tuple[str, ...] = ()
+    n_missing_values: int = 0
+    n_gaps: int = 0
+
+    kind = 'operation'
+    experiment = 'operation'
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The record's columns by their names in the format."""
+        cols = {'t': self.t_s, 'duty': self.duty, 'pwm_frequency_hz': self.pwm_frequency_hz,
+                'current': self.current_a}
+        for name, values in (('supply_pressure', self.supply_pressure_pa),
+                             ('output_pressure', self.output_pressure_pa)):
+            if name in self.pressure_columns and values is not None:
+                cols[name] = values
+        return cols
+
+
+@dataclass(frozen=True)
+class FlowMapRecord:
+    """A ``flow_map`` record: steady flow against duty, one row per operating point.
+
+    Attributes
+    ----------
+    path : str
+    duty : numpy.ndarray, shape (n,)
+        Duties [1] in [0, 1], strictly ascending.
+    mass_flow_kg_s, flow_fraction : numpy.ndarray or None, shape (n,)
+        Exactly one is given: measured mass flow [kg/s] or flow over the flow at 100 %
+        duty [1]; both non-negative.
+    metadata : dict of str to str
+    supply_pressure_pa, pwm_frequency_hz, supply_temperature_k : float or None
+        From the metadata (gauge [Pa], [Hz], [K]); ``None`` where absent.
+    output_pressure_pa : float
+        Gauge [Pa] (0 when the file does not say).
+    line_numbers : numpy.ndarray of int, shape (n,)
+    notes : tuple of str
+    """
+
+    path: str
+    duty: np.ndarray
+    mass_flow_kg_s: np.ndarray | None
+    flow_fraction: np.ndarray | None
+    metadata: dict[str, str] = field(default_factory=dict)
+    supply_pressure_pa: float | None = None
+    output_pressure_pa: float = 0.0
+    pwm_frequency_hz: float | None = None
+    supply_temperature_k: float | None = None
+    line_numbers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    notes: tuple[str, ...] = ()
+
+    kind = 'flow_map'
+    experiment = 'flow_map'
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The record's columns by their names in the format."""
+        if self.mass_flow_kg_s is not None:
+            return {'duty': self.duty, 'mass_flow': self.mass_flow_kg_s}
+        return {'duty': self.duty, 'flow_fraction': self.flow_fraction}
+
+
+Record = TraceRecord | OperationRecord | FlowMapRecord
+
+
+# --- the common layer: lines, metadata, header, fields -------------------------------------
+@dataclass
+class _Table:
+    """A file split into metadata, header and raw rows (nothing interpreted yet)."""
+
+    path: str
+    metadata: dict[str, str]
+    meta_lines: dict[str, int]
+    header: list[str]
+    header_line: int
+    rows: list[list[str]]
+    linenos: list[int]
+    numeric: dict[str, float] = field(default_factory=dict)
+
+    def error(self, line: int | None, reason: str, **kw: str | None) -> DataFormatError:
+        return DataFormatError(self.path, line, reason, **kw)
+
+    @property
+    def experiment(self) -> str | None:
+        return self.metadata.get('experiment')
+
+
+def _read_text(path: str | os.PathLike[str]) -> tuple[str, str]:
+    spath = str(path)
+    try:
+        raw = Path(path).read_bytes()
+    except OSError as err:
+        raise DataFormatError(spath, None, f'cannot be read: {err.strerror}') from err
+    try:
+        return spath, raw.decode('utf-8-sig')
+    except UnicodeDecodeError as err:
+        lineno = raw[:err.start].count(b'\n') + 1
+        raise DataFormatError(spath, lineno, 'is not UTF-8 text') from err
+
+
+def _split(path: str | os.PathLike[str]) -> _Table:
+    """Metadata, header and rows of a file, with the layout rules applied."""
+    spath, text = _read_text(path)
+    metadata: dict[str, str] = {}
+    meta_lines: dict[str, int] = {}
+    header: list[str] | None = None
+    header_line = 0
+    rows: list[list[str]] = []
+    linenos: list[int] = []
+    blank_after_data: int | None = None
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if header is None:
+            if not stripped:
+                continue
+            if stripped.startswith('#'):
+                body = stripped[1:].strip()
+                if ':' in body:
+                    key, _, value = body.partition(':')
+                    key = key.strip()
+                    if key in metadata:
+                        raise DataFormatError(
+                            spath, lineno, f'metadata key {key!r} given twice (first on line '
+                            f'{meta_lines[key]}, again as {value.strip()!r})', key=key,
+                            value=value.strip())
+                    metadata[key] = value.strip()
+                    meta_lines[key] = lineno
+                # A '#' line without 'key: value' is a free comment, not data.
+                continue
+            header = [c.strip() for c in stripped.split(',')]
+            header_line = lineno
+            continue
+        if not stripped:
+            if blank_after_data is None:
+                blank_after_data = lineno
+            continue
+        if blank_after_data is not None:
+            raise DataFormatError(spath, blank_after_data,
+                                  'empty line inside the data (rows follow it)')
+        if stripped.startswith('#'):
+            raise DataFormatError(spath, lineno, 'metadata/comment line after the header; '
+                                  'metadata must lead')
+        rows.append(line.split(','))
+        linenos.append(lineno)
+    if header is None:
+        raise DataFormatError(spath, None, 'has no header row and no data')
+    table = _Table(spath, metadata, meta_lines, header, header_line, rows, linenos)
+    _check_metadata(table)
+    if len(set(header)) != len(header):
+        dup = sorted({c for c in header if header.count(c) > 1})
+        raise table.error(header_line, f'duplicate columns {dup}', key=dup[0])
+    return table
+
+
+def _parse_float(path: str, lineno: int | None, column: str, text: str, *,
+                 allow_missing: bool, what: str = 'column') -> float:
+    """One field (or metadata value); a missing value is ``nan`` where that is allowed."""
+    token = text.strip()
+    if token.lower() in _MISSING_TOKENS:
+        if allow_missing:
+            return math.nan
+        if token == '':
+            raise DataFormatError(path, lineno, f'{what} {column!r} has no value', key=column,
+                                  value=token)
+        raise DataFormatError(path, lineno, f'{what} {column!r}: {token!r} is not finite '
+                              '(no value is allowed only in measured signals)', key=column,
+                              value=token)
+    try:
+        value = float(token)
+    except ValueError:
+        raise DataFormatError(path, lineno, f'{what} {column!r}: {token!r} is not a number',
+                              key=column, value=token) from None
+    if not math.isfinite(value):
+        raise DataFormatError(path, lineno, f'{what} {column!r}: {token!r} is not finite',
+                              key=column, value=token)
+    return value
+
+
+def _check_metadata(table: _Table) -> None:
+    """Numbers, ranges and enumerations of the metadata keys the format defines."""
+    meta, lines = table.metadata, table.meta_lines
+    experiment = meta.get('experiment')
+    if experiment is not None and experiment not in EXPERIMENTS:
+        raise table.error(lines['experiment'], f"metadata 'experiment': {experiment!r} is not "
+                          f'one of {", ".join(EXPERIMENTS)}', key='experiment',
+                          value=experiment)
+    for key in _NUMERIC_METADATA:
+        if key not in meta:
+            continue
+        value = _parse_float(table.path, lines[key], key, meta[key], allow_missing=False,
+                             what='metadata')
+        if key in _POSITIVE_METADATA and value <= 0.0:
+            raise table.error(lines[key], f'metadata {key!r}: {meta[key]!r} must be positive',
+                              key=key, value=meta[key])
+        if key in _PRESSURE_METADATA and value < _VACUUM_GAUGE_PA:
+            raise table.error(lines[key], f'metadata {key!r}: {meta[key]!r} Pa is below vacuum '
+                              '(pressures are gauge)', key=key, value=meta[key])
+        table.numeric[key] = value
+    averaging = meta.get('current_averaging')
+    if averaging is not None and averaging not in _CURRENT_AVERAGING:
+        raise table.error(lines['current_averaging'], f"metadata 'current_averaging': "
+                          f'{averaging!r} is not one of {", ".join(_CURRENT_AVERAGING)}',
+                          key='current_averaging', value=averaging)
+
+
+def _require_columns(table: _Table, required: Sequence[str], kind: str) -> None:
+    missing = [c for c in required if c not in table.header]
+    if missing:
+        raise table.error(table.header_line, f'header lacks required column(s) {missing} '
+                          f'of a {kind} record; found {table.header}', key=missing[0])
+
+
+def _columns(table: _Table, names: Sequence[str]) -> dict[str, np.ndarray]:
+    """Parse the named columns of every row (field count checked on every row)."""
+    ncol = len(table.header)
+    index = {c: table.header.index(c) for c in names}
+    data = {c: np.empty(len(table.rows)) for c in names}
+    for r, (fields, lineno) in enumerate(zip(table.rows, table.linenos)):
+        if len(fields) != ncol:
+            raise table.error(lineno, f'has {len(fields)} fields, expected {ncol} fields '
+                              f'({",".join(table.header)})')
+        for c in names:
+            data[c][r] = _parse_float(table.path, lineno, c, fields[index[c]],
+                                      allow_missing=c in _MAY_BE_MISSING)
+    return data
+
+
+def _cell(table: _Table, row: int, column: str) -> str:
+    """The text of a field as the file has it (for messages)."""
+    return table.rows[row][table.header.index(column)].strip()
+
+
+def _refuse_cell(table: _Table, row: int, column: str, problem: str) -> DataFormatError:
+    text = _cell(table, row, column)
+    return table.error(table.linenos[row], f'column {column!r}: {text!r} {problem}',
+                       key=column, value=text)
+
+
+def _check_duty(table: _Table, duty: np.ndarray) -> None:
+    bad = np.flatnonzero((duty < 0.0) | (duty > 1.0))
+    if bad.size:
+        raise _refuse_cell(table, int(bad[0]), 'duty', 'outside [0, 1]')
+
+
+def check_time_axis(path: str, t: np.ndarray, linenos: Sequence[int] | None) -> None:
+    """Refuse a time axis that is not strictly increasing from at or after zero.
+
+    Parameters
+    ----------
+    path : str
+        Named in the error.
+    t : numpy.ndarray, shape (n,)
+        Sample times [s].
+    linenos : sequence of int or None
+        File line of each sample; ``None`` for sources without lines (bag messages: the
+        message index is named instead).
+
+    Raises
+    ------
+    DataFormatError
+    """
+    if t.size == 0:
+        return
+    if t[0] < 0.0:
+        raise DataFormatError(path, linenos[0] if linenos else None,
+                              f't = {t[0]!r} s is negative', key='t', value=repr(t[0]))
+    steps = np.diff(t)
+    bad = np.flatnonzero(steps <= 0.0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        where = linenos[i] if linenos else None
+        raise DataFormatError(
+            path, where, f't = {t[i]!r} s does not increase (previous sample t = {t[i - 1]!r} '
+            's)' + ('' if linenos else f' at message {i}'), key='t', value=repr(t[i]))
+
+
+def _time_notes(t: np.ndarray, nominal: float | None) -> tuple[int, list[str]]:
+    """Rate agreement and gaps of a time axis; returns (number of gaps, notes)."""
+    notes: list[str] = []
+    if t.size < 2:
+        return 0, notes
+    dt = np.diff(t)
+    if nominal is not None:
+        actual = 1.0 / float(np.median(dt))
+        if abs(actual / nominal - 1.0) > _RATE_TOLERANCE:
+            notes.append(f'sample_rate_hz says {nominal:g} Hz but the time axis has '
+                         f'{actual:.6g} Hz; the time axis is used')
+            nominal = None
+    period = 1.0 / nominal if nominal else float(np.median(dt))
+    long_steps = np.flatnonzero(dt > _GAP_FACTOR * period)
+    if long_steps.size == 0:
+        return 0, notes
+    lost = int(np.sum(np.round(dt[long_steps] / period) - 1))
+    first = ', '.join(f'{t[i]:.6g} s' for i in long_steps[:5])
+    more = '' if long_steps.size <= 5 else f' (and {long_steps.size - 5} more)'
+    notes.append(f'{long_steps.size} gaps in the time axis (about {lost} missing samples) '
+                 f'after t = {first}{more}; kept')
+    return int(long_steps.size), notes
+
+
+def _missing_note(table: _Table, column: str, values: np.ndarray) -> tuple[int, list[str]]:
+    missing = np.flatnonzero(~np.isfinite(values))
+    if missing.size == 0:
+        return 0, []
+    first = [table.linenos[i] for i in missing[:5]]
+    return int(missing.size), [
+        f'{missing.size} samples without a {column} value (lines {first}'
+        f'{"..." if missing.size > 5 else ""}); kept as nan']
+
+
+def _unknown_note(table: _Table, known: Sequence[str]) -> list[str]:
+    unknown = [c for c in table.header if c not in known]
+    return [f'columns {unknown} are not part of the format; ignored'] if unknown else []
+
+
+# --- the kinds ------------------------------------------------------------------------------
+def _kind(table: _Table) -> str:
+    """``trace``, ``operation`` or ``flow_map``, from ``experiment`` or else the header."""
+    experiment = table.experiment
+    if experiment == 'flow_map' or (experiment is None and 't' not in table.header
+                                    and 'duty' in table.header):
+        return 'flow_map'
+    if experiment == 'operation':
+        return 'operation'
+    return 'trace'
+
+
+def _trace(table: _Table) -> TraceRecord:
+    _require_columns(table, _TRACE_REQUIRED, 'step/pwm')
+    present = [c for c in _TRACE_REQUIRED + _TRACE_OPTIONAL if c in table.header]
+    cols = _columns(table, present)
+    t = cols['t']
+    check_time_axis(table.path, t, table.linenos)
+    if 'duty' in cols:
+        _check_duty(table, cols['duty'])
+    n_missing, notes = _missing_note(table, 'current', cols['current'])
+    for name in ('coil_voltage', 'position', 'mass_flow'):
+        if name in cols:
+            notes += _missing_note(table, name, cols[name])[1]
+    nominal = table.numeric.get('sample_rate_hz')
+    n_gaps, time_notes = _time_notes(t, nominal)
+    notes += time_notes + _unknown_note(table, _TRACE_REQUIRED + _TRACE_OPTIONAL)
+    return TraceRecord(
+        path=table.path, experiment=table.experiment or 'unknown', t_s=t,
+        voltage_v=cols['voltage'], current_a=cols['current'],
+        coil_voltage_v=cols.get('coil_voltage'), position_m=cols.get('position'),
+        mass_flow_kg_s=cols.get('mass_flow'), duty=cols.get('duty'),
+        metadata=table.metadata, supply_pressure_pa=table.numeric.get('supply_pressure_pa'),
+        output_pressure_pa=table.numeric.get('output_pressure_pa', 0.0),
+        nominal_sample_rate_hz=nominal, line_numbers=np.asarray(table.linenos, dtype=int),
+        notes=tuple(notes), n_missing_values=n_missing, n_gaps=n_gaps)
+
+
+def _pressure(table: _Table, cols: dict[str, np.ndarray], column: str, key: str,
+              default: float | None) -> np.ndarray | None:
+    """A per-sample gauge pressure: the column, else the metadata value, else ``default``."""
+    if column in cols:
+        values = cols[column]
+        bad = np.flatnonzero(values < _VACUUM_GAUGE_PA)
+        if bad.size:
+            raise _refuse_cell(table, int(bad[0]), column,
+                               'Pa is below vacuum (pressures are gauge)')
+        return values
+    value = table.numeric.get(key, default)
+    return None if value is None else np.full(len(table.rows), float(value))
+
+
+def _operation(table: _Table) -> OperationRecord:
+    _require_columns(table, _OPERATION_REQUIRED, 'operation')
+    present = [c for c in _OPERATION_REQUIRED + _OPERATION_OPTIONAL if c in table.header]
+    cols = _columns(table, present)
+    t, duty, freq = cols['t'], cols['duty'], cols['pwm_frequency_hz']
+    check_time_axis(table.path, t, table.linenos)
+    _check_duty(table, duty)
+    bad = np.flatnonzero(freq <= 0.0)
+    if bad.size:
+        raise _refuse_cell(table, int(bad[0]), 'pwm_frequency_hz', 'must be positive')
+    n_missing, notes = _missing_note(table, 'current', cols['current'])
+    supply = _pressure(table, cols, 'supply_pressure', 'supply_pressure_pa', None)
+    output = _pressure(table, cols, 'output_pressure', 'output_pressure_pa', 0.0)
+    for name in ('supply_pressure', 'output_pressure'):
+        if name in cols:
+            notes += _missing_note(table, name, cols[name])[1]
+    nominal = table.numeric.get('sample_rate_hz')
+    n_gaps, time_notes = _time_notes(t, nominal)
+    notes += time_notes + _unknown_note(table, _OPERATION_REQUIRED + _OPERATION_OPTIONAL)
+    # At rest: duty 0 from the first sample for at least one period of the PWM in force.
+    moving = np.flatnonzero(duty > 0.0)
+    rest_until = t[moving[0]] if moving.size else t[-1]
+    at_rest = bool(t.size and rest_until - t[0] >= 1.0 / freq[0])
+    notes.append(f'assumed to start at rest (duty 0 for the first {rest_until - t[0]:.6g} s)'
+                 if at_rest else 'assumed to start in motion (duty 0 for less than one PWM '
+                 'period at the start)')
+    return OperationRecord(
+        path=table.path, t_s=t, duty=duty, pwm_frequency_hz=freq, current_a=cols['current'],
+        supply_pressure_pa=supply, output_pressure_pa=output,
+        supply_voltage_v=table.numeric.get('supply_voltage_v'),
+        current_averaging=table.metadata.get('current_averaging', 'instantaneous'),
+        starts_at_rest=at_rest,
+        pressure_columns=tuple(c for c in _OPERATION_OPTIONAL if c in cols),
+        metadata=table.metadata, nominal_sample_rate_hz=nominal,
+        line_numbers=np.asarray(table.linenos, dtype=int), notes=tuple(notes),
+        n_missing_values=n_missing, n_gaps=n_gaps)
+
+
+def _flow_map(table: _Table) -> FlowMapRecord:
+    header, hl = table.header, table.header_line
+    if 'duty' not in header:
+        raise table.error(hl, f'no "duty" column (columns {header})', key='duty')
+    if 't' in header:
+        raise table.error(hl, 'a flow_map file has no "t" column', key='t')
+    given = [c for c in _FLOW_VALUE_COLUMNS if c in header]
+    if not given:
+        raise table.error(hl, f'needs a "mass_flow" or "flow_fraction" column (columns '
+                          f'{header})', key='mass_flow')
+    if len(given) > 1:
+        raise table.error(hl, 'has both "mass_flow" and "flow_fraction"; give one',
+                          key='flow_fraction')
+    value_col = given[0]
+    cols = _columns(table, ['duty', value_col])
+    duty, value = cols['duty'], cols[value_col]
+    # A flow map has no measured signal that may be missing: every point is a number.
+    for name, values in (('duty', duty), (value_col, value)):
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise _refuse_cell(table, int(bad[0]), name,
+                               'is not finite (a flow map has no missing values)')
+    _check_duty(table, duty)
+    for i in range(1, duty.size):
+        if duty[i] <= duty[i - 1]:
+            raise _refuse_cell(table, i, 'duty', f'not above the previous row\'s '
+                               f'{_cell(table, i - 1, "duty")!r} (rows must ascend)')
+    bad = np.flatnonzero(value < 0.0)
+    if bad.size:
+        raise _refuse_cell(table, int(bad[0]), value_col, 'is negative')
+    if duty.size < 2:
+        raise table.error(None, f'needs at least 2 rows, has {duty.size}')
+    return FlowMapRecord(
+        path=table.path, duty=duty,
+        mass_flow_kg_s=value if value_col == 'mass_flow' else None,
+        flow_fraction=value if value_col == 'flow_fraction' else None,
+        metadata=table.metadata, supply_pressure_pa=table.numeric.get('supply_pressure_pa'),
+        output_pressure_pa=table.numeric.get('output_pressure_pa', 0.0),
+        pwm_frequency_hz=table.numeric.get('pwm_frequency_hz'),
+        supply_temperature_k=table.numeric.get('supply_temperature_k'),
+        line_numbers=np.asarray(table.linenos, dtype=int),
+        notes=tuple(_unknown_note(table, ('duty',) + _FLOW_VALUE_COLUMNS)))
+
+
+_READERS = {'trace': _trace, 'operation': _operation, 'flow_map': _flow_map}
+
+
+def read_record(path: str | os.PathLike[str]) -> Record:
+    """Read a file of any kind of the measured-data format.
+
+    Parameters
+    ----------
+    path : path-like
+
+    Returns
+    -------
+    TraceRecord, OperationRecord or FlowMapRecord
+        By the ``experiment`` key; without it, a file with ``duty`` and no ``t`` is a
+        flow map and anything else a trace.
+
+    Raises
+    ------
+    DataFormatError
+        Naming the file, the line, the key or column and the value.
+    """
+    table = _split(path)
+    return _READERS[_kind(table)](table)
+
+
+def read_trace(path: str | os.PathLike[str]) -> TraceRecord:
+    """Read a ``step`` or ``pwm`` record; any other kind is refused (see :func:`read_record`).
+    """
+    table = _split(path)
+    kind = _kind(table)
+    if kind == 'flow_map':
+        raise table.error(table.header_line, 'is a flow_map file (no time trace); a step or '
+                          'pwm trace with columns t, voltage, current is needed',
+                          key='experiment', value=table.experiment)
+    if kind == 'operation':
+        raise table.error(table.meta_lines.get('experiment'), 'is an operation record; a '
+                          'step or pwm trace is needed', key='experiment', value='operation')
+    return _trace(table)
+
+
+def read_operation(path: str | os.PathLike[str]) -> OperationRecord:
+    """Read an ``operation`` record; any other kind is refused."""
+    table = _split(path)
+    if table.experiment != 'operation':
+        raise table.error(table.meta_lines.get('experiment'), f'experiment is '
+                          f'{table.experiment!r}, expected \'operation\'', key='experiment',
+                          value=table.experiment)
+    return _operation(table)
+
+
+def read_flow_map(path: str | os.PathLike[str]) -> FlowMapRecord:
+    """Read a ``flow_map`` record; any other kind is refused."""
+    table = _split(path)
+    if table.experiment is not None and table.experiment != 'flow_map':
+        raise table.error(table.meta_lines['experiment'], f'experiment is '
+                          f'{table.experiment!r}, expected \'flow_map\'', key='experiment',
+                          value=table.experiment)
+    return _flow_map(table)
+
+
+# --- writing --------------------------------------------------------------------------------
+def _known_columns(experiment: str | None) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    if experiment == 'operation':
+        return _OPERATION_REQUIRED, _OPERATION_OPTIONAL
+    if experiment == 'flow_map':
+        return ('duty',), _FLOW_VALUE_COLUMNS
+    return _TRACE_REQUIRED, _TRACE_OPTIONAL
+
+
+def _format_value(value: object) -> str:
+    text = f'{value:.10g}' if isinstance(value, float) else str(value)
+    if '\n' in text or '\r' in text:
+        raise ValueError(f'metadata value {text!r} spans lines')
+    return text
+
+
+def write_table(path: str | os.PathLike[str], metadata: Mapping[str, object],
+                columns: Mapping[str, Sequence[float] | np.ndarray], *,
+                precision: int = 10) -> Path:
+    """Write a file of the measured-data format.
+
+    Parameters
+    ----------
+    path : path-like
+        Destination file (parent directories are created).
+    metadata : mapping
+        Written as ``# key: value`` lines in the given order; floats with ``.10g``. Its
+        ``experiment`` value decides which columns are required and allowed.
+    columns : mapping of str to array, each shape (n,)
+        Columns in the order to write, named as in the format, values in SI units. ``nan``
+        is written as an empty field, allowed in measured signals only.
+    precision : int
+        Significant digits of every value.
+
+    Returns
+    -------
+    pathlib.Path
+        The written file.
+
+    Raises
+    ------
+    ValueError
+        A required column is missing, a column is not part of the kind, lengths differ, a
+        value other than a measured signal is not finite, or a metadata key is malformed.
+    """
+    experiment = metadata.get('experiment')
+    if experiment is not None and experiment not in EXPERIMENTS:
+        raise ValueError(f"metadata 'experiment': {experiment!r} is not one of "
+                         f'{", ".join(EXPERIMENTS)}')
+    required, optional = _known_columns(None if experiment is None else str(experiment))
+    names = list(columns)
+    missing = [c for c in required if c not in names]
+    unknown = [c for c in names if c not in required + optional]
+    if missing or unknown:
+        raise ValueError(f'a {experiment or "step/pwm"} record needs columns {list(required)} '
+                         f'and may have {list(optional)}; missing {missing}, unknown {unknown}')
+    if experiment == 'flow_map' and sum(c in names for c in _FLOW_VALUE_COLUMNS) != 1:
+        raise ValueError('a flow_map record has exactly one of mass_flow and flow_fraction')
+    data = [np.asarray(columns[c], dtype=float) for c in names]
+    n = data[0].shape
+    for c, values in zip(names, data):
+        if values.ndim != 1 or values.shape != n:
+            raise ValueError(f'column {c!r} has shape {values.shape}, expected {n}')
+        if c not in _MAY_BE_MISSING and not np.all(np.isfinite(values)):
+            raise ValueError(f'column {c!r} has non-finite values; only measured signals '
+                             'may lack a value')
+    for key in metadata:
+        if not key or ':' in key or '\n' in key or key != key.strip():
+            raise ValueError(f'metadata key {key!r} cannot be written as "# key: value"')
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fmt = f'%.{int(precision)}g'
+    table = np.column_stack(data) if data else np.zeros((0, 0))
+    with open(out, 'w', encoding='utf-8', newline='\n') as fh:
+        for key, value in metadata.items():
+            fh.write(f'# {key}: {_format_value(value)}\n')
+        fh.write(','.join(names) + '\n')
+        if np.all(np.isfinite(table)):
+            np.savetxt(fh, table, fmt=fmt, delimiter=',')
+        else:
+            for row in table:
+                fh.write(','.join(fmt % v if math.isfinite(v) else '' for v in row) + '\n')
+    return out
+
+
+def write_record(path: str | os.PathLike[str], record: Record, *, precision: int = 10) -> Path:
+    """Write a record (as read by :func:`read_record`) back to a file.
+
+    The metadata is written as read; for a record whose ``experiment`` was not stated the
+    columns decide, as they did when reading.
+    """
+    return write_table(path, record.metadata, record.columns(), precision=precision)
