@@ -37,8 +37,24 @@ for _valve_pkg in valve_model_pkg valve_driver_pkg valve_bringup; do
     *) export PATH="$_valve_ws/install/$_valve_pkg/lib/$_valve_pkg:$PATH" ;;
   esac
 done
-# Never let DDS traffic leave the machine.
-export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+# DDS stays on this machine (docs/safety.md, "Network"): the Fast DDS profile binds every
+# socket to 127.0.0.1 and uses no multicast. The range is SYSTEM_DEFAULT because with
+# LOCALHOST rmw_fastrtps adds its own UDP transport, which binds 0.0.0.0 and the machine's
+# addresses whatever the profile says. SKIP_DEFAULT_XML_FILE: a DEFAULT_FASTRTPS_PROFILES.xml
+# in the working directory cannot override the profile.
+# Multi-machine use is opt-in: `VALVE_SUITE_MULTI_MACHINE=1 source ros2_ws/env.bash` gives
+# plain ROS 2 behaviour (discovery by multicast on the subnet, sockets on all interfaces).
+if [ "${VALVE_SUITE_MULTI_MACHINE:-0}" = 1 ]; then
+  if [ "${FASTRTPS_DEFAULT_PROFILES_FILE:-}" = "$_valve_ws/fastdds_localhost.xml" ]; then
+    unset FASTRTPS_DEFAULT_PROFILES_FILE FASTDDS_DEFAULT_PROFILES_FILE SKIP_DEFAULT_XML_FILE
+  fi
+  export ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
+else
+  export FASTRTPS_DEFAULT_PROFILES_FILE="$_valve_ws/fastdds_localhost.xml"  # Fast DDS 2.x
+  export FASTDDS_DEFAULT_PROFILES_FILE="$FASTRTPS_DEFAULT_PROFILES_FILE"    # Fast DDS 3.x
+  export SKIP_DEFAULT_XML_FILE=1
+  export ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT
+fi
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-42}"
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
 export VALVE_SUITE_ROOT="$_valve_root"

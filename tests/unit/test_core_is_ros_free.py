@@ -12,7 +12,8 @@ from suite_paths import REPO_ROOT
 
 CORE_DIRS = [
     REPO_ROOT / 'valve_model_pkg' / 'valve_model_pkg' / name
-    for name in ('model', 'maps', 'identification', 'pneumatics', 'recording', 'cli')
+    for name in ('model', 'maps', 'identification', 'pneumatics', 'recording', 'cli',
+                 'dataformat')
 ] + [
     REPO_ROOT / 'valve_driver_pkg' / 'valve_driver_pkg' / name
     for name in ('protocol', 'emulator', 'driver', 'canbus')

@@ -47,9 +47,14 @@ def test_setup_refuses_an_unsupported_python_and_names_the_supported_one(tmp_pat
 
 def test_env_bash_gives_a_working_suite_shell() -> None:
     script = (f'source {REPO_ROOT / "ros2_ws" / "env.bash"} && '
-              'echo "range=$ROS_AUTOMATIC_DISCOVERY_RANGE" && command -v valve_simulator && '
+              'echo "range=$ROS_AUTOMATIC_DISCOVERY_RANGE" && '
+              'echo "profile=$FASTRTPS_DEFAULT_PROFILES_FILE" && command -v valve_simulator && '
               'python -c "import valve_msgs.msg, valve_model_pkg; print(\'imports ok\')"')
     out = subprocess.run(['bash', '-c', script], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert 'range=LOCALHOST' in out.stdout
+    # DDS stays on the machine: the loopback-only Fast DDS profile, with the range that
+    # leaves its transports alone (docs/safety.md, "Network"; LOCALHOST would add a
+    # transport bound beyond loopback).
+    assert 'range=SYSTEM_DEFAULT' in out.stdout
+    assert f'profile={REPO_ROOT / "ros2_ws" / "fastdds_localhost.xml"}' in out.stdout
     assert 'imports ok' in out.stdout

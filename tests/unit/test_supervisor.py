@@ -98,7 +98,8 @@ def test_children_die_when_the_supervisor_is_killed(tmp_path) -> None:
         sys.path[:0] = {sys.path!r}
         from valve_bringup.supervisor import ProcessSpec, Supervisor
         sup = Supervisor()
-        p = sup.start(ProcessSpec("sleeper", [sys.executable, "-c", "import time; time.sleep(60)"]))
+        p = sup.start(ProcessSpec("sleeper",
+                                  [sys.executable, "-c", "import time; time.sleep(60)"]))
         open({str(pidfile)!r}, "w").write(str(p.pid))
         time.sleep(60)
     ''')

@@ -191,14 +191,28 @@ class ReceiveTracker:
 
     def _on_telemetry(self, signals: dict, counter: int) -> None:
         with self._lock:
-            sample, changed = self._track_telemetry(signals, counter)
+            state, changed = self._track_telemetry(signals, counter)
         if changed:
             self._on_change()
-        if sample is not None and self._on_sample is not None:
-            self._on_sample(sample)
+        if state is None or self._on_sample is None:
+            return
+        # Outside the lock: the orifice equation and the callback (the node publishes).
+        average, duty, pwm_hz, supply, output, velocity = state
+        flow = self._mass_flow(average, supply, output) if self._mass_flow else 0.0
+        self._on_sample(ValveSample(
+            t_s=time.time(), coil_voltage_v=float(signals['CoilVoltage']),
+            coil_current_a=float(signals['CoilCurrent']),
+            spool_position_m=float(signals['SpoolPosition']), spool_velocity_m_s=velocity,
+            position_avg_m=average, mass_flow_kg_s=flow, duty=duty, pwm_frequency_hz=pwm_hz,
+            supply_pressure_pa=supply, output_pressure_pa=output,
+            position_measured=bool(signals['PositionValid'])))
 
-    def _track_telemetry(self, signals: dict, counter: int) -> tuple[ValveSample | None, bool]:
-        """Account for one telemetry frame; the sample to hand on and "levels changed"."""
+    def _track_telemetry(self, signals: dict, counter: int) -> tuple[tuple | None, bool]:
+        """Account for one telemetry frame (lock held).
+
+        Returns the values of the sample to hand on (None while inactive or for a rejected
+        frame) and whether a diagnostic level may have changed.
+        """
         now = time.monotonic()
         cfg = self._config
         check = self._telemetry_counter.check(counter)
@@ -242,14 +256,7 @@ class ReceiveTracker:
             average, duty, pwm_hz = self.period[0], self.period[1], self.period[2] or pwm_hz
         if not scheduler.active:
             return None, was_lost
-        flow = self._mass_flow(average, supply, output) if self._mass_flow else 0.0
-        return ValveSample(
-            t_s=time.time(), coil_voltage_v=float(signals['CoilVoltage']),
-            coil_current_a=float(signals['CoilCurrent']), spool_position_m=position,
-            spool_velocity_m_s=velocity, position_avg_m=average, mass_flow_kg_s=flow,
-            duty=duty, pwm_frequency_hz=pwm_hz, supply_pressure_pa=supply,
-            output_pressure_pa=output,
-            position_measured=bool(signals['PositionValid'])), was_lost
+        return (average, duty, pwm_hz, supply, output, velocity), was_lost
 
     def _driver_average(self, t: float, position: float) -> float:
         """The suite's period average on the telemetry positions (used without ValvePeriod).

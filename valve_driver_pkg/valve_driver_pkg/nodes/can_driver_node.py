@@ -286,14 +286,15 @@ def main(args: list[str] | None = None) -> None:
     """
     from valve_model_pkg.nodes.common import (EXIT_FAILURE, EXIT_REFUSED, STARTUP_ERRORS,
                                               StartupRefused, help_requested,
-                                              print_node_help)
+                                              init_with_signal_handling, print_node_help,
+                                              spin_until_stopped)
     if help_requested(args):
         sys.exit(print_node_help(CanDriverNode, 'valve_can_driver', args))
     # A driver thread waiting for the GIL waits up to the switch interval (5 ms by default),
     # longer than the 1 ms telemetry period the loss detection works with; 0.5 ms keeps the
     # telemetry timeout (2.5 periods) honest.
     sys.setswitchinterval(0.0005)
-    rclpy.init(args=args)
+    stop = init_with_signal_handling(args)  # SIGINT/SIGTERM: exit 0, duty 0 sent first
     node = None
     code = 0
     try:
@@ -308,7 +309,7 @@ def main(args: list[str] | None = None) -> None:
                 raise RuntimeError('autostart: activate failed (see the log above)')
         gc.collect()
         gc.freeze()   # start-up objects out of the collector: shorter pauses at 1 kHz
-        rclpy.spin(node)
+        spin_until_stopped(node, stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except StartupRefused as err:

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import contextlib
 import math
+import signal
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from typing import Any, NoReturn
 
@@ -16,7 +18,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 ParameterType)
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
@@ -34,7 +36,8 @@ __all__ = [
     'STATE_QOS', 'COMMAND_QOS', 'PRESSURE_QOS', 'declare_float', 'declare_int', 'declare_bool',
     'declare_string', 'gauge_from_absolute', 'absolute_from_gauge', 'key_values',
     'DiagnosticLevel', 'run_node', 'help_requested', 'print_node_help', 'parameter_help',
-    'recorded_declarations', 'refuse_start', 'STARTUP_ERRORS', 'StartupRefused', 'EXIT_OK',
+    'recorded_declarations', 'refuse_start', 'init_with_signal_handling',
+    'spin_until_stopped', 'STARTUP_ERRORS', 'StartupRefused', 'EXIT_OK',
     'EXIT_FAILURE', 'EXIT_REFUSED',
 ]
 
@@ -103,11 +106,10 @@ def key_values(**values: object) -> list[KeyValue]:
     return out
 
 
-#: Exit codes of every node and command of the suite (README, "One rule for commands").
+#: Exit codes of every node and command of the suite (README, "Commands: one rule").
 EXIT_OK = 0        # normal end, also after Ctrl-C (SIGINT) or SIGTERM
 EXIT_FAILURE = 1   # a failure inside
 EXIT_REFUSED = 2   # refused start-up input: a bad parameter, a bad parameter or map file
-
 
 
 class StartupRefused(Exception):
@@ -242,6 +244,43 @@ def refuse_start(name: str, err: BaseException) -> NoReturn:
     sys.exit(EXIT_REFUSED)
 
 
+def _interrupt(signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def init_with_signal_handling(args: list[str] | None) -> threading.Event:
+    """``rclpy.init`` with the suite's own SIGINT/SIGTERM handling; returns the stop flag.
+
+    rclpy's handlers shut the context down at once, under a running executor and a node
+    still being built or destroyed: a callback or a lifecycle transition then fails with
+    "context is invalid" and the process ends with a traceback and exit 1. Instead, until
+    :func:`spin_until_stopped` starts, SIGINT and SIGTERM raise ``KeyboardInterrupt`` (so a
+    long start-up, e.g. compiling the model's kernel, stops at once); while spinning they
+    only set the returned flag, the spin loop ends, and the node is destroyed while the
+    context is still valid (the CAN driver still commands duty 0).
+    """
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, _interrupt)
+    return stop
+
+
+def spin_until_stopped(node: Node, stop: threading.Event) -> None:
+    """Spin ``node`` until SIGINT/SIGTERM set ``stop`` or the context is shut down."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stop.set())
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        # The signal handler runs when a wait returns: the timeout bounds the stop latency.
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        executor.remove_node(node)
+        executor.shutdown()
+
+
 def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None,
              startup_errors: tuple[type[BaseException], ...] = STARTUP_ERRORS) -> None:
     """Spin a node until Ctrl-C, SIGTERM or an external shutdown (the main of every node).
@@ -251,24 +290,18 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
     parameter or map file) is logged as one fatal line with its reason and ends the process
     with :data:`EXIT_REFUSED` (2): a node never runs on defaults it was not asked for. A
     failure while running propagates (exit 1). SIGINT and SIGTERM end it with exit 0 and no
-    traceback: rclpy's signal handlers shut the context down and the spin returns.
+    traceback (:func:`init_with_signal_handling`).
     """
     if help_requested(args):
         sys.exit(print_node_help(make_node, name, args))
-    rclpy.init(args=args)
+    stop = init_with_signal_handling(args)
     node = None
     try:
         try:
             node = make_node()
-        except Exception as err:
-            if not rclpy.ok():
-                # SIGINT/SIGTERM arrived while the node was being built: rclpy's handler
-                # shut the context down under it. That is a stop request, not a failure.
-                return
-            if isinstance(err, startup_errors):
-                refuse_start(name, err)
-            raise
-        rclpy.spin(node)
+        except startup_errors as err:
+            refuse_start(name, err)
+        spin_until_stopped(node, stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
