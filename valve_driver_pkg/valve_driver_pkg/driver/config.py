@@ -8,9 +8,11 @@ both; nothing else spells it.
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass
 
 from valve_driver_pkg.protocol.codec import MAX_NODE_ID
+from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
 from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
 
 __all__ = ['DriverConfig', 'setting']
@@ -57,9 +59,20 @@ class DriverConfig:
                                        'commands duty 0 [s]; 0 = off', 0.0, 60.0)
     telemetry_rate_hz: float = setting(1000.0, 'Expected ValveTelemetry rate of the '
                                        'controller [Hz]', 1.0, 10000.0)
-    telemetry_timeout_periods: float = setting(2.5, 'Telemetry is lost (ERROR) this many '
-                                               'telemetry periods after the last valid '
-                                               'frame', 1.0, 1000.0)
+    telemetry_timeout_periods: float = setting(50.0, 'Telemetry silence longer than this many '
+                                               'telemetry periods (or telemetry_timeout_min_s, '
+                                               'whichever is longer) is an ERROR', 1.0, 1.0e6)
+    telemetry_timeout_min_s: float = setting(0.1, 'Shortest telemetry silence that is an ERROR '
+                                             '[s]', 0.001, 60.0)
+    telemetry_window_s: float = setting(0.1, 'Telemetry loss is judged over windows of this '
+                                        'length [s]', 0.01, 10.0)
+    telemetry_loss_fraction: float = setting(0.5, 'A window is bad when at least this fraction '
+                                             'of its frames is missing (counter gaps)',
+                                             0.01, 1.0)
+    telemetry_error_windows: int = setting(3, 'Consecutive bad windows that make the '
+                                           'telemetry ERROR', 1, 100)
+    telemetry_ok_windows: int = setting(3, 'Consecutive good windows that end a telemetry '
+                                        'ERROR', 1, 100)
     status_timeout_s: float = setting(0.35, 'ValveStatus heartbeat missing this long is an '
                                       'ERROR [s]', 0.01, 60.0)
     pressure_rate_hz: float = setting(10.0, 'ValvePressure refresh rate [Hz]', 0.1, 1000.0)
@@ -72,10 +85,17 @@ class DriverConfig:
     frozen_counter_limit: int = setting(3, 'Repeated ValveTelemetry counters in a row that '
                                         'make the counter "frozen" (ERROR)', 1, 100)
     pwm_frequency_hz: float = setting(50.0, 'PWM frequency in force until a command sets one '
-                                      '[Hz]', 0.1, 1000.0)
-    max_pwm_frequency_hz: float = setting(1000.0, 'Commands above this PWM frequency are '
-                                          'clamped [Hz] (to the DBC limit if lower)',
-                                          0.1, 1000.0)
+                                      '[Hz]', MIN_PWM_FREQUENCY_HZ, MAX_PWM_FREQUENCY_HZ)
+    max_pwm_frequency_hz: float = setting(MAX_PWM_FREQUENCY_HZ, 'Commands above this PWM '
+                                          'frequency are clamped [Hz] (to the DBC limit if '
+                                          'lower)', MIN_PWM_FREQUENCY_HZ, MAX_PWM_FREQUENCY_HZ)
+    host_id: int = setting(-1, 'Host id sent in every ValveCommand (0..15); -1 = derived from '
+                           'the process id', -1, 15)
+    stale_command_s: float = setting(0.02, 'A duty command older than this when its frame goes '
+                                     'on the bus (from its header stamp, else from receipt) is '
+                                     'counted as stale [s]', 0.001, 10.0)
+    io_nice: int = setting(-10, 'Nice value of the driver\'s bus I/O threads (Linux, needs '
+                           'CAP_SYS_NICE to go below 0); 0 = leave as is', -20, 19)
     supply_pressure_pa: float = setting(400_000.0, 'Supply pressure, gauge [Pa], until '
                                         'valve/supply_pressure is received', 0.0, 1.0e6)
     output_pressure_pa: float = setting(0.0, 'Output port pressure, gauge [Pa], until '
@@ -89,8 +109,14 @@ class DriverConfig:
 
     @property
     def telemetry_timeout_s(self) -> float:
-        """Telemetry is declared lost this long after the last valid frame [s]."""
-        return self.telemetry_timeout_periods * self.telemetry_period_s
+        """Telemetry silence longer than this is an ERROR [s]: periods or minimum, the longer."""
+        return max(self.telemetry_timeout_periods * self.telemetry_period_s,
+                   self.telemetry_timeout_min_s)
+
+    @property
+    def effective_host_id(self) -> int:
+        """The host id sent in ``ValveCommand``: ``host_id``, or the process id mod 16."""
+        return self.host_id if self.host_id >= 0 else os.getpid() & 0xF
 
     @property
     def hardware_id(self) -> str:

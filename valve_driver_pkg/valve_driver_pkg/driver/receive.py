@@ -36,6 +36,7 @@ import can
 from valve_driver_pkg.driver.bus_link import BusLink
 from valve_driver_pkg.driver.config import DriverConfig
 from valve_driver_pkg.driver.diagnostics import Tally
+from valve_driver_pkg.driver.health import TelemetryHealth
 from valve_driver_pkg.driver.transmit import TransmitScheduler
 from valve_driver_pkg.errors import FrameRejected
 from valve_driver_pkg.protocol.codec import (COMMAND, PERIOD, PRESSURE, STATUS, TELEMETRY,
@@ -105,8 +106,11 @@ class ReceiveTracker:
         self.frozen_run = 0
         self.last_valid_mono: float | None = None
         self.opened_mono = 0.0
-        self.lost = True
-        self.lost_after_s = 0.0
+        self.health = TelemetryHealth(
+            config.telemetry_period_s, config.telemetry_timeout_s, config.telemetry_window_s,
+            config.telemetry_loss_fraction, config.telemetry_error_windows,
+            config.telemetry_ok_windows)
+        self.foreign_host_id: int | None = None   # HostId of the last foreign ValveCommand
         self.last_reject = ''
         self.last_status: dict | None = None
         self.last_status_mono: float | None = None
@@ -126,6 +130,17 @@ class ReceiveTracker:
         self._status_counter.reset()
         self._period_counter.reset()
         self.opened_mono = now
+        self.health.reset(now)
+
+    @property
+    def lost(self) -> bool:
+        """True while the telemetry is judged lost (see :mod:`.health`)."""
+        return self.health.lost
+
+    @property
+    def lost_after_s(self) -> float:
+        """How long the telemetry had been silent (or gappy) when it was declared lost [s]."""
+        return self.health.lost_after_s
 
     @property
     def frozen_counter(self) -> int | None:
@@ -148,7 +163,11 @@ class ReceiveTracker:
                 return
             if found is not None and found[0] in (COMMAND, PRESSURE):
                 self._tally.count('host_frames')   # another host or a test tool: not for us
-                return
+                if found[0] == PRESSURE:
+                    return
+        if found is not None and found[0] == COMMAND:
+            self._on_host_command(msg)
+            return
         try:
             frame = self._codec.decode(msg)
         except FrameRejected as err:
@@ -163,6 +182,29 @@ class ReceiveTracker:
         elif frame.name == STATUS:
             with self._lock:
                 self._on_status(frame.signals, frame.counter)
+
+    def _on_host_command(self, msg: can.Message) -> None:
+        """A ValveCommand for our node on the bus: ours echoed, or another host's.
+
+        CAN is broadcast: a second host commanding this node shows its frames here. An
+        echo of our own frame (an interface that loops sent frames back) is recognised by
+        its bytes; a frame that fails the checksum is only counted as a host frame.
+        """
+        try:
+            frame = self._codec.decode(msg)
+        except FrameRejected:
+            return
+        with self._lock:
+            if self._scheduler.sent_recently(bytes(msg.data)):
+                return
+            self._tally.count('foreign_command_frames')
+            self._tally.mark('foreign_command', time.monotonic())
+            first = self.foreign_host_id is None
+            self.foreign_host_id = int(frame.signals.get('HostId', 0))
+        if first:
+            logger.error('another host (host id %d) sends ValveCommand to node %d: two '
+                         'hosts command one valve', self.foreign_host_id, self._config.node_id)
+            self._on_change()
 
     def _reject(self, reason: str, detail: str) -> None:
         self._tally.count('rejected_total')
@@ -223,23 +265,20 @@ class ReceiveTracker:
                          'frames)')
             return None, self.frozen_run == cfg.frozen_counter_limit
         self.frozen_run = 0
-        was_lost = self.lost
+        gap = self.last_valid_mono is None or now - self.last_valid_mono > cfg.telemetry_timeout_s
         if check is CounterCheck.JUMP:
             self._tally.count('counter_jumps')
             self._tally.count('frames_lost', self._telemetry_counter.lost)
             self._tally.mark('counter_jump', now)
+        self.health.frame(now, self._telemetry_counter.lost)
         steps = 1 + self._telemetry_counter.lost
-        if was_lost or check is CounterCheck.FIRST:
+        if gap or check is CounterCheck.FIRST:
             self._averager = None
             self._last_position = None
             steps = 1
         self._tally.count('telemetry_frames')
         self.last_valid_mono = now
         self._link.note_valid_traffic()
-        if was_lost:
-            self.lost = False
-            if self._losses_logged == self._tally.counts['telemetry_losses']:
-                logger.info('telemetry is back')   # only after a loss that was logged
         period_s = cfg.telemetry_period_s
         t = self._last_sample_t + steps * period_s
         self._last_sample_t = t
@@ -255,8 +294,8 @@ class ReceiveTracker:
         if self.average_source(now) == 'controller':
             average, duty, pwm_hz = self.period[0], self.period[1], self.period[2] or pwm_hz
         if not scheduler.active:
-            return None, was_lost
-        return (average, duty, pwm_hz, supply, output, velocity), was_lost
+            return None, False
+        return (average, duty, pwm_hz, supply, output, velocity), False
 
     def _driver_average(self, t: float, position: float) -> float:
         """The suite's period average on the telemetry positions (used without ValvePeriod).
@@ -273,34 +312,37 @@ class ReceiveTracker:
         return self._averager.update(t, position)
 
     # --- I/O thread --------------------------------------------------------------------------
-    def loss_deadline(self) -> float | None:
-        """When the telemetry will count as lost if no frame comes (None: lost already)."""
-        if self.lost or self.last_valid_mono is None:
-            return None
-        return self.last_valid_mono + self._config.telemetry_timeout_s
+    def loss_deadline(self) -> float:
+        """The next instant :meth:`check_loss` may change the telemetry state."""
+        return self.health.deadline()
 
     def check_loss(self, now: float) -> bool:
-        """Declare the telemetry lost if it stopped; True if that happened now."""
-        timeout = self._config.telemetry_timeout_s
+        """Judge the telemetry (I/O thread); True if it was declared lost or back now."""
         with self._lock:
-            last = self.last_valid_mono
-            reference = last if last is not None else self.opened_mono
-            if self.lost or now - reference <= timeout:
+            change = self.health.update(now)
+            if change is None:
                 return False
-            self.lost = True
-            self.lost_after_s = now - reference
-            self._tally.count('telemetry_losses')
-            losses = self._tally.counts['telemetry_losses']
-            log = now - self._last_loss_log >= _LOG_INTERVAL_S
-            if log:
-                suppressed = losses - self._losses_logged - 1
-                self._last_loss_log = now
-                self._losses_logged = losses
-        if log:
-            logger.error('telemetry lost: no valid ValveTelemetry for %.2f ms (limit %.2f '
-                         'ms)%s', self.lost_after_s * 1e3, timeout * 1e3,
+            timeout = self._config.telemetry_timeout_s
+            log = True
+            if change.lost:
+                self._tally.count('telemetry_losses')
+                losses = self._tally.counts['telemetry_losses']
+                log = now - self._last_loss_log >= _LOG_INTERVAL_S
+                if log:
+                    suppressed = losses - self._losses_logged - 1
+                    self._last_loss_log = now
+                    self._losses_logged = losses
+            else:
+                log = self._losses_logged == self._tally.counts['telemetry_losses']
+        if change.lost and log:
+            logger.error('telemetry lost (%s): %s%s', change.reason,
+                         f'no valid ValveTelemetry for {change.after_s * 1e3:.1f} ms (limit '
+                         f'{timeout * 1e3:.1f} ms)' if change.reason == 'silence' else
+                         f'frames missing in {change.after_s:.2f} s of consecutive windows',
                          f'; {suppressed} more losses since the last message'
                          if suppressed > 0 else '')
+        elif not change.lost and log:
+            logger.info('telemetry is back')   # only after a loss that was logged
         return True
 
     def update_rate(self, now: float) -> None:

@@ -18,7 +18,7 @@ __all__ = [
     'TOPIC_OUTPUT_PRESSURE', 'TOPIC_FLOW_STATUS', 'TOPIC_DIAGNOSTICS',
     'TOPIC_JOINT_STATES', 'TOPIC_POSITION_SETPOINT', 'TOPIC_POSITION_GOAL', 'SUITE_TOPICS',
     'STATE_QUEUE_DEPTH', 'COMMAND_QUEUE_DEPTH', 'JOINT_STATES_QUEUE_DEPTH',
-    'DIAGNOSTICS_QUEUE_DEPTH',
+    'DIAGNOSTICS_QUEUE_DEPTH', 'MIN_PWM_FREQUENCY_HZ', 'MAX_PWM_FREQUENCY_HZ',
 ]
 
 TOPIC_STATE = 'valve/state'                      # valve_msgs/ValveState
@@ -55,3 +55,11 @@ COMMAND_QUEUE_DEPTH = 50
 JOINT_STATES_QUEUE_DEPTH = 50
 #: /diagnostics at about 1 Hz per node.
 DIAGNOSTICS_QUEUE_DEPTH = 10
+
+#: The accepted main PWM frequencies [Hz], one pair for the simulator node, the CAN driver
+#: and the DBC (``ValveCommand.PwmFrequency`` min/max; a test checks they agree). 0.1 Hz is
+#: the product's lowest frequency and the smallest non-zero value of the DBC signal (0.1 Hz
+#: steps); 1000 Hz covers the product's 0.1-200 Hz with margin for test benches (the
+#: model's chopper runs far above it) and is what every backend accepted before.
+MIN_PWM_FREQUENCY_HZ = 0.1
+MAX_PWM_FREQUENCY_HZ = 1000.0

@@ -32,16 +32,14 @@ from valve_model_pkg.model import ElectronicsConfig, ValveStepper, default_param
     load_parameters
 from valve_model_pkg.interface.ros import state_message
 from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS
+# The accepted PWM frequencies: one pair for simulator, CAN driver and DBC.
+from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
 from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, PRESSURE_QOS,
                                           STATE_QOS, TOPIC_DIAGNOSTICS,
                                           TOPIC_DUTY_COMMAND, TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
                                           TOPIC_SUPPLY_PRESSURE, declare_bool, declare_float,
                                           declare_string, DiagnosticLevel, gauge_from_absolute,
                                           key_values, run_node)
-
-#: Highest main PWM frequency the drive accepts [Hz]: above it the valve (3.7 ms opening)
-#: can no longer follow and the internal chopper's period becomes comparable.
-MAX_PWM_FREQUENCY_HZ = 1000.0
 
 
 class ValveSimulatorNode(Node):
@@ -57,7 +55,8 @@ class ValveSimulatorNode(Node):
                                       'Rate of valve/state messages [Hz]', 1.0, 10000.0)
         duty = declare_float(self, 'duty', 0.0, 'Initial main PWM duty [1]', 0.0, 1.0)
         pwm_hz = declare_float(self, 'pwm_frequency_hz', 50.0,
-                               'Initial main PWM frequency [Hz]', 1.0, MAX_PWM_FREQUENCY_HZ)
+                               'Initial main PWM frequency [Hz]', MIN_PWM_FREQUENCY_HZ,
+                               MAX_PWM_FREQUENCY_HZ)
         supply_pa = declare_float(
             self, 'supply_pressure_pa', 400_000.0,
             'Supply pressure, gauge [Pa], used until valve/supply_pressure is received',
@@ -142,9 +141,10 @@ class ValveSimulatorNode(Node):
             self._reject(f'duty command rejected: duty={duty!r}, pwm_frequency={freq!r} '
                          'is not finite; keeping the last valid command')
             return
-        if freq < 0.0 or freq > MAX_PWM_FREQUENCY_HZ:
+        if freq != 0.0 and not MIN_PWM_FREQUENCY_HZ <= freq <= MAX_PWM_FREQUENCY_HZ:
             self._reject(f'duty command rejected: pwm_frequency={freq!r} Hz outside '
-                         f'(0, {MAX_PWM_FREQUENCY_HZ:g}]; keeping the last valid command')
+                         f'[{MIN_PWM_FREQUENCY_HZ:g}, {MAX_PWM_FREQUENCY_HZ:g}] (0 = keep); '
+                         'keeping the last valid command')
             return
         if freq == 0.0:  # 0 = keep the frequency in force (DutyCommand.msg)
             freq = self._stepper.sample().pwm_frequency_hz
