@@ -35,7 +35,8 @@ class Rig:
     def command(self, duty: float, freq: float = 50.0, enable: int = 1, clear: int = 0,
                 corrupt: bool = False) -> None:
         msg = self.codec.encode(COMMAND, {'Duty': duty, 'PwmFrequency': freq,
-                                          'Enable': enable, 'ClearFaults': clear},
+                                          'Enable': enable, 'ClearFaults': clear,
+                                          'HostId': 1},
                                 self.counter)
         self.counter = (self.counter + 1) & 0xF
         if corrupt:
@@ -263,7 +264,7 @@ def test_other_node_ids_are_ignored() -> None:
     try:
         ValveCodec(4)
         r.host.send(ValveCodec(4).encode(COMMAND, {'Duty': 0.9, 'PwmFrequency': 50.0,
-                                                   'Enable': 1, 'ClearFaults': 0}, 0))
+                                                   'Enable': 1, 'ClearFaults': 0, 'HostId': 1}, 0))
         r.emu.poll(0.5)
         assert r.emu.stats['commands'] == 0
         r.command(0.3)

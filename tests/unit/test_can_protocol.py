@@ -18,7 +18,8 @@ from valve_driver_pkg.protocol.codec import MAX_NODE_ID, RejectReason, frame_che
 CODEC = ValveCodec(0, include_test_messages=True)   # the emulator's view: with CONTROL
 
 SAMPLE_SIGNALS = {
-    COMMAND: {'Duty': 0.3333, 'PwmFrequency': 50.0, 'Enable': 1, 'ClearFaults': 0},
+    COMMAND: {'Duty': 0.3333, 'PwmFrequency': 50.0, 'Enable': 1, 'ClearFaults': 0,
+              'HostId': 5},
     TELEMETRY: {'CoilCurrent': 0.5123, 'CoilVoltage': -23.99, 'SpoolPosition': 3.3e-4,
                 'Enabled': 1, 'PositionValid': 1, 'FaultActive': 0, 'CommandTimeout': 0},
     PERIOD: {'PositionAverage': 1.2345e-4, 'DutyActive': 0.25, 'PwmFrequencyActive': 100.0},

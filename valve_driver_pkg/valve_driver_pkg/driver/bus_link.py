@@ -9,6 +9,7 @@ never while waiting for the receive thread.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -20,12 +21,38 @@ from valve_driver_pkg.driver.diagnostics import Tally
 from valve_driver_pkg.errors import BusOpenError
 from valve_driver_pkg.protocol.error_frames import BusCondition, parse_error_frame
 
-__all__ = ['BusLink']
+__all__ = ['BusLink', 'raise_thread_priority']
 
 logger = logging.getLogger(__name__)
 
 #: How long a reopen attempt waits for the bus [s] (the I/O thread must not stall long).
 _REOPEN_TIMEOUT_S = 0.2
+#: Kinds of thread whose missing permission was already logged (one INFO line each).
+_priority_noted: set[str] = set()
+
+
+def raise_thread_priority(nice: int, what: str) -> bool:
+    """Give the calling thread the nice value ``nice`` (Linux: per thread); quiet fallback.
+
+    Lowering a nice value below 0 needs CAP_SYS_NICE (root, or ``ulimit -e``); without it
+    the thread keeps its priority and one INFO line says so (per kind of thread).
+
+    Returns
+    -------
+    bool
+        True if the nice value was set.
+    """
+    if nice == 0 or not hasattr(os, 'setpriority'):
+        return False
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)
+        return True
+    except (OSError, PermissionError) as err:
+        if what not in _priority_noted:
+            _priority_noted.add(what)
+            logger.info('CAN %s thread keeps its priority (nice %d not permitted: %s)', what,
+                        nice, err.strerror or err)
+        return False
 
 
 class _Listener(can.Listener):
@@ -33,8 +60,12 @@ class _Listener(can.Listener):
 
     def __init__(self, link: BusLink) -> None:
         self._link = link
+        self._thread_id: int | None = None
 
     def on_message_received(self, msg: can.Message) -> None:
+        if self._thread_id != threading.get_native_id():   # first frame on this thread
+            self._thread_id = threading.get_native_id()
+            raise_thread_priority(self._link.nice, 'receive')
         self._link._deliver(msg)
 
     def on_error(self, exc: Exception) -> None:
@@ -80,6 +111,7 @@ class BusLink:
         self.next_reopen = 0.0
         self.condition = BusCondition.ERROR_ACTIVE
         self.last_error_frame = ''
+        self.nice = config.io_nice
 
     # --- open / close (caller's thread or the I/O thread) ------------------------------------
     def open(self, connect_timeout: float | None = None) -> None:

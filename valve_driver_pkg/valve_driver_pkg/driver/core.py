@@ -11,10 +11,12 @@
   the receive thread);
 * :func:`~valve_driver_pkg.driver.diagnostics.diagnose`: snapshot -> statuses;
 
-and runs the **I/O thread**: it sends what is due, runs the watchdog, declares the
-telemetry lost ``telemetry_timeout_periods`` after the last valid frame, and reopens a
-failed bus every ``reopen_period_s``. Whenever a diagnostic level changes it calls
-``on_diagnostics_changed`` at once.
+and runs the **I/O thread**: it sends what is due, runs the watchdog, judges the
+telemetry (:mod:`~valve_driver_pkg.driver.health`: lost on silence or counter gaps, with
+hysteresis), and reopens a failed bus every ``reopen_period_s``. Whenever a diagnostic
+level changes it calls ``on_diagnostics_changed`` at once. Both bus threads lower their
+nice value to ``io_nice`` where the system permits (:func:`raise_thread_priority`), so
+other processes' load delays bus I/O less.
 
 Thread ownership: one lock (``threading.Condition`` over an ``RLock``) guards the state of
 all four parts; every write happens under it, callbacks and bus I/O happen outside it.
@@ -27,27 +29,39 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import can
 
 from valve_driver_pkg.canbus.factory import open_bus
-from valve_driver_pkg.driver.bus_link import BusLink
+from valve_driver_pkg.driver.bus_link import BusLink, raise_thread_priority
 from valve_driver_pkg.driver.config import DriverConfig
-from valve_driver_pkg.driver.diagnostics import (DriverSnapshot, Level, StatusReport, Tally,
-                                                 age, diagnose, overall_level)
+from valve_driver_pkg.driver.diagnostics import (LATCHED_FLAGS, DriverSnapshot, Level,
+                                                 StatusReport, Tally, age, diagnose,
+                                                 fault_flags, overall_level)
 from valve_driver_pkg.driver.receive import MassFlowFunction, ReceiveTracker
 from valve_driver_pkg.driver.transmit import CommandResult, TransmitScheduler
 from valve_driver_pkg.protocol.codec import ValveCodec
 from valve_model_pkg.model.sample import ValveSample
 
 __all__ = ['CanDriverCore', 'DriverConfig', 'CommandResult', 'Level', 'StatusReport',
-           'MassFlowFunction']
+           'MassFlowFunction', 'ClearResult', 'raise_thread_priority']
 
 logger = logging.getLogger(__name__)
 
 #: The I/O thread re-evaluates the diagnostic levels at least this often [s].
 _LEVEL_CHECK_S = 0.05
+
+
+@dataclass(frozen=True, slots=True)
+class ClearResult:
+    """What :meth:`CanDriverCore.clear_faults` achieved."""
+
+    success: bool
+    cleared: tuple[str, ...]
+    still_active: tuple[str, ...]
+    message: str
 
 
 class CanDriverCore:
@@ -80,6 +94,7 @@ class CanDriverCore:
         self._closed = True
         self._levels: tuple[Level, ...] = ()
         self._io_thread: threading.Thread | None = None
+        self.io_priority_raised = False
         self.link = BusLink(config, self._lock, self._tally, self._stop, self._on_frame,
                             self._check_levels, bus_factory)
         self.scheduler = TransmitScheduler(config, self.codec, self._lock, self._tally)
@@ -154,9 +169,60 @@ class CanDriverCore:
         return self.scheduler.active
 
     # --- inputs ------------------------------------------------------------------------------
-    def set_command(self, duty: float, pwm_frequency_hz: float = 0.0) -> CommandResult:
+    def set_command(self, duty: float, pwm_frequency_hz: float = 0.0, age_s: float = 0.0,
+                    sequence: int | None = None, source: str = '') -> CommandResult:
         """See :meth:`TransmitScheduler.set_command`."""
-        return self.scheduler.set_command(duty, pwm_frequency_hz)
+        return self.scheduler.set_command(duty, pwm_frequency_hz, age_s, sequence, source)
+
+    def clear_faults(self, timeout_s: float = 1.0) -> ClearResult:
+        """Send ``ClearFaults=1`` once and wait for the controller's next ``ValveStatus``.
+
+        Works while configured (active or not): the frame carries the command in force
+        (duty 0 and ``Enable=0`` while inactive). Call it from a thread other than the
+        driver's own (the node's service callback).
+
+        Returns
+        -------
+        ClearResult
+            ``cleared``: flags set before and gone after; ``still_active``: flags still set
+            (a latched fault whose condition persists, or an active condition).
+        """
+        deadline = time.monotonic() + timeout_s
+        with self._lock:
+            if self._closed:
+                return ClearResult(False, (), (), 'not cleared: the bus is closed')
+            before = fault_flags(self.tracker.last_status)
+            self._tally.count('fault_clear_requests')
+            self.scheduler.request_clear()
+            while self.scheduler.clear_pending and not self._closed:
+                if not self._lock.wait(deadline - time.monotonic()) and \
+                        time.monotonic() >= deadline:
+                    break
+            sent = self.scheduler.clear_sent_mono
+            if sent is None:
+                self.scheduler.clear_pending = False
+                return ClearResult(False, (), tuple(before), 'not cleared: the ClearFaults '
+                                   'frame could not be sent (bus down?)')
+        # The controller's next heartbeat after the frame tells what is left.
+        while time.monotonic() < deadline:
+            with self._lock:
+                mono = self.tracker.last_status_mono
+                if mono is not None and mono > sent + 0.001:
+                    after = fault_flags(self.tracker.last_status)
+                    break
+            time.sleep(0.005)
+        else:
+            return ClearResult(False, (), tuple(before), 'ClearFaults sent, but no ValveStatus '
+                               f'from the controller within {timeout_s:g} s')
+        cleared = tuple(f for f in before if f not in after)
+        still = tuple(after)
+        latched = [f for f in still if f in LATCHED_FLAGS]
+        message = (f'cleared: {", ".join(cleared) or "nothing"}; still active: '
+                   f'{", ".join(still) or "nothing"}')
+        if latched:
+            message += ' (latched faults stay while their condition persists)'
+        logger.info('clear faults: %s', message)
+        return ClearResult(not latched, cleared, still, message)
 
     def set_pressures(self, supply_pa: float | None = None,
                       output_pa: float | None = None) -> bool:
@@ -195,6 +261,7 @@ class CanDriverCore:
                 last_error_frame=link.last_error_frame, last_reject=tracker.last_reject,
                 telemetry_age_s=age(now, tracker.last_valid_mono),
                 telemetry_lost=tracker.lost, lost_after_s=tracker.lost_after_s,
+                loss_reason=tracker.health.reason,
                 frozen_run=tracker.frozen_run, frozen_counter=tracker.frozen_counter,
                 telemetry_rate_hz=tracker.rate_hz,
                 average_source=tracker.average_source(now),
@@ -202,7 +269,10 @@ class CanDriverCore:
                 heartbeat_age_s=age(now, tracker.last_status_mono or None),
                 duty=0.0 if sched.watchdog_tripped else sched.duty,
                 pwm_frequency_hz=sched.pwm_hz, watchdog_tripped=sched.watchdog_tripped,
-                last_command_note=sched.last_command_note)
+                last_command_note=sched.last_command_note, host_id=sched.host_id,
+                foreign_host_id=tracker.foreign_host_id,
+                max_command_age_s=sched.max_command_age_s,
+                last_stale_age_s=sched.last_stale_age_s)
 
     def report(self) -> list[StatusReport]:
         """The driver's diagnostics now: bus, telemetry, commands, controller."""
@@ -230,6 +300,7 @@ class CanDriverCore:
 
     # --- I/O thread --------------------------------------------------------------------------
     def _io_loop(self) -> None:
+        self.io_priority_raised = raise_thread_priority(self.config.io_nice, 'I/O')
         next_level_check = 0.0
         while not self._stop.is_set():
             try:
@@ -260,9 +331,7 @@ class CanDriverCore:
                 return
             now = time.monotonic()
             wait = min(self.scheduler.next_due(), next_level_check) - now
-            deadline = self.tracker.loss_deadline()
-            if deadline is not None:
-                wait = min(wait, deadline - now + 1e-5)
+            wait = min(wait, self.tracker.loss_deadline() - now + 1e-5)
             if self.link.failed:
                 wait = min(wait, self.link.next_reopen - now)
             if wait > 0.0 and not self.scheduler.urgent():

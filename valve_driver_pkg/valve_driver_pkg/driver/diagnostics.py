@@ -16,8 +16,8 @@ from valve_driver_pkg.driver.config import DriverConfig
 from valve_driver_pkg.protocol.codec import RejectReason
 from valve_driver_pkg.protocol.error_frames import BusCondition
 
-__all__ = ['Level', 'StatusReport', 'Tally', 'COUNTER_KEYS', 'DriverSnapshot', 'diagnose',
-           'overall_level']
+__all__ = ['Level', 'StatusReport', 'Tally', 'COUNTER_KEYS', 'LATCHED_FLAGS', 'DriverSnapshot',
+           'diagnose', 'overall_level', 'fault_flags']
 
 
 class Level(enum.IntEnum):
@@ -46,9 +46,16 @@ COUNTER_KEYS = (
     'counter_jumps', 'frames_lost', 'other_node_frames',
     'error_frames', 'error_passive_events', 'bus_off_events', 'bus_recoveries',
     'bus_failures', 'bus_reopens', 'tx_errors',
-    'commands_received', 'commands_clamped', 'commands_rejected', 'command_frames_sent',
-    'pressure_frames_sent', 'watchdog_trips', 'telemetry_losses', 'internal_errors',
+    'commands_received', 'commands_clamped', 'commands_rejected', 'commands_on_bus',
+    'commands_superseded', 'commands_lost', 'commands_out_of_order', 'stale_commands',
+    'command_frames_sent', 'pressure_frames_sent', 'watchdog_trips', 'foreign_command_frames',
+    'fault_clear_requests', 'telemetry_losses', 'internal_errors',
 )
+
+#: ValveStatus fault flags that latch: the output stays off until ClearFaults (and the
+#: condition is gone). The others are active conditions that clear by themselves (command
+#: flags are held 1 s after the event).
+LATCHED_FLAGS = ('Overcurrent', 'Overtemperature', 'Internal')
 
 
 class Tally:
@@ -99,6 +106,7 @@ class DriverSnapshot:
     telemetry_age_s: float
     telemetry_lost: bool
     lost_after_s: float
+    loss_reason: str
     frozen_run: int
     frozen_counter: int | None
     telemetry_rate_hz: float
@@ -110,6 +118,10 @@ class DriverSnapshot:
     pwm_frequency_hz: float
     watchdog_tripped: bool
     last_command_note: str
+    host_id: int = 0
+    foreign_host_id: int | None = None
+    max_command_age_s: float = 0.0
+    last_stale_age_s: float = 0.0
 
 
 def _pick(counters: Mapping[str, int], keys: Iterable[str]) -> dict[str, int]:
@@ -154,11 +166,17 @@ def _telemetry_status(s: DriverSnapshot) -> StatusReport:
     if s.closed:
         status = StatusReport('telemetry', Level.STALE, 'bus closed')
     elif s.telemetry_lost:
-        why = f'counter frozen at {s.frozen_counter}' if frozen else 'no valid ValveTelemetry'
         detail = f'; recent rejections: {", ".join(rejected)}' if rejected else ''
-        status = StatusReport('telemetry', Level.ERROR,
-                              f'telemetry stopped: {why} for {s.telemetry_age_s * 1e3:.1f} ms '
-                              f'(limit {limit * 1e3:.2f} ms){detail}')
+        if s.loss_reason == 'counter gaps':
+            text = (f'telemetry lost: frames missing (counter gaps) in '
+                    f'{cfg.telemetry_error_windows} consecutive {cfg.telemetry_window_s:g} s '
+                    'windows')
+        else:
+            why = (f'counter frozen at {s.frozen_counter}' if frozen
+                   else 'no valid ValveTelemetry')
+            text = (f'telemetry stopped: {why} for {s.telemetry_age_s * 1e3:.1f} ms '
+                    f'(limit {limit * 1e3:.2f} ms)')
+        status = StatusReport('telemetry', Level.ERROR, text + detail)
     elif frozen:
         status = StatusReport('telemetry', Level.ERROR, f'counter frozen at {s.frozen_counter}')
     elif rejected or 'counter_jump' in s.recent:
@@ -170,7 +188,8 @@ def _telemetry_status(s: DriverSnapshot) -> StatusReport:
         status = StatusReport('telemetry', Level.OK, f'{s.telemetry_rate_hz:.0f} Hz')
     status.values = {
         'age_s': s.telemetry_age_s, 'timeout_s': limit, 'average_source': s.average_source,
-        'lost_after_s': s.lost_after_s, 'rate_hz': s.telemetry_rate_hz,
+        'lost_after_s': s.lost_after_s, 'loss_reason': s.loss_reason,
+        'rate_hz': s.telemetry_rate_hz,
         **_pick(s.counters, ('telemetry_frames', 'telemetry_losses', 'rejected_total',
                              'rejected_checksum', 'rejected_wrong_length',
                              'rejected_counter_frozen', 'rejected_out_of_range',
@@ -182,14 +201,29 @@ def _telemetry_status(s: DriverSnapshot) -> StatusReport:
 
 def _command_status(s: DriverSnapshot) -> StatusReport:
     timeout = s.config.command_timeout_s
+    second_host = 'foreign_command' in s.recent
     if s.closed:
         status = StatusReport('commands', Level.STALE, 'bus closed')
+    elif second_host:
+        status = StatusReport('commands', Level.ERROR,
+                              f'another host (host id {s.foreign_host_id}) commands node '
+                              f'{s.config.node_id}: two hosts on one valve (this host id '
+                              f'{s.host_id})')
     elif s.watchdog_tripped:
         status = StatusReport('commands', Level.WARN,
                               f'watchdog: no duty command for {timeout:g} s; '
                               'valve commanded closed (duty 0)')
     elif s.recent & {'command_rejected', 'command_clamped'}:
         status = StatusReport('commands', Level.WARN, s.last_command_note)
+    elif 'stale_command' in s.recent:
+        status = StatusReport('commands', Level.WARN,
+                              f'stale commands: {s.counters["stale_commands"]} reached the bus '
+                              f'later than {s.config.stale_command_s * 1e3:g} ms after their '
+                              f'stamp (last {s.last_stale_age_s * 1e3:.1f} ms)')
+    elif 'command_lost' in s.recent:
+        status = StatusReport('commands', Level.WARN,
+                              f'commands lost: {s.counters["commands_lost"]} sequence numbers '
+                              'missing')
     elif not s.active:
         status = StatusReport('commands', Level.OK, 'inactive: not sending')
     else:
@@ -199,8 +233,13 @@ def _command_status(s: DriverSnapshot) -> StatusReport:
         'duty': s.duty, 'pwm_frequency_hz': s.pwm_frequency_hz, 'active': s.active,
         'watchdog_tripped': s.watchdog_tripped, 'command_timeout_s': timeout,
         **_pick(s.counters, ('commands_received', 'commands_clamped', 'commands_rejected',
+                             'commands_on_bus', 'commands_superseded', 'commands_lost',
+                             'commands_out_of_order', 'stale_commands',
                              'command_frames_sent', 'pressure_frames_sent',
-                             'watchdog_trips')),
+                             'watchdog_trips', 'foreign_command_frames')),
+        'stale_command_s': s.config.stale_command_s,
+        'max_command_age_s': s.max_command_age_s, 'host_id': s.host_id,
+        'foreign_host_id': '' if s.foreign_host_id is None else s.foreign_host_id,
         'last_command_problem': s.last_command_note}
     return status
 
@@ -211,8 +250,9 @@ _STATE_NAMES = {0: 'init', 1: 'standby', 2: 'running', 3: 'fault'}
 def _controller_status(s: DriverSnapshot) -> StatusReport:
     heartbeat = s.last_status
     age = s.heartbeat_age_s
-    flags = sorted(k[len('Fault'):] for k, v in (heartbeat or {}).items()
-                   if k.startswith('Fault') and v)
+    flags = fault_flags(heartbeat)
+    latched = [f for f in flags if f in LATCHED_FLAGS]
+    active = [f for f in flags if f not in LATCHED_FLAGS]
     state = int(heartbeat['ControllerState']) if heartbeat else -1
     state_name = _STATE_NAMES.get(state, 'unknown')
     if s.closed:
@@ -221,15 +261,20 @@ def _controller_status(s: DriverSnapshot) -> StatusReport:
         status = StatusReport('controller', Level.WARN if heartbeat is None else Level.ERROR,
                               'no ValveStatus heartbeat' + (
                                   '' if heartbeat is None else f' for {age:.2f} s'))
-    elif state == 3 or 'Overcurrent' in flags or 'Internal' in flags:
-        status = StatusReport('controller', Level.ERROR,
-                              f'controller fault: {", ".join(flags) or state_name}')
-    elif flags:
+    elif state == 3 or latched:
+        parts = ([f'latched: {", ".join(latched)} (clear with ~/clear_faults)'] if latched
+                 else [state_name])
+        if active:
+            parts.append(f'active: {", ".join(active)}')
+        status = StatusReport('controller', Level.ERROR, 'controller fault: ' + '; '.join(parts))
+    elif active:
         status = StatusReport('controller', Level.WARN,
-                              f'controller reports {", ".join(flags)}')
+                              f'controller reports {", ".join(active)} (active)')
     else:
         status = StatusReport('controller', Level.OK, state_name)
     status.values = {'state': state_name, 'fault_flags': ','.join(flags),
+                     'latched_faults': ','.join(latched), 'active_faults': ','.join(active),
+                     'fault_clear_requests': s.counters['fault_clear_requests'],
                      'heartbeat_age_s': age, 'status_frames': s.counters['status_frames']}
     if heartbeat:
         status.values.update(duty_active=heartbeat['DutyActive'],
@@ -257,6 +302,12 @@ def overall_level(reports: Iterable[StatusReport]) -> Level:
     """Worst level of ``reports`` (STALE counts as ERROR)."""
     worst = max((r.level for r in reports), default=Level.OK)
     return Level.ERROR if worst is Level.STALE else Level(worst)
+
+
+def fault_flags(status: Mapping | None) -> list[str]:
+    """The fault flags set in a decoded ValveStatus (names without ``Fault``), sorted."""
+    return sorted(k[len('Fault'):] for k, v in (status or {}).items()
+                  if k.startswith('Fault') and v)
 
 
 def age(now: float, then: float | None) -> float:

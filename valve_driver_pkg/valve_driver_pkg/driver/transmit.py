@@ -5,6 +5,14 @@ when ``ValveCommand`` and ``ValvePressure`` go out: at once on a change, and at 
 refresh rates. Callers (the node's callbacks) only store values and wake the I/O thread;
 the I/O thread calls :meth:`check_watchdog` and :meth:`send_due`. Every attribute
 changes only under the driver core's one lock; frames are encoded and sent outside it.
+
+Accounting of duty commands (nothing lost unreported): every command offered to
+:meth:`set_command` is ``commands_received``; it is then rejected (``commands_rejected``),
+or accepted and either reaches the bus in a ``ValveCommand`` frame (``commands_on_bus``)
+or is replaced by a newer one before its frame went out (``commands_superseded``). A
+command whose frame goes out more than ``stale_command_s`` after its origin (its header
+stamp, else its receipt) is also counted as ``stale_commands``. Gaps in the commands'
+sequence numbers, per source, are ``commands_lost`` (lost before they reached the driver).
 """
 from __future__ import annotations
 
@@ -12,6 +20,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 
 from valve_driver_pkg.driver.bus_link import BusLink
@@ -19,6 +28,7 @@ from valve_driver_pkg.driver.config import DriverConfig
 from valve_driver_pkg.driver.diagnostics import Tally
 from valve_driver_pkg.errors import ProtocolEncodeError
 from valve_driver_pkg.protocol.codec import COMMAND, PRESSURE, ValveCodec
+from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
 
 __all__ = ['CommandResult', 'TransmitScheduler']
 
@@ -26,6 +36,9 @@ logger = logging.getLogger(__name__)
 
 #: While inactive the I/O thread looks again after this long [s].
 _IDLE_S = 0.05
+#: Own ValveCommand frames remembered to recognise their echo (an interface that loops
+#: sent frames back must not make the driver see a second host).
+_ECHO_MEMORY = 16
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,7 +73,10 @@ class TransmitScheduler:
         self._lock = lock
         self._tally = tally
         f_lo, f_hi = codec.signal_range(COMMAND, 'PwmFrequency')
-        self._f_min, self._f_max = f_lo, min(f_hi, config.max_pwm_frequency_hz)
+        # The suite's one pair of limits; a custom DBC can only narrow them.
+        self._f_min = max(f_lo, MIN_PWM_FREQUENCY_HZ)
+        self._f_max = min(f_hi, config.max_pwm_frequency_hz, MAX_PWM_FREQUENCY_HZ)
+        self.host_id = config.effective_host_id
         self._p_lo, self._p_hi = codec.signal_range(PRESSURE, 'SupplyPressure')
         self._command_period = 1.0 / config.command_rate_hz
         self._pressure_period = 1.0 / config.pressure_rate_hz
@@ -82,6 +98,23 @@ class TransmitScheduler:
         self._next_pressure_t = 0.0
         self._tx_counter = 0
         self._pressure_counter = 0
+        self.clear_pending = False       # clear_faults(): one ClearFaults=1 frame to send
+        self.clear_sent_mono: float | None = None
+        self._origin: float | None = None   # origin (monotonic) of the command not yet sent
+        self.max_command_age_s = 0.0     # largest origin-to-bus age of a command [s]
+        self.last_stale_age_s = 0.0
+        self._sequences: dict[str, int] = {}
+        self._sent = deque(maxlen=_ECHO_MEMORY)
+
+    def sent_recently(self, data: bytes) -> bool:
+        """True if ``data`` is one of the last ValveCommand frames sent. Lock held."""
+        return data in self._sent
+
+    def request_clear(self) -> None:
+        """Send one ValveCommand with ``ClearFaults=1`` (also while inactive). Lock held."""
+        self.clear_pending = True
+        self.clear_sent_mono = None
+        self._lock.notify_all()
 
     # --- the caller's side (any thread) ------------------------------------------------------
     def mark_dirty(self) -> None:
@@ -95,6 +128,7 @@ class TransmitScheduler:
         """Start sending; duty 0 until a command arrives. Lock held."""
         self.duty = 0.0
         self._last_command_mono = None
+        self._origin = None
         self.watchdog_tripped = False
         self.active = True
         self.disable_pending = False
@@ -112,6 +146,7 @@ class TransmitScheduler:
             return False
         self.active = False
         self.duty = 0.0
+        self._origin = None
         self.disable_pending = True
         self._lock.notify_all()
         return True
@@ -122,18 +157,34 @@ class TransmitScheduler:
         with self._lock:
             return (0.0 if self.watchdog_tripped else self.duty), self.pwm_hz
 
-    def set_command(self, duty: float, pwm_frequency_hz: float = 0.0) -> CommandResult:
+    def set_command(self, duty: float, pwm_frequency_hz: float = 0.0, age_s: float = 0.0,
+                    sequence: int | None = None, source: str = '') -> CommandResult:
         """Take a duty command (DutyCommand semantics); never raises, never sends raw.
 
         Non-finite values and a negative frequency are rejected (the last valid command
         stays); a duty outside [0, 1] and a frequency outside the protocol's range are
         clamped. Frequency 0 keeps the frequency in force. Both are counted and reported.
+
+        Parameters
+        ----------
+        duty, pwm_frequency_hz : float
+            The command ([1], [Hz]).
+        age_s : float
+            How old the command already is on arrival (now minus its header stamp) [s];
+            its frame is stale if it reaches the bus more than ``stale_command_s`` after
+            that origin.
+        sequence : int | None
+            The command's sequence number; gaps per ``source`` are counted as lost.
+        source : str
+            The publisher the sequence numbers belong to.
         """
         duty = float(duty)
         freq = float(pwm_frequency_hz)
         with self._lock:
             now = time.monotonic()
             self._tally.count('commands_received')
+            if sequence is not None:
+                self._check_sequence(int(sequence), source)
             if not (math.isfinite(duty) and math.isfinite(freq)) or freq < 0.0:
                 self._tally.count('commands_rejected')
                 self._tally.mark('command_rejected', now)
@@ -159,6 +210,10 @@ class TransmitScheduler:
                 self.last_command_note = '; '.join(notes)
             self.duty, self.pwm_hz = duty, freq
             self._last_command_mono = now
+            if self._origin is not None:
+                self._tally.count('commands_superseded')   # replaced before its frame went out
+            age = float(age_s) if math.isfinite(age_s) and 0.0 <= age_s < 3600.0 else 0.0
+            self._origin = now - age
             if self.watchdog_tripped:
                 logger.info('duty commands are back; watchdog released')
             self.watchdog_tripped = False
@@ -166,6 +221,18 @@ class TransmitScheduler:
             self._command_gen += 1
             self._lock.notify_all()
             return CommandResult(True, duty, freq, bool(notes), '; '.join(notes))
+
+    def _check_sequence(self, sequence: int, source: str) -> None:
+        """Count the sequence numbers missing since the last command of ``source``."""
+        last = self._sequences.get(source)
+        self._sequences[source] = sequence
+        if last is None:
+            return
+        if sequence > last + 1:
+            self._tally.count('commands_lost', sequence - last - 1)
+            self._tally.mark('command_lost', time.monotonic())
+        elif sequence <= last:
+            self._tally.count('commands_out_of_order')   # a restarted publisher, or reordering
 
     def set_pressures(self, supply_pa: float | None = None,
                       output_pa: float | None = None) -> bool:
@@ -205,15 +272,16 @@ class TransmitScheduler:
 
     def urgent(self) -> bool:
         """A frame must go out now (new command, disable, new pressures). Lock held."""
-        return (self._command_dirty or self.disable_pending
+        return (self._command_dirty or self.disable_pending or self.clear_pending
                 or (self._pressure_dirty and self.active))
 
     def send_due(self, now: float, link: BusLink) -> None:
         """Send the frames that are due on ``link`` (I/O thread)."""
         with self._lock:
             disabling = self.disable_pending
-            send_command = disabling or (self.active and (self._command_dirty
-                                                          or now >= self._next_command_t))
+            clearing = self.clear_pending
+            send_command = disabling or clearing or (
+                self.active and (self._command_dirty or now >= self._next_command_t))
             send_pressure = self.active and (self._pressure_dirty
                                              or now >= self._next_pressure_t)
             enable = self.active and not disabling
@@ -222,16 +290,25 @@ class TransmitScheduler:
             supply = min(max(self.supply_pa, self._p_lo), self._p_hi)
             output = min(max(self.output_pa, self._p_lo), self._p_hi)
             command_gen, pressure_gen = self._command_gen, self._pressure_gen
+            origin = self._origin if enable else None
             if not self.active and not disabling:
                 self._next_command_t = self._next_pressure_t = now + _IDLE_S
         if not link.usable:
             return
         if send_command:
             sent = self._send(link, COMMAND, {'Duty': duty, 'PwmFrequency': freq,
-                                              'Enable': int(enable), 'ClearFaults': 0},
+                                              'Enable': int(enable),
+                                              'ClearFaults': int(clearing),
+                                              'HostId': self.host_id},
                               self._tx_counter)
             with self._lock:
                 self._tx_counter = (self._tx_counter + 1) & 0xF
+                if sent and clearing:
+                    self.clear_pending = False
+                    self.clear_sent_mono = time.monotonic()
+                    self._lock.notify_all()
+                if sent and origin is not None and self._origin == origin:
+                    self._account_age(time.monotonic() - origin)
                 if self._command_gen == command_gen:   # else a newer command is waiting
                     self._command_dirty = False
                 self._next_command_t = now + self._command_period
@@ -253,6 +330,16 @@ class TransmitScheduler:
                 if sent:
                     self._tally.count('pressure_frames_sent')
 
+    def _account_age(self, age: float) -> None:
+        """The pending command reached the bus ``age`` s after its origin. Lock held."""
+        self._origin = None
+        self._tally.count('commands_on_bus')
+        self.max_command_age_s = max(self.max_command_age_s, age)
+        if age > self._config.stale_command_s:
+            self._tally.count('stale_commands')
+            self._tally.mark('stale_command', time.monotonic())
+            self.last_stale_age_s = age
+
     def _send(self, link: BusLink, name: str, signals: dict, counter: int) -> bool:
         try:
             msg = self._codec.encode(name, signals, counter)
@@ -261,4 +348,7 @@ class TransmitScheduler:
                 self._tally.count('internal_errors')
             logger.error('not sent: %s', err)
             return False
+        if name == COMMAND:
+            with self._lock:
+                self._sent.append(bytes(msg.data))
         return link.send(msg)

@@ -58,8 +58,11 @@ class EmulatorConfig:
     position_estimate : bool
         Report the spool position (``PositionValid=1``); false models a controller
         without an estimator.
-    accept_control_frames : bool
-        Obey ``EmulatorControl`` frames (fault injection over the bus).
+    fault_injection : bool
+        Obey ``EmulatorControl`` frames (fault injection over the bus). Off by default:
+        anyone on the bus could otherwise switch faults; ignored frames are counted
+        (``stats['control_frames_ignored']``). The in-process :meth:`inject` API and
+        ``--fault`` schedules work either way (they are the operator's own choice).
     supply_voltage_v : float
         Drive supply voltage reported in the heartbeat [V].
     overcurrent_a : float
@@ -74,7 +77,7 @@ class EmulatorConfig:
     status_rate_hz: float = 10.0
     command_timeout_s: float = 0.1
     position_estimate: bool = True
-    accept_control_frames: bool = True
+    fault_injection: bool = False
     supply_voltage_v: float = 24.0
     overcurrent_a: float = 6.0
     max_burst: int = 5

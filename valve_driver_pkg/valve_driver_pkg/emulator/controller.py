@@ -10,8 +10,12 @@
 What the firmware does (see the package README for the frame table):
 
 * ``ValveCommand``: checked (checksum, counter, ranges); a valid one sets duty and PWM
-  frequency (``Enable=0`` means duty 0); ``ClearFaults`` clears latched faults. A command
-  with a bad checksum or a frozen counter is ignored and raises a fault flag for 1 s.
+  frequency (``Enable=0`` means duty 0). ``ClearFaults=1`` clears the latched faults whose
+  condition is gone (overcurrent: the coil current is below the limit and no injected
+  overcurrent with a duration is still running) and the held command flags; a latched
+  fault whose condition persists stays set. A command with a bad checksum or a frozen
+  counter is ignored and raises a fault flag for 1 s. The ``HostId`` of every valid
+  command is remembered (``host_ids``); a second id within 1 s is logged.
 * Command watchdog: while enabled, no valid command for ``command_timeout_s`` closes the
   valve (duty 0) and sets ``CommandTimeout`` until the next valid command.
 * ``ValvePressure``: port pressures for the model.
@@ -22,7 +26,8 @@ What the firmware does (see the package README for the frame table):
   (i.e. once per PWM period), and at least every 0.1 s: what a firmware computes at its
   internal rate, here the model's own period average.
 * ``ValveStatus`` every ``1/status_rate_hz``: command in force, supply voltage, fault flags.
-* ``EmulatorControl``: fault injection (see :class:`~valve_driver_pkg.emulator.faults`).
+* ``EmulatorControl``: fault injection (see :class:`~valve_driver_pkg.emulator.faults`),
+  obeyed only with ``EmulatorConfig.fault_injection``; otherwise counted and ignored.
 """
 from __future__ import annotations
 
@@ -103,7 +108,10 @@ class ControllerEmulator:
         self._thread: threading.Thread | None = None
         self.stats = {'commands': 0, 'commands_rejected': 0, 'telemetry_sent': 0,
                       'telemetry_suppressed': 0, 'status_sent': 0, 'overruns': 0,
-                      'send_errors': 0, 'control_frames': 0}
+                      'send_errors': 0, 'control_frames': 0, 'control_frames_ignored': 0,
+                      'fault_clears': 0}
+        self.host_ids: dict[int, float] = {}   # HostId -> model time of its last command
+        self._last_current_a = 0.0
         stepper.reset()
         stepper.set_pressures(supply_pressure_pa, output_pressure_pa)
         stepper.set_command(0.0, self._pwm_hz)
@@ -153,7 +161,12 @@ class ControllerEmulator:
                     self.stepper.set_pressures(supply, output)
                 except ValueError as err:   # the model refused: keep the last pressures
                     logger.warning('emulator: pressures not applied: %s', err)
-            elif name == CONTROL and self.config.accept_control_frames:
+            elif name == CONTROL and not self.config.fault_injection:
+                self.stats['control_frames_ignored'] += 1
+                if self.stats['control_frames_ignored'] == 1:
+                    logger.warning('emulator: EmulatorControl frame ignored (fault injection '
+                                   'is off; start with --fault-injection)')
+            elif name == CONTROL:
                 if self._control_counter.check(frame.counter) is CounterCheck.FROZEN:
                     return
                 self.stats['control_frames'] += 1
@@ -171,14 +184,40 @@ class ControllerEmulator:
         self._seen_command = True
         self._last_command_t = self._model_t
         self._timed_out = False
+        self._note_host(int(signals.get('HostId', 0)))
         if signals['ClearFaults']:
-            self._overcurrent = False
-            for key in self._flag_until:
-                self._flag_until[key] = -1.0
+            self._clear_faults()
         self._enabled = bool(signals['Enable'])
         self._duty = float(signals['Duty'])
         self._pwm_hz = float(signals['PwmFrequency'])
         self._apply_output()
+
+    def _note_host(self, host_id: int) -> None:
+        others = [h for h, t in self.host_ids.items()
+                  if h != host_id and self._model_t - t <= FLAG_HOLD_S]
+        if others and host_id not in self.host_ids:
+            logger.warning('emulator: commands from host %d and host(s) %s', host_id,
+                           ', '.join(map(str, others)))
+        self.host_ids[host_id] = self._model_t
+
+    def overcurrent_present(self) -> bool:
+        """The overcurrent condition persists (coil current above the limit, or an injected
+        overcurrent whose duration is still running)."""
+        injected = self.faults.snapshot().get('overcurrent')
+        return (self._last_current_a > self.config.overcurrent_a
+                or (injected is not None and injected.until_s is not None))
+
+    def _clear_faults(self) -> None:
+        """ClearFaults: release the latches whose condition is gone; drop the held flags."""
+        self.stats['fault_clears'] += 1
+        for key in self._flag_until:
+            self._flag_until[key] = -1.0
+        if self._overcurrent and not self.overcurrent_present():
+            self._overcurrent = False
+            self.faults.clear(EmulatorFault.OVERCURRENT)   # an injected one-shot event
+            logger.info('emulator: overcurrent cleared')
+        elif self._overcurrent:
+            logger.info('emulator: overcurrent not cleared: the condition persists')
 
     def _apply_output(self) -> None:
         drive = self._enabled and not self._timed_out and not self._overcurrent
@@ -325,6 +364,7 @@ class ControllerEmulator:
             return
         s = self.stepper.sample()
         current = float(s.coil_current_a)
+        self._last_current_a = current
         if current > self.config.overcurrent_a and not self._overcurrent:
             self._overcurrent = True
             self._apply_output()

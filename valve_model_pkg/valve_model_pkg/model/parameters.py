@@ -7,8 +7,10 @@ float vector in :data:`PARAMETER_FIELDS` order used by the compiled kernel and t
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import os
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -25,11 +27,30 @@ __all__ = [
     'SECTIONS',
     'load_parameters',
     'default_parameters_path',
+    'PLAUSIBLE_RANGES',
+    'SAFE_RANGE_FACTOR',
+    'MAX_PARAMETER_FILE_BYTES',
+    'implausible_values',
 ]
+
+_LOG = logging.getLogger(__name__)
 
 
 class ParameterError(ValueError):
-    """An invalid, missing or unknown model parameter (message names field and value)."""
+    """An invalid, missing or unknown model parameter (message names field and value).
+
+    Parameters
+    ----------
+    message : str
+        One line naming the field and the value.
+    key : str, optional
+        The parameter (or YAML key) concerned, when there is one; lets
+        :func:`load_parameters` name the line of the file.
+    """
+
+    def __init__(self, message: str, *, key: str | None = None) -> None:
+        super().__init__(message)
+        self.key = key
 
 
 @dataclasses.dataclass(frozen=True)
@@ -199,10 +220,10 @@ class ValveParameters:
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating,
                                                                  np.integer)):
                 raise ParameterError(
-                    f'{f.name} must be a number, got {value!r}')
+                    f'{f.name} must be a number, got {value!r}', key=f.name)
             value = float(value)
             if not math.isfinite(value):
-                raise ParameterError(f'{f.name} must be finite, got {value!r}')
+                raise ParameterError(f'{f.name} must be finite, got {value!r}', key=f.name)
             object.__setattr__(self, f.name, value)
         _validate(self)
 
@@ -232,7 +253,8 @@ class ValveParameters:
         for key in data:
             if key not in SECTIONS and key != 'effects':
                 raise ParameterError(
-                    f'unknown parameter section {key!r} (expected valve, orifice, effects)')
+                    f'unknown parameter section {key!r} (expected valve, orifice, effects)',
+                    key=key)
         for section, names in SECTIONS.items():
             block = data.get(section)
             if not isinstance(block, Mapping):
@@ -240,7 +262,8 @@ class ValveParameters:
             for key in block:
                 if key not in names:
                     raise ParameterError(
-                        f'unknown parameter {key!r} = {block[key]!r} in section {section!r}')
+                        f'unknown parameter {key!r} = {block[key]!r} in section {section!r}',
+                        key=key)
             for name in names:
                 if name not in block:
                     raise ParameterError(f'missing parameter {name!r} in section {section!r}')
@@ -251,14 +274,15 @@ class ValveParameters:
         for effect, block in effects.items():
             if effect not in EFFECTS:
                 raise ParameterError(
-                    f'unknown effect {effect!r} (expected one of {", ".join(EFFECTS)})')
+                    f'unknown effect {effect!r} (expected one of {", ".join(EFFECTS)})',
+                    key=effect)
             block = block or {}
             if not isinstance(block, Mapping):
                 raise ParameterError(f'effect {effect!r} must be a mapping, got {block!r}')
             for key, value in block.items():
                 if key not in EFFECTS[effect].fields:
                     raise ParameterError(
-                        f'unknown parameter {key!r} = {value!r} in effect {effect!r}')
+                        f'unknown parameter {key!r} = {value!r} in effect {effect!r}', key=key)
                 values[key] = value
         return cls(**values)
 
@@ -267,7 +291,7 @@ class ValveParameters:
         names = {f.name for f in dataclasses.fields(cls)}
         for key in data:
             if key not in names:
-                raise ParameterError(f'unknown parameter {key!r} = {data[key]!r}')
+                raise ParameterError(f'unknown parameter {key!r} = {data[key]!r}', key=key)
         for section, fields in SECTIONS.items():
             for name in fields:
                 if name not in data:
@@ -326,29 +350,102 @@ _NON_NEGATIVE = (
 )
 
 
+#: Physically plausible range (low, high) of every parameter, SI units, for a fast
+#: switching solenoid valve of the paper's kind (with generous margins either side). A
+#: parameter file with a value outside is refused by :func:`load_parameters` unless
+#: ``allow_implausible`` (``--allow-implausible``) accepts it with a warning.
+PLAUSIBLE_RANGES: dict[str, tuple[float, float]] = {
+    'spool_mass_kg': (1e-4, 1.0),                 # 0.1 g .. 1 kg
+    'spring_stiffness_n_per_m': (1.0, 1e7),       # N/m
+    'coil_turns': (1.0, 1e5),
+    'area_a1_m2': (1e-9, 1e-2),                   # 0.001 mm^2 .. 100 cm^2
+    'area_a2_m2': (1e-9, 1e-2),
+    'area_a3_m2': (1e-9, 1e-2),
+    'area_a4_m2': (1e-9, 1e-2),
+    'core_length_m': (1e-3, 1.0),
+    'coil_resistance_ohm': (1e-2, 1e4),
+    'stroke_m': (1e-6, 5e-2),
+    'core_area_m2': (1e-7, 1e-2),
+    'spring_pretension_m': (0.0, 0.1),
+    'total_air_gap_m': (1e-6, 5e-2),
+    'damping_n_s_per_m': (0.0, 1e4),
+    'relative_permeability': (1.0, 1e6),
+    'discharge_coefficient': (0.01, 1.0),
+    'orifice_area_gradient_m': (1e-5, 1.0),       # m^2 of orifice per m of stroke
+    'supply_temperature_k': (150.0, 600.0),
+    'gas_constant_j_per_kg_k': (50.0, 5000.0),    # air 287, helium 2077, hydrogen 4124
+    'heat_capacity_ratio': (1.0, 1.7),
+    'saturation_coefficient_per_a': (0.0, 100.0),
+    'eddy_conductance_s': (0.0, 10.0),
+    'coulomb_friction_n': (0.0, 1e3),
+    'thermal_resistance_k_per_w': (0.0, 1e4),
+    'thermal_time_constant_s': (1e-2, 1e5),
+    'leakage_inductance_h': (0.0, 10.0),
+    'restitution_coefficient': (0.0, 1.0),
+}
+
+#: Beyond the plausible range widened by this factor on either side a value is refused
+#: always (``allow_implausible`` or not): such values (a 1e-300 kg spool, 1e300 N/m) only
+#: make the integrator divide by zero or overflow, so they never reach the kernel.
+SAFE_RANGE_FACTOR = 1e3
+
+
+def _safe_range(name: str) -> tuple[float, float]:
+    lo, hi = PLAUSIBLE_RANGES[name]
+    return lo / SAFE_RANGE_FACTOR, hi * SAFE_RANGE_FACTOR
+
+
+def implausible_values(params: ValveParameters) -> list[tuple[str, float, tuple[float, float]]]:
+    """The parameters outside their :data:`PLAUSIBLE_RANGES`.
+
+    Returns
+    -------
+    list of (str, float, (float, float))
+        ``(name, value, (low, high))`` for each, in :data:`PARAMETER_FIELDS` order.
+    """
+    out = []
+    for name in PARAMETER_FIELDS:
+        lo, hi = PLAUSIBLE_RANGES[name]
+        value = getattr(params, name)
+        if not lo <= value <= hi:
+            out.append((name, value, (lo, hi)))
+    return out
+
+
 def _validate(p: ValveParameters) -> None:
     for name in _POSITIVE:
         value = getattr(p, name)
         if value <= 0.0:
-            raise ParameterError(f'{name} must be positive, got {value!r}')
+            raise ParameterError(f'{name} must be positive, got {value!r}', key=name)
     for name in _NON_NEGATIVE:
         value = getattr(p, name)
         if value < 0.0:
-            raise ParameterError(f'{name} must be non-negative, got {value!r}')
+            raise ParameterError(f'{name} must be non-negative, got {value!r}', key=name)
     if p.stroke_m >= p.total_air_gap_m:
         # eq. (2): the holding gap x_t - x_max must stay open, else L(x_max) is unbounded.
         raise ParameterError(
             f'stroke_m must be below total_air_gap_m ({p.total_air_gap_m!r}), '
-            f'got {p.stroke_m!r}')
+            f'got {p.stroke_m!r}', key='stroke_m')
     if p.discharge_coefficient > 1.0:
         raise ParameterError(
-            f'discharge_coefficient must be at most 1, got {p.discharge_coefficient!r}')
+            f'discharge_coefficient must be at most 1, got {p.discharge_coefficient!r}',
+            key='discharge_coefficient')
     if p.heat_capacity_ratio <= 1.0:
         raise ParameterError(
-            f'heat_capacity_ratio must be above 1, got {p.heat_capacity_ratio!r}')
+            f'heat_capacity_ratio must be above 1, got {p.heat_capacity_ratio!r}',
+            key='heat_capacity_ratio')
+    for name in PARAMETER_FIELDS:
+        lo, hi = _safe_range(name)
+        value = getattr(p, name)
+        if not lo <= value <= hi:
+            raise ParameterError(
+                f'{name} = {value!r} is outside the numerically safe range [{lo:g}, {hi:g}] '
+                f'(plausible: [{PLAUSIBLE_RANGES[name][0]:g}, {PLAUSIBLE_RANGES[name][1]:g}])',
+                key=name)
     if p.restitution_coefficient >= 1.0:
         raise ParameterError(
-            f'restitution_coefficient must be below 1, got {p.restitution_coefficient!r}')
+            f'restitution_coefficient must be below 1, got {p.restitution_coefficient!r}',
+            key='restitution_coefficient')
 
 
 def default_parameters_path() -> Path:
@@ -371,24 +468,138 @@ def default_parameters_path() -> Path:
         'valve.yaml not found; looked in ' + ', '.join(str(c) for c in candidates))
 
 
-def load_parameters(path: str | os.PathLike[str] | None = None) -> ValveParameters:
+#: A parameter file is a few kB; anything beyond this is refused before it is read.
+MAX_PARAMETER_FILE_BYTES = 1 << 20
+
+# YAML 1.2 core-schema floats: PyYAML's resolver is YAML 1.1's, which wants a dot in the
+# mantissa and reads 27e-3 or 1e300 as strings.
+_YAML12_FLOAT = re.compile(r'''^(?:
+    [-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?(?:[eE][-+]?[0-9]+)?
+  | [-+]?\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+  | [-+]?\.(?:inf|Inf|INF)
+  | \.(?:nan|NaN|NAN))$''', re.X)
+
+
+class _ParameterLoader(yaml.SafeLoader):
+    """SafeLoader with YAML 1.2 floats; duplicate keys are found on the node tree."""
+
+
+_ParameterLoader.add_implicit_resolver('tag:yaml.org,2002:float', _YAML12_FLOAT,
+                                       list('-+0123456789.'))
+
+
+def _one_line(text: str) -> str:
+    return ' '.join(str(text).split())
+
+
+def _key_lines(node: yaml.Node | None, path: str) -> dict[str, int]:
+    """Line of every mapping key (1-based) by key name; refuses duplicate keys.
+
+    Field names are unique across sections, so a flat name -> line map is enough.
+    """
+    lines: dict[str, int] = {}
+    stack = [node] if node is not None else []
+    while stack:
+        current = stack.pop()
+        if isinstance(current, yaml.MappingNode):
+            seen: dict[object, int] = {}
+            for key_node, value_node in current.value:
+                line = key_node.start_mark.line + 1
+                key = key_node.value if isinstance(key_node, yaml.ScalarNode) else None
+                if key is not None and key in seen:
+                    raise ParameterError(
+                        f'{path}:{line}: duplicate key {key!r} (first on line {seen[key]}); '
+                        'a key may be given once', key=key)
+                if key is not None:
+                    seen[key] = line
+                    lines.setdefault(key, line)
+                stack.append(value_node)
+        elif isinstance(current, yaml.SequenceNode):
+            stack.extend(current.value)
+    return lines
+
+
+def _read_parameter_text(path: Path) -> str:
+    """The file as text; binary, oversized and non-UTF-8 files are refused."""
+    try:
+        size = path.stat().st_size
+    except FileNotFoundError:
+        raise
+    except OSError as err:
+        raise ParameterError(f'{path}: cannot be read: {err.strerror}') from err
+    if size > MAX_PARAMETER_FILE_BYTES:
+        raise ParameterError(f'{path}: is {size} bytes; a parameter file may have at most '
+                             f'{MAX_PARAMETER_FILE_BYTES} bytes')
+    raw = path.read_bytes()
+    nul = raw.find(b'\x00')
+    if nul >= 0:
+        line = raw[:nul].count(b'\n') + 1
+        raise ParameterError(f'{path}:{line}: is a binary file, not YAML text (NUL byte at '
+                             f'offset {nul})')
+    try:
+        return raw.decode('utf-8-sig')
+    except UnicodeDecodeError as err:
+        line = raw[:err.start].count(b'\n') + 1
+        raise ParameterError(f'{path}:{line}: is not UTF-8 text (byte 0x{raw[err.start]:02x} '
+                             f'at offset {err.start})') from err
+
+
+def load_parameters(path: str | os.PathLike[str] | None = None, *,
+                    allow_implausible: bool = False) -> ValveParameters:
     """Load and validate a parameter YAML file (default: :func:`default_parameters_path`).
+
+    Numbers are read as YAML 1.2 does (``27e-3``, ``1e300`` are floats). Every parameter
+    must lie in its :data:`PLAUSIBLE_RANGES` entry; values beyond the range widened by
+    :data:`SAFE_RANGE_FACTOR` are refused in any case.
+
+    Parameters
+    ----------
+    path : path-like, optional
+        The YAML file.
+    allow_implausible : bool
+        Accept values outside :data:`PLAUSIBLE_RANGES` (but within the safe range) with a
+        logged warning naming each, instead of refusing the file.
 
     Raises
     ------
     ParameterError
-        On YAML syntax errors, missing/unknown keys or invalid values; the message names
-        the file.
+        One line naming the file (and the line when known), the key and the value: the
+        file is binary, not UTF-8, larger than :data:`MAX_PARAMETER_FILE_BYTES`, not valid
+        YAML, has a duplicate key, a missing/unknown key, an invalid or implausible value.
     FileNotFoundError
         If the file does not exist.
     """
     path = Path(path) if path is not None else default_parameters_path()
-    text = path.read_text(encoding='utf-8')
+    text = _read_parameter_text(path)
+    loader = _ParameterLoader(text)
     try:
-        data = yaml.safe_load(text)
+        node = loader.get_single_node()
+        lines = _key_lines(node, str(path))
+        data = loader.construct_document(node) if node is not None else None
+    except yaml.MarkedYAMLError as err:
+        mark = err.problem_mark or err.context_mark
+        where = f'{path}:{mark.line + 1}' if mark is not None else str(path)
+        problem = ' '.join(x for x in (err.context, err.problem) if x)
+        raise ParameterError(f'{where}: not valid YAML: {_one_line(problem)}') from err
     except yaml.YAMLError as err:
-        raise ParameterError(f'{path}: not valid YAML: {err}') from err
+        raise ParameterError(f'{path}: not valid YAML: {_one_line(err)}') from err
+    finally:
+        loader.dispose()
     try:
-        return ValveParameters.from_dict(data if data is not None else {})
+        params = ValveParameters.from_dict(data if data is not None else {})
+        bad = implausible_values(params)
+        for name, value, (lo, hi) in bad:
+            if not allow_implausible:
+                raise ParameterError(
+                    f'{name} = {value!r} is physically implausible (plausible range '
+                    f'[{lo:g}, {hi:g}]); use --allow-implausible (allow_implausible) to '
+                    'accept it', key=name)
+            line = lines.get(name)
+            _LOG.warning('%s%s: %s = %r is outside the plausible range [%g, %g]; accepted '
+                         '(allow_implausible)', path, f':{line}' if line else '', name,
+                         value, lo, hi)
+        return params
     except ParameterError as err:
-        raise ParameterError(f'{path}: {err}') from err
+        line = lines.get(err.key) if err.key is not None else None
+        where = f'{path}:{line}' if line else str(path)
+        raise ParameterError(f'{where}: {_one_line(err)}', key=err.key) from err

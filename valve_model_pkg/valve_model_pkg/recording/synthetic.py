@@ -63,7 +63,7 @@ def duty_command_cdr(store: Typestore, duties: list[float], *,
     out = []
     for i, duty in enumerate(duties):
         t = start_ns + i * period_ns
-        msg = cls(header=header_cls(stamp=_stamp(store, t), frame_id=''), duty=float(duty),
-                  pwm_frequency=float(pwm_frequency_hz))
+        msg = cls(header=header_cls(stamp=_stamp(store, t), frame_id=''), sequence=i,
+                  duty=float(duty), pwm_frequency=float(pwm_frequency_hz))
         out.append((t, bytes(store.serialize_cdr(msg, DUTY_COMMAND))))
     return out
