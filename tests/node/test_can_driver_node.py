@@ -21,6 +21,7 @@ from lifecycle_msgs.srv import ChangeState, GetState
 from rcl_interfaces.msg import Log
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_srvs.srv import Trigger
 from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_bringup.backend import can_backend_commands, free_loopback_port
@@ -31,7 +32,10 @@ from valve_driver_pkg.protocol import COMMAND, ValveCodec
 pytestmark = pytest.mark.node
 
 TELEMETRY_PERIOD_S = 0.001
+TELEMETRY_TIMEOUT_S = 0.1   # DriverConfig: 50 periods, at least 100 ms
 CODEC = ValveCodec(0)
+#: Diagnostic names: '<namespace/node name> node <node id>: <status>'.
+PREFIX = 'valve_can_driver node 0: '
 
 
 class Client(Node):
@@ -51,10 +55,17 @@ class Client(Node):
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
-            if status.name.startswith('valve_can_driver: '):
-                name = status.name[len('valve_can_driver: '):]
+            if status.name.startswith(PREFIX):
+                name = status.name[len(PREFIX):]
                 self.diagnostics[name] = status
                 self.history.append((name, level(status), status.message))
+
+    def clear_faults(self, ros, service: str = 'valve_can_driver/clear_faults'):
+        client = self.create_client(Trigger, service)
+        ros.wait_for(client.service_is_ready, 20.0, service)
+        future = client.call_async(Trigger.Request())
+        ros.wait_for(future.done, 10.0, 'clear_faults answer')
+        return future.result()
 
     def command(self, duty: float, freq: float = 50.0) -> None:
         msg = DutyCommand()
@@ -236,7 +247,7 @@ frames = st.builds(
 def test_faults_fuzz_and_recovery_across_processes(start_node, ros) -> None:
     port = free_loopback_port()
     commands = can_backend_commands(1000.0, port=port, command_timeout_s=0.3)
-    emulator = start_emulator(start_node, port)
+    emulator = start_emulator(start_node, port, '--fault-injection')
     driver = start_node(*commands['valve_can_driver'])
     client = ros.add(Client())
     sniffer = Sniffer(f'127.0.0.1:{port}')
@@ -247,7 +258,7 @@ def test_faults_fuzz_and_recovery_across_processes(start_node, ros) -> None:
     try:
         ros.wait_for(lambda: len(client.states) > 200, 30.0, 'valve/state from the driver')
 
-        # telemetry stops -> ERROR within 3 periods of the first missing frame; recovers
+        # telemetry stops (longer than the 100 ms timeout) -> ERROR; recovers
         sniffer.remote.inject(EmulatorFault.SILENT, duration_s=0.3)
         ros.wait_for(lambda: client.level('telemetry') == 2
                      and 'stopped' in client.diagnostics['telemetry'].message, 5.0,
@@ -303,17 +314,78 @@ def test_faults_fuzz_and_recovery_across_processes(start_node, ros) -> None:
         ros.wait_for(lambda: client.level('CAN bus') == 2
                      and 'bus failed' in client.diagnostics['CAN bus'].message, 10.0,
                      'bus failure reported')
-        start_emulator(start_node, port)
+        start_emulator(start_node, port, '--fault-injection')
         n = len(client.states)
         ros.wait_for(lambda: len(client.states) > n + 300, 15.0, 'states after the bus returned')
         ros.wait_for(lambda: diag_ok('CAN bus'), 5.0, 'bus OK again')
         assert driver.alive()
         assert 'Traceback' not in driver.output
-        # Reaction time measured by the driver (receive time of the last valid frame to
-        # detection): within 3 periods of the first missing frame.
-        assert lost_after_s <= 4 * TELEMETRY_PERIOD_S, lost_after_s
+        # The driver declared the loss on its documented rule (silence beyond the timeout),
+        # never on a late frame; no wall-clock deadline (see test_can_telemetry_health.py).
+        assert lost_after_s > TELEMETRY_TIMEOUT_S, lost_after_s
     finally:
         try:
             sniffer.close()
         except Exception:   # noqa: BLE001 - already closed above
             pass
+
+
+def test_clear_faults_service_clears_an_injected_overcurrent(start_node, ros) -> None:
+    port = free_loopback_port()
+    commands = can_backend_commands(1000.0, port=port, command_timeout_s=0.0)
+    start_emulator(start_node, port, '--fault-injection')
+    driver = start_node(*commands['valve_can_driver'])
+    client = ros.add(Client())
+    sniffer = Sniffer(f'127.0.0.1:{port}')
+    try:
+        ros.wait_for(lambda: client.level('controller') == 0, 30.0, 'controller OK')
+        client.command(0.5, 50.0)
+        sniffer.remote.inject(EmulatorFault.OVERCURRENT)
+        ros.wait_for(lambda: client.level('controller') == 2, 10.0, 'overcurrent ERROR')
+        assert 'latched: Overcurrent' in client.diagnostics['controller'].message
+        assert client.value('controller', 'latched_faults') == 'Overcurrent'
+        answer = client.clear_faults(ros)
+        assert answer.success, answer.message
+        assert 'cleared: Overcurrent' in answer.message
+        ros.wait_for(lambda: client.level('controller') == 0, 10.0, 'controller OK again')
+        assert any(c['ClearFaults'] == 1 for c in sniffer.commands)
+        assert driver.alive()
+    finally:
+        sniffer.close()
+
+
+def test_emulator_ignores_fault_injection_frames_by_default(start_node, ros) -> None:
+    port = free_loopback_port()
+    commands = can_backend_commands(1000.0, port=port, command_timeout_s=0.0)
+    emulator = start_emulator(start_node, port)
+    start_node(*commands['valve_can_driver'])
+    client = ros.add(Client())
+    sniffer = Sniffer(f'127.0.0.1:{port}')
+    try:
+        ros.wait_for(lambda: client.level('controller') == 0, 30.0, 'controller OK')
+        sniffer.remote.inject(EmulatorFault.OVERCURRENT)
+        sniffer.remote.inject(EmulatorFault.SILENT)
+        ros.spin_for(0.5)
+        assert client.level('controller') == 0 and client.level('telemetry') == 0
+        assert 'EmulatorControl frame ignored' in emulator.output
+    finally:
+        sniffer.close()
+
+
+def test_two_drivers_on_one_node_id_both_report_a_second_host(start_node, ros) -> None:
+    port = free_loopback_port()
+    start_emulator(start_node, port)
+    commands = can_backend_commands(1000.0, port=port, command_timeout_s=0.0)
+    for ns, host in (('left', 1), ('right', 2)):
+        start_node(*commands['valve_can_driver'], '-r', f'__ns:=/{ns}',
+                   '-p', f'host_id:={host}')
+    seen: dict[str, object] = {}
+    listener = ros.add(Node('second_host_listener'))
+    listener.create_subscription(
+        DiagnosticArray, '/diagnostics',
+        lambda msg: seen.update({s.name: s for s in msg.status}), 100)
+    names = ('left/valve_can_driver node 0: commands', 'right/valve_can_driver node 0: commands')
+    ros.wait_for(lambda: all(n in seen and level(seen[n]) == 2 for n in names), 30.0,
+                 'second-host ERROR from both drivers')
+    assert 'another host (host id 2)' in seen[names[0]].message
+    assert 'another host (host id 1)' in seen[names[1]].message

@@ -94,3 +94,29 @@ def test_crccheck_equals_the_old_implementation_on_random_frames() -> None:
         frame = bytes(rng.randrange(256) for _ in range(9))   # 2 id bytes + data[0:7]
         assert crc8(frame) == _crc8_table_reference(frame), frame.hex()
     assert crc8(b'123456789') == _crc8_table_reference(b'123456789') == 0x4B
+
+
+def test_pwm_frequency_limits_are_the_suites_one_pair() -> None:
+    """DBC signal limits == MIN/MAX_PWM_FREQUENCY_HZ == what driver and simulator accept."""
+    from valve_driver_pkg.driver.config import DriverConfig as Config
+    from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
+    import dataclasses
+
+    db = cantools.database.load_file(str(default_dbc_path()), strict=True)
+    command = db.get_message_by_name(COMMAND).get_signal_by_name('PwmFrequency')
+    assert (command.minimum, command.maximum) == (MIN_PWM_FREQUENCY_HZ, MAX_PWM_FREQUENCY_HZ)
+    for name in (PERIOD, STATUS):
+        active = db.get_message_by_name(name).get_signal_by_name('PwmFrequencyActive')
+        assert active.maximum == MAX_PWM_FREQUENCY_HZ, name
+    fields = {f.name: f for f in dataclasses.fields(Config)}
+    for name in ('pwm_frequency_hz', 'max_pwm_frequency_hz'):
+        assert fields[name].metadata['range'] == (MIN_PWM_FREQUENCY_HZ, MAX_PWM_FREQUENCY_HZ)
+    from valve_model_pkg.nodes import simulator_node
+    assert simulator_node.MAX_PWM_FREQUENCY_HZ == MAX_PWM_FREQUENCY_HZ
+    assert simulator_node.MIN_PWM_FREQUENCY_HZ == MIN_PWM_FREQUENCY_HZ
+
+
+def test_command_frame_carries_a_host_id() -> None:
+    db = cantools.database.load_file(str(default_dbc_path()), strict=True)
+    host = db.get_message_by_name(COMMAND).get_signal_by_name('HostId')
+    assert (host.start, host.length, host.minimum, host.maximum) == (36, 4, 0, 15)

@@ -172,19 +172,25 @@ def test_valve_state_matches_the_simulator_within_quantisation() -> None:
 
 
 # --- faults and reactions ------------------------------------------------------------------------
-# A millisecond deadline cannot hold while other processes starve this one of CPU; a rerun
-# separates such a load spike from a real regression (which fails every run).
-@pytest.mark.flaky(reruns=2)
-def test_telemetry_stop_is_an_error_within_three_periods_and_recovers(live) -> None:
-    live.emu.inject(EmulatorFault.SILENT, duration_s=0.1)
-    wait_for(lambda: live.level('telemetry') is Level.ERROR, what='telemetry ERROR')
-    values = live.status('telemetry').values
-    # ERROR within 3 periods of the first missing frame (due 1 period after the last one).
-    assert values['lost_after_s'] <= 4 * PERIOD_S, values['lost_after_s']
-    assert 'telemetry stopped' in live.status('telemetry').message
-    wait_for(lambda: live.level('telemetry') is not Level.ERROR, 1.0, 'telemetry back')
+def test_telemetry_silence_is_an_error_and_recovers(live) -> None:
+    """Frames really missing (silence beyond the documented timeout) -> ERROR, then OK.
+
+    No wall-clock deadline: the reaction time is the driver's own measurement and is
+    checked against the rule (never before the timeout); the rule itself is checked on
+    simulated time in test_can_telemetry_health.py.
+    """
+    timeout = live.core.config.telemetry_timeout_s
+    assert timeout == pytest.approx(0.1)          # 50 periods at 1 kHz, at least 100 ms
+    live.emu.inject(EmulatorFault.SILENT, duration_s=3 * timeout)
+    wait_for(lambda: live.level('telemetry') is Level.ERROR, 10.0, 'telemetry ERROR')
+    status = live.status('telemetry')
+    assert 'telemetry stopped' in status.message
+    assert status.values['loss_reason'] == 'silence'
+    assert status.values['lost_after_s'] > timeout    # declared only after the timeout
+    wait_for(lambda: live.level('telemetry') is not Level.ERROR, 10.0, 'telemetry back')
     count = len(live.states)
     wait_for(lambda: len(live.states) > count + 20, what='states flowing again')
+    assert live.core.counters['telemetry_losses'] == 1
 
 
 def test_counter_jumps_are_counted(live) -> None:
@@ -415,3 +421,116 @@ def test_fuzz_receive_path_never_raises_and_counts_every_frame(fuzz_core, frames
     assert fuzz_core.counters['internal_errors'] == 0
     for report in fuzz_core.report():
         assert report.level in tuple(Level)
+
+
+# --- issue 11: clearing faults, a second host, stale and lost commands --------------------------
+def test_clear_faults_clears_an_injected_overcurrent(live) -> None:
+    live.core.set_command(0.5, 50.0)
+    live.emu.inject(EmulatorFault.OVERCURRENT)
+    wait_for(lambda: live.level('controller') is Level.ERROR, what='controller ERROR')
+    status = live.status('controller')
+    assert 'latched: Overcurrent' in status.message
+    assert status.values['latched_faults'] == 'Overcurrent'
+    result = live.core.clear_faults(timeout_s=2.0)
+    assert result.success, result.message
+    assert 'Overcurrent' in result.cleared and 'Overcurrent' not in result.still_active
+    assert 'cleared: Overcurrent' in result.message
+    wait_for(lambda: live.level('controller') is Level.OK, what='controller OK')
+    assert live.core.counters['fault_clear_requests'] == 1
+    assert live.emu.stats['fault_clears'] == 1
+
+
+def test_clear_faults_reports_a_fault_whose_condition_persists(live) -> None:
+    live.core.set_command(0.5, 50.0)
+    live.emu.inject(EmulatorFault.OVERCURRENT, duration_s=30.0)   # the condition lasts
+    wait_for(lambda: live.level('controller') is Level.ERROR, what='controller ERROR')
+    result = live.core.clear_faults(timeout_s=2.0)
+    assert not result.success
+    assert result.still_active == ('Overcurrent',) and result.cleared == ()
+    assert 'still active: Overcurrent' in result.message
+    assert live.level('controller') is Level.ERROR
+
+
+def test_clear_faults_on_a_closed_bus_says_so() -> None:
+    core = CanDriverCore(DriverConfig(interface='virtual', channel='core_clear_closed'))
+    result = core.clear_faults(0.1)
+    assert not result.success and 'closed' in result.message
+
+
+def test_a_second_host_on_the_same_node_is_an_error_for_both(live) -> None:
+    other = CanDriverCore(DriverConfig(interface='virtual', channel=live.channel,
+                                       command_timeout_s=0.0,
+                                       host_id=(live.core.scheduler.host_id + 1) % 16))
+    try:
+        other.open()
+        other.activate()
+        other.set_command(0.8, 50.0)
+        live.core.set_command(0.2, 50.0)
+        for core in (live.core, other):
+            wait_for(lambda: next(r for r in core.report() if r.name == 'commands').level
+                     is Level.ERROR, what='second host ERROR')
+            status = next(r for r in core.report() if r.name == 'commands')
+            assert 'another host' in status.message
+            assert core.counters['foreign_command_frames'] > 0
+        assert live.status('commands').values['foreign_host_id'] == other.scheduler.host_id
+    finally:
+        other.close()
+
+
+def test_own_echoed_frames_are_not_a_second_host() -> None:
+    channel = f'core_test_{next(_channels)}'
+    bus = can.Bus(interface='virtual', channel=channel, receive_own_messages=True)
+    core = CanDriverCore(DriverConfig(interface='virtual', channel=channel,
+                                      command_timeout_s=0.0),
+                         bus_factory=lambda *a, **k: bus)
+    try:
+        core.open()
+        core.activate()
+        for i in range(20):
+            core.set_command(i / 20.0, 50.0)
+            time.sleep(0.005)
+        wait_for(lambda: core.counters['host_frames'] >= 20, what='echoed frames')
+        assert core.counters['foreign_command_frames'] == 0
+        assert next(r for r in core.report() if r.name == 'commands').level is not Level.ERROR
+    finally:
+        core.close()
+
+
+def test_stale_commands_are_counted_and_reported(live) -> None:
+    live.core.set_command(0.3, 50.0, age_s=0.0)
+    wait_for(lambda: live.core.counters['commands_on_bus'] == 1, what='command on the bus')
+    assert live.core.counters['stale_commands'] == 0
+    live.core.set_command(0.4, 50.0, age_s=0.05)        # stamped 50 ms ago: > 20 ms
+    wait_for(lambda: live.core.counters['stale_commands'] == 1, what='stale command')
+    status = live.status('commands')
+    assert status.level is Level.WARN and 'stale commands' in status.message
+    assert status.values['max_command_age_s'] >= 0.05
+
+
+def test_sequence_gaps_are_lost_commands_per_source(live) -> None:
+    for seq in (1, 2, 5):
+        live.core.set_command(0.1, 50.0, sequence=seq, source='a')
+    for seq in (7, 8):
+        live.core.set_command(0.1, 50.0, sequence=seq, source='b')
+    live.core.set_command(0.1, 50.0, sequence=3, source='a')
+    counters = live.core.counters
+    assert counters['commands_lost'] == 2
+    assert counters['commands_out_of_order'] == 1
+    assert 'commands lost' in live.status('commands').message
+
+
+def test_every_command_is_accounted_for(live) -> None:
+    for i in range(3000):
+        live.core.set_command((i % 100) / 100.0, 50.0 if i % 7 else math.nan)
+    wait_for(lambda: not live.core.scheduler.urgent(), what='commands sent')
+    time.sleep(0.02)
+    c = live.core.counters
+    assert c['commands_received'] == 3000
+    assert (c['commands_rejected'] + c['commands_on_bus'] + c['commands_superseded']
+            == c['commands_received']), c
+
+
+def test_frequency_limits_are_the_suite_constants(live) -> None:
+    from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
+    assert live.core.set_command(0.5, 1e-3).pwm_frequency_hz == MIN_PWM_FREQUENCY_HZ
+    assert live.core.set_command(0.5, 1e6).pwm_frequency_hz == MAX_PWM_FREQUENCY_HZ

@@ -235,7 +235,15 @@ def test_overcurrent_latches_until_clear_faults(rig) -> None:
     assert status['FaultOvercurrent'] == 0 and status['ControllerState'] == ControllerState.RUNNING
 
 
-def test_control_frames_switch_faults(rig) -> None:
+def test_control_frames_switch_faults() -> None:
+    rig = Rig(fault_injection=True)
+    try:
+        _control_frames_switch_faults(rig)
+    finally:
+        rig.close()
+
+
+def _control_frames_switch_faults(rig) -> None:
     remote = EmulatorRemote(rig.host, node_id=0)
     remote.inject(EmulatorFault.SILENT, duration_s=0.02)
     rig.emu.poll(0.5)
@@ -249,14 +257,62 @@ def test_control_frames_switch_faults(rig) -> None:
     assert rig.emu.faults.snapshot() == {}
 
 
-def test_control_frames_can_be_refused() -> None:
-    r = Rig(accept_control_frames=False)
+def test_control_frames_are_counted_and_ignored_without_fault_injection() -> None:
+    r = Rig()                                        # the default: fault injection off
     try:
         EmulatorRemote(r.host).inject(EmulatorFault.SILENT)
+        EmulatorRemote(r.host).inject(EmulatorFault.OVERCURRENT)
         r.emu.poll(0.5)
         assert not r.emu.faults.is_active(EmulatorFault.SILENT)
+        assert not r.emu.faults.is_active(EmulatorFault.OVERCURRENT)
+        assert r.emu.stats['control_frames_ignored'] == 2
+        assert r.emu.stats['control_frames'] == 0
     finally:
         r.close()
+
+
+def test_cli_fault_injection_flag_is_off_by_default() -> None:
+    from valve_driver_pkg.emulator.emulator_main import build_parser
+    assert build_parser().parse_args([]).fault_injection is False
+    assert build_parser().parse_args(['--fault-injection']).fault_injection is True
+
+
+def test_clear_faults_keeps_a_latch_whose_condition_persists(rig) -> None:
+    rig.command(0.5)
+    rig.emu.inject(EmulatorFault.OVERCURRENT, duration_s=0.3)   # the condition lasts 0.3 s
+    rig.emu.step(0.15)
+    rig.command(0.5, clear=1)                                    # too early: still present
+    rig.emu.step(0.25)
+    status = rig.decoded(STATUS)[-1].signals
+    assert status['FaultOvercurrent'] == 1 and status['ControllerState'] == ControllerState.FAULT
+    rig.emu.step(0.35)                                           # the condition has ended
+    assert rig.decoded(STATUS)[-1].signals['FaultOvercurrent'] == 1   # latched until cleared
+    rig.command(0.5, clear=1)
+    rig.emu.step(0.45)
+    status = rig.decoded(STATUS)[-1].signals
+    assert status['FaultOvercurrent'] == 0 and status['ControllerState'] == ControllerState.RUNNING
+    assert rig.emu.stats['fault_clears'] == 2
+
+
+def test_an_injected_overcurrent_event_is_cleared_at_once(rig) -> None:
+    rig.command(0.5)
+    rig.emu.inject(EmulatorFault.OVERCURRENT)                   # an event: latched until clear
+    rig.emu.step(0.15)
+    rig.command(0.5, clear=1)
+    rig.emu.step(0.25)
+    status = rig.decoded(STATUS)[-1].signals
+    assert status['FaultOvercurrent'] == 0 and status['ControllerState'] == ControllerState.RUNNING
+    assert not rig.emu.faults.is_active(EmulatorFault.OVERCURRENT)
+
+
+def test_the_host_ids_of_commands_are_remembered(rig) -> None:
+    rig.command(0.2)
+    msg = rig.codec.encode(COMMAND, {'Duty': 0.8, 'PwmFrequency': 50.0, 'Enable': 1,
+                                     'ClearFaults': 0, 'HostId': 9}, rig.counter)
+    rig.counter += 1
+    rig.host.send(msg)
+    rig.emu.poll(0.5)
+    assert set(rig.emu.host_ids) == {1, 9}
 
 
 def test_other_node_ids_are_ignored() -> None:
@@ -264,7 +320,8 @@ def test_other_node_ids_are_ignored() -> None:
     try:
         ValveCodec(4)
         r.host.send(ValveCodec(4).encode(COMMAND, {'Duty': 0.9, 'PwmFrequency': 50.0,
-                                                   'Enable': 1, 'ClearFaults': 0, 'HostId': 1}, 0))
+                                                   'Enable': 1, 'ClearFaults': 0,
+                                                   'HostId': 1}, 0))
         r.emu.poll(0.5)
         assert r.emu.stats['commands'] == 0
         r.command(0.3)

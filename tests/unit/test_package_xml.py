@@ -32,7 +32,7 @@ ROSDEP_PYTHON_KEYS = frozenset({
 })
 #: rosdistro jazzy/distribution.yaml (commit 8468e88c): released ROS packages.
 JAZZY_PACKAGES = frozenset({
-    'rclpy', 'rcl_interfaces', 'rosgraph_msgs', 'builtin_interfaces', 'std_msgs',
+    'rclpy', 'rcl_interfaces', 'rosgraph_msgs', 'builtin_interfaces', 'std_msgs', 'std_srvs',
     'sensor_msgs', 'diagnostic_msgs', 'lifecycle_msgs', 'launch', 'launch_ros',
     'ament_cmake', 'rosidl_default_generators', 'rosidl_default_runtime',
 })

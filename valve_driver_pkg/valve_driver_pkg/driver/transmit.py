@@ -128,7 +128,7 @@ class TransmitScheduler:
         """Start sending; duty 0 until a command arrives. Lock held."""
         self.duty = 0.0
         self._last_command_mono = None
-        self._origin = None
+        self._drop_pending()
         self.watchdog_tripped = False
         self.active = True
         self.disable_pending = False
@@ -146,7 +146,7 @@ class TransmitScheduler:
             return False
         self.active = False
         self.duty = 0.0
-        self._origin = None
+        self._drop_pending()
         self.disable_pending = True
         self._lock.notify_all()
         return True
@@ -329,6 +329,12 @@ class TransmitScheduler:
                 self._next_pressure_t = now + self._pressure_period
                 if sent:
                     self._tally.count('pressure_frames_sent')
+
+    def _drop_pending(self) -> None:
+        """(De)activation: a command not yet on the bus never will be. Lock held."""
+        if self._origin is not None:
+            self._tally.count('commands_superseded')
+        self._origin = None
 
     def _account_age(self, age: float) -> None:
         """The pending command reached the bus ``age`` s after its origin. Lock held."""

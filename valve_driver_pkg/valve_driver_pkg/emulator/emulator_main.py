@@ -13,9 +13,11 @@ Examples::
     # Scheduled faults: go silent 2 s after start for 0.5 s; drop 10 % of telemetry from 4 s.
     valve_controller_emulator --fault silent:2:0.5 --fault drop_telemetry:4:0:0.1
 
-Faults can also be switched at run time with ``EmulatorControl`` frames (id 0x6D0 + node
-id, defined in the test-only ``valve_test.dbc``; see the package README), e.g. from a test
-with :class:`valve_driver_pkg.emulator.EmulatorRemote`.
+With ``--fault-injection``, faults can also be switched at run time with
+``EmulatorControl`` frames (id 0x6D0 + node id, defined in the test-only
+``valve_test.dbc``; see the package README), e.g. from a test with
+:class:`valve_driver_pkg.emulator.EmulatorRemote`. Without it (the default) such frames
+are counted and ignored: anyone on the bus could send them.
 
 The program prints ``valve_controller_emulator ready: <interface> <channel> node <n>`` once
 it answers on the bus (with the real port when ``--channel`` asks for port 0) and stops
@@ -72,8 +74,11 @@ def build_parser() -> argparse.ArgumentParser:
                          '(0 = off)')
     fw.add_argument('--no-position-estimate', action='store_true',
                     help='report PositionValid=0 (a controller without an estimator)')
+    fw.add_argument('--fault-injection', action='store_true',
+                    help='obey EmulatorControl (fault injection) frames from the bus; off by '
+                         'default: they are then counted and ignored')
     fw.add_argument('--no-control-frames', action='store_true',
-                    help='ignore EmulatorControl (fault injection) frames')
+                    help=argparse.SUPPRESS)   # the default now; kept for old command lines
     model = p.add_argument_group('valve model')
     model.add_argument('--params-file', default='',
                        help='valve parameter YAML (default: valve_model_pkg config/valve.yaml)')
@@ -183,7 +188,8 @@ def main(argv: list[str] | None = None) -> int:
                                 status_rate_hz=args.status_rate_hz,
                                 command_timeout_s=args.command_timeout_s,
                                 position_estimate=not args.no_position_estimate,
-                                accept_control_frames=not args.no_control_frames,
+                                fault_injection=(args.fault_injection
+                                                 and not args.no_control_frames),
                                 supply_voltage_v=args.supply_voltage_v)
         stepper = make_stepper(args)
     except (ValueError, OSError, ImportError, AttributeError) as err:

@@ -11,7 +11,17 @@ apart):
   valid telemetry frame (1 kHz with the default controller), while active;
 - publishes ``/diagnostics`` (diagnostic_msgs/DiagnosticArray): four statuses (CAN bus,
   telemetry, commands, controller) every ``diagnostics_period_s`` and at once on every
-  level change (from configure to cleanup).
+  level change (from configure to cleanup), named ``<namespace/node name> node <id>:
+  <status>`` (e.g. ``left/valve_can_driver node 3: telemetry``), so two drivers never
+  share a name;
+- serves ``~/clear_faults`` (std_srvs/Trigger): sends ``ClearFaults`` once, waits for the
+  controller's next heartbeat and answers what was cleared and what is still active
+  (success = no latched fault left).
+
+Duty commands are counted (received, rejected, on the bus, superseded, lost by their
+``sequence`` per ``header.frame_id``, stale: older than ``stale_command_s`` from their
+``header.stamp`` when their frame goes out). The subscription's depth
+(``COMMAND_QUEUE_DEPTH``) holds 50 ms of commands at the documented 1 kHz.
 
 Lifecycle: configure opens the bus and starts receiving; activate starts sending commands
 (duty 0 until a command arrives); deactivate commands duty 0 with the output disabled and
@@ -30,6 +40,7 @@ import dataclasses
 import gc
 import logging
 import sys
+import threading
 from dataclasses import dataclass
 
 import rclpy
@@ -38,7 +49,9 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 ParameterType)
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleState, Node, TransitionCallbackReturn
+from rclpy.task import Future
 from sensor_msgs.msg import FluidPressure
+from std_srvs.srv import Trigger
 from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_driver_pkg.driver.config import DriverConfig, setting
@@ -107,6 +120,8 @@ class CanDriverNode(Node):
         self._sequence = 0
         self._frame_id = NodeOptions.valve_name
         self._hardware_id = ''
+        self._status_prefix = self.get_fully_qualified_name().lstrip('/')
+        self._clear_service = None
 
     def _read(self, settings: type) -> object:
         """The typed snapshot of a settings dataclass from the parameters."""
@@ -119,6 +134,8 @@ class CanDriverNode(Node):
         options: NodeOptions = self._read(NodeOptions)
         self._frame_id = options.valve_name
         self._hardware_id = config.hardware_id
+        self._status_prefix = (f'{self.get_fully_qualified_name().lstrip("/")} '
+                               f'node {config.node_id}')
         try:
             mass_flow = _mass_flow_function(options.params_file)
             core = CanDriverCore(config, mass_flow=mass_flow, on_state=self._publish_state,
@@ -142,6 +159,8 @@ class CanDriverNode(Node):
         ]
         self._timers = [self.create_timer(options.diagnostics_period_s,
                                           self._publish_diagnostics)]
+        self._clear_service = self.create_service(Trigger, '~/clear_faults',
+                                                  self._on_clear_faults)
         self.get_logger().info(f'configured: {self._hardware_id}, DBC {core.codec.dbc_path}')
         self._publish_diagnostics()
         return TransitionCallbackReturn.SUCCESS
@@ -196,6 +215,9 @@ class CanDriverNode(Node):
         for sub in self._subs:
             self.destroy_subscription(sub)
         self._timers, self._subs = [], []
+        if self._clear_service is not None:
+            self.destroy_service(self._clear_service)
+            self._clear_service = None
         if self._state_pub is not None:
             self.destroy_lifecycle_publisher(self._state_pub)
             self._state_pub = None
@@ -210,9 +232,42 @@ class CanDriverNode(Node):
             self.get_logger().warning('duty command ignored: driver not active',
                                       throttle_duration_sec=5.0)
             return
-        result = core.set_command(msg.duty, msg.pwm_frequency)
+        sequence = getattr(msg, 'sequence', None)   # DutyCommand.sequence (per publisher)
+        result = core.set_command(msg.duty, msg.pwm_frequency, age_s=self._age_s(msg.header),
+                                  sequence=sequence, source=msg.header.frame_id)
         if result.message:
             self.get_logger().warning(result.message, throttle_duration_sec=1.0)
+
+    def _age_s(self, header) -> float:
+        """Age of a message from its header stamp [s]; 0 without a stamp (age from receipt)."""
+        stamp = header.stamp
+        if stamp.sec == 0 and stamp.nanosec == 0:
+            return 0.0
+        age = (self.get_clock().now().nanoseconds - (stamp.sec * 10**9 + stamp.nanosec)) * 1e-9
+        return age if 0.0 <= age < 3600.0 else 0.0   # clocks apart: count from receipt
+
+    async def _on_clear_faults(self, request: Trigger.Request,
+                               response: Trigger.Response) -> Trigger.Response:
+        """~/clear_faults: the wait for the controller's answer (up to one heartbeat,
+        100 ms) runs on a helper thread, so duty commands keep flowing meanwhile."""
+        core = self._core
+        if core is None:
+            response.success, response.message = False, 'not configured: no bus'
+            return response
+        done = Future(executor=self.executor)
+        done.add_done_callback(lambda _: None)   # its scheduling wakes the executor
+
+        def work() -> None:
+            try:
+                done.set_result(core.clear_faults())
+            except Exception as err:   # noqa: BLE001 - handed to the service's caller
+                done.set_exception(err)
+
+        threading.Thread(target=work, name='valve_clear_faults', daemon=True).start()
+        result = await done
+        response.success, response.message = result.success, result.message
+        self._publish_diagnostics()
+        return response
 
     def _on_pressure(self, msg: FluidPressure, port: str) -> None:
         core = self._core
@@ -251,7 +306,7 @@ class CanDriverNode(Node):
         array.header.stamp = self.get_clock().now().to_msg()
         for report in core.report():
             status = DiagnosticStatus(level=bytes([int(report.level)]),
-                                      name=f'{self.get_name()}: {report.name}',
+                                      name=f'{self._status_prefix}: {report.name}',
                                       message=report.message, hardware_id=self._hardware_id)
             status.values = [KeyValue(key=k, value=_text(v)) for k, v in report.values.items()]
             array.status.append(status)

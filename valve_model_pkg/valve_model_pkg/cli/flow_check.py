@@ -35,6 +35,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('--params', default='',
                    help='valve parameter YAML the map must match (default: the map\'s own '
                         'parameter set is used without a check)')
+    p.add_argument('--allow-implausible', action='store_true',
+                   help='accept --params values outside their plausible ranges with a '
+                        'warning')
     p.add_argument('--pwm-frequency', type=float, default=None,
                    help='PWM frequency [Hz] if the file does not state it')
     p.add_argument('--supply-pressure-bar', type=float, default=None,
@@ -57,7 +60,9 @@ def main(argv: list[str] | None = None) -> int:
         dmap = load_map(args.map or None)
         if args.params:
             from valve_model_pkg.model import load_parameters
-            dmap.check_parameters(load_parameters(args.params), args.map or 'shipped map',
+            dmap.check_parameters(load_parameters(args.params,
+                                                  allow_implausible=args.allow_implausible),
+                                  args.map or 'shipped map',
                                   args.params)
         measured = read_flow_map(
             args.flow_map, pwm_frequency_hz=args.pwm_frequency,

@@ -34,6 +34,10 @@ def _parser() -> argparse.ArgumentParser:
                    help='hold-out files for validation and effect selection')
     p.add_argument('--params', metavar='YAML', default=None,
                    help='known parameters (Table 1, orifice); default: the packaged set')
+    p.add_argument('--allow-implausible', action='store_true',
+                   help='accept parameter values outside their plausible ranges with a '
+                        'warning (values beyond the numerically safe range are refused '
+                        'anyway)')
     p.add_argument('-o', '--out', required=True, metavar='DIR', help='output directory')
     p.add_argument('--topic', default='/valve/state', help='valve state topic in bags')
     p.add_argument('--valve', default=None, help='frame_id of the valve in multi-valve bags')
@@ -72,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
                     m.source, None, 'metadata lacks supply_pressure_pa (gauge, Pa)')
             for note in m.notes:
                 progress(f'{m.name}: {note}')
-        base = load_parameters(args.params)
+        base = load_parameters(args.params, allow_implausible=args.allow_implausible)
     except (MeasurementFormatError, ParameterError, FileNotFoundError) as err:
         print(f'valve_identify: error: {err}', file=sys.stderr)
         return 2

@@ -36,6 +36,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('--output', dest='out', help=argparse.SUPPRESS)  # the old spelling
     p.add_argument('--params', default='',
                    help="valve parameter YAML (default: the paper's, config/valve.yaml)")
+    p.add_argument('--allow-implausible', action='store_true',
+                   help='accept parameter values outside their plausible ranges with a '
+                        'warning (values beyond the numerically safe range are refused '
+                        'anyway)')
     p.add_argument('--duty-step', type=float, default=0.01,
                    help='duty grid step as a fraction (default: %(default)s = 1 %%)')
     p.add_argument('--pressures-bar', type=float, nargs='+', default=[0.0, 2.0, 4.0, 6.0],
@@ -207,7 +211,7 @@ def _generate(args: argparse.Namespace):  # noqa: ANN202 - DutyMap
     from valve_model_pkg.maps.generation import MapGrid, generate_map
     from valve_model_pkg.maps.steady_state import SteadyStateCriterion
     from valve_model_pkg.model import ElectronicsConfig, load_parameters
-    params = load_parameters(args.params or None)
+    params = load_parameters(args.params or None, allow_implausible=args.allow_implausible)
     electronics = dataclasses.replace(ElectronicsConfig(),
                                       current_control=not args.no_current_control,
                                       negative_voltage=not args.no_negative_voltage)

@@ -86,6 +86,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help='time the step voltage is switched on, s (step; default 0)')
     ap.add_argument('--params', type=Path, default=None,
                     help='parameter YAML (default: the packaged config/valve.yaml)')
+    ap.add_argument('--allow-implausible', action='store_true',
+                    help='accept parameter values outside their plausible ranges with a '
+                         'warning (values beyond the numerically safe range are refused '
+                         'anyway)')
     ap.add_argument('--no-current-control', action='store_true',
                     help='pwm: switch off the boost/chopper/PI current control')
     ap.add_argument('--no-capacitor', action='store_true',
@@ -193,7 +197,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.experiment == 'step' and (args.no_current_control or args.no_capacitor):
         _LOG.info('step experiments drive the bare coil; electronics options are ignored')
     params_path = args.params if args.params is not None else default_parameters_path()
-    params: ValveParameters = load_parameters(params_path)
+    params: ValveParameters = load_parameters(params_path,
+                                              allow_implausible=args.allow_implausible)
     out = args.out if args.out is not None else Path(f'valve_{args.experiment}.csv')
     if out.parent and not out.parent.exists():
         raise _UsageError(f'output directory does not exist: {out.parent}')

@@ -17,13 +17,15 @@ data generator's checks) goes through :mod:`.csv`, so the rules are the same eve
 from __future__ import annotations
 
 from .csv import (
-    EXPERIMENTS, FORMAT_NAME, DataFormatError, FlowMapRecord, OperationRecord, TraceRecord,
+    EXPERIMENTS, FORMAT_NAME, MAX_ABS_CURRENT_A, MAX_COLUMNS, MAX_FILE_BYTES, MAX_LINE_CHARS,
+    MAX_ROWS, DataFormatError, FlowMapRecord, OperationRecord, TraceRecord,
     check_time_axis, read_flow_map, read_operation, read_record, read_trace, write_record,
     write_table,
 )
 
 __all__ = [
-    'EXPERIMENTS', 'FORMAT_NAME', 'DataFormatError', 'FlowMapRecord', 'OperationRecord',
+    'EXPERIMENTS', 'FORMAT_NAME', 'MAX_ABS_CURRENT_A', 'MAX_COLUMNS', 'MAX_FILE_BYTES',
+    'MAX_LINE_CHARS', 'MAX_ROWS', 'DataFormatError', 'FlowMapRecord', 'OperationRecord',
     'TraceRecord', 'check_time_axis', 'read_flow_map', 'read_operation', 'read_record',
     'read_trace', 'write_record', 'write_table',
 ]

@@ -20,7 +20,16 @@ the steering repository) as this module applies them to every kind:
 * Numeric metadata must be finite numbers; ``sample_rate_hz``, ``pwm_frequency_hz``,
   ``supply_voltage_v`` and ``supply_temperature_k`` must be positive, pressures (gauge)
   not below vacuum. A time axis that disagrees with ``sample_rate_hz`` by more than 5 %
-  is noted (the time axis is used), as are gaps longer than 1.5 sample periods.
+  is noted (the time axis is used), as are gaps longer than 1.5 sample periods; a median
+  time step off ``1/sample_rate_hz`` by more than a factor of 2 (time in ms) is refused,
+  naming the line, the step found and the step expected.
+* ``current`` beyond +-50 A (:data:`MAX_ABS_CURRENT_A`, the plausible range of a bench
+  current sensor) is refused naming the line.
+* Bounded resources: the file is streamed line by line and only the columns of the
+  record are kept (float64). Refused at once: a file above :data:`MAX_FILE_BYTES`
+  (512 MiB, before reading), a NUL byte in the first 64 KiB (binary), a line longer than
+  :data:`MAX_LINE_CHARS`, a header with more than :data:`MAX_COLUMNS` columns, more than
+  :data:`MAX_ROWS` data rows, bytes that are not UTF-8 (naming the line).
 
 Every refusal is a :class:`DataFormatError` whose message names the file, the line (when
 the problem has one), and the key or column and the value.
@@ -29,7 +38,8 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping, Sequence
+from array import array
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -38,7 +48,8 @@ import numpy as np
 from ..model.constants import ATMOSPHERIC_PRESSURE_PA
 
 __all__ = [
-    'EXPERIMENTS', 'FORMAT_NAME', 'DataFormatError', 'TraceRecord', 'OperationRecord',
+    'EXPERIMENTS', 'FORMAT_NAME', 'MAX_FILE_BYTES', 'MAX_ROWS', 'MAX_LINE_CHARS',
+    'MAX_COLUMNS', 'MAX_ABS_CURRENT_A', 'DataFormatError', 'TraceRecord', 'OperationRecord',
     'FlowMapRecord', 'check_time_axis', 'read_record', 'read_trace', 'read_operation',
     'read_flow_map', 'write_table', 'write_record',
 ]
@@ -75,6 +86,24 @@ _GAP_FACTOR = 1.5
 #: Largest relative difference of the time axis from ``sample_rate_hz`` taken as agreement.
 _RATE_TOLERANCE = 0.05
 _VACUUM_GAUGE_PA = -ATMOSPHERIC_PRESSURE_PA
+
+# --- resource limits: what a file may hold before it is refused -----------------------------
+#: Largest file read [bytes]; a larger one is refused before a byte is read.
+MAX_FILE_BYTES = 512 << 20
+#: Largest number of data rows (10 M: 200 s at 50 kHz); with at most 8 numeric columns of
+#: 8 bytes the parsed record stays below 0.7 GB.
+MAX_ROWS = 10_000_000
+#: Longest line [characters]; the format's lines are a few dozen.
+MAX_LINE_CHARS = 1 << 16
+#: Most columns in the header.
+MAX_COLUMNS = 1000
+#: Bytes at the start of the file checked for binary content (NUL bytes).
+_SNIFF_BYTES = 1 << 16
+#: Plausible coil current range of a bench current sensor: |i| above this is refused [A].
+MAX_ABS_CURRENT_A = 50.0
+#: A median time step off ``1/sample_rate_hz`` by more than this factor is refused (time
+#: in ms, a wrong rate); smaller differences are noted and the time axis is used.
+_RATE_REFUSE_FACTOR = 2.0
 
 
 class DataFormatError(ValueError):
@@ -285,16 +314,16 @@ Record = TraceRecord | OperationRecord | FlowMapRecord
 # --- the common layer: lines, metadata, header, fields -------------------------------------
 @dataclass
 class _Table:
-    """A file split into metadata, header and raw rows (nothing interpreted yet)."""
+    """A file's metadata and header; the rows are parsed by :func:`_columns` (streamed)."""
 
     path: str
     metadata: dict[str, str]
     meta_lines: dict[str, int]
     header: list[str]
     header_line: int
-    rows: list[list[str]]
-    linenos: list[int]
     numeric: dict[str, float] = field(default_factory=dict)
+    #: File line of each data row; set by :func:`_columns`.
+    linenos: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def error(self, line: int | None, reason: str, **kw: str | None) -> DataFormatError:
         return DataFormatError(self.path, line, reason, **kw)
@@ -304,66 +333,91 @@ class _Table:
         return self.metadata.get('experiment')
 
 
-def _read_text(path: str | os.PathLike[str]) -> tuple[str, str]:
+def _lines(path: str | os.PathLike[str], skip: int = 0) -> Iterator[tuple[int, str]]:
+    """(line number, text without end of line) of a file, streamed, limits applied.
+
+    Reads one line at a time (never the whole file): a file above :data:`MAX_FILE_BYTES`
+    is refused before reading, a binary file at its first bytes, a line longer than
+    :data:`MAX_LINE_CHARS` at that line; non-UTF-8 bytes are refused naming their line.
+    ``skip`` lines are passed over (already read).
+    """
     spath = str(path)
     try:
-        raw = Path(path).read_bytes()
+        fh = open(path, 'rb')
     except OSError as err:
         raise DataFormatError(spath, None, f'cannot be read: {err.strerror}') from err
-    try:
-        return spath, raw.decode('utf-8-sig')
-    except UnicodeDecodeError as err:
-        lineno = raw[:err.start].count(b'\n') + 1
-        raise DataFormatError(spath, lineno, 'is not UTF-8 text') from err
+    with fh:
+        try:
+            size = os.fstat(fh.fileno()).st_size
+        except OSError as err:
+            raise DataFormatError(spath, None, f'cannot be read: {err.strerror}') from err
+        if size > MAX_FILE_BYTES:
+            raise DataFormatError(spath, None, f'is {size} bytes; files of {FORMAT_NAME} are '
+                                  f'read up to {MAX_FILE_BYTES} bytes '
+                                  f'({MAX_FILE_BYTES >> 20} MiB)')
+        head = fh.read(_SNIFF_BYTES)
+        nul = head.find(b'\x00')
+        if nul >= 0:
+            raise DataFormatError(spath, head[:nul].count(b'\n') + 1, f'is a binary file, not '
+                                  f'text (NUL byte at offset {nul})')
+        fh.seek(0)
+        lineno = 0
+        while True:
+            raw = fh.readline(MAX_LINE_CHARS + 2)
+            if not raw:
+                return
+            lineno += 1
+            if lineno <= skip:
+                continue
+            if len(raw) > MAX_LINE_CHARS + 1 or (len(raw) == MAX_LINE_CHARS + 2
+                                                  and not raw.endswith(b'\n')):
+                raise DataFormatError(spath, lineno, f'is longer than {MAX_LINE_CHARS} '
+                                      'characters (not a file of the format)')
+            if b'\x00' in raw:
+                raise DataFormatError(spath, lineno, 'has a NUL byte: a binary file, not text')
+            try:
+                text = raw.decode('utf-8-sig' if lineno == 1 else 'utf-8')
+            except UnicodeDecodeError as err:
+                raise DataFormatError(spath, lineno, f'is not UTF-8 text (byte '
+                                      f'0x{raw[err.start]:02x} at column {err.start + 1})'
+                                      ) from err
+            yield lineno, text.rstrip('\r\n')
 
 
 def _split(path: str | os.PathLike[str]) -> _Table:
-    """Metadata, header and rows of a file, with the layout rules applied."""
-    spath, text = _read_text(path)
+    """Metadata and header of a file, with the layout rules applied (rows not yet read)."""
+    spath = str(path)
     metadata: dict[str, str] = {}
     meta_lines: dict[str, int] = {}
     header: list[str] | None = None
     header_line = 0
-    rows: list[list[str]] = []
-    linenos: list[int] = []
-    blank_after_data: int | None = None
-    for lineno, line in enumerate(text.splitlines(), start=1):
+    for lineno, line in _lines(path):
         stripped = line.strip()
-        if header is None:
-            if not stripped:
-                continue
-            if stripped.startswith('#'):
-                body = stripped[1:].strip()
-                if ':' in body:
-                    key, _, value = body.partition(':')
-                    key = key.strip()
-                    if key in metadata:
-                        raise DataFormatError(
-                            spath, lineno, f'metadata key {key!r} given twice (first on line '
-                            f'{meta_lines[key]}, again as {value.strip()!r})', key=key,
-                            value=value.strip())
-                    metadata[key] = value.strip()
-                    meta_lines[key] = lineno
-                # A '#' line without 'key: value' is a free comment, not data.
-                continue
-            header = [c.strip() for c in stripped.split(',')]
-            header_line = lineno
-            continue
         if not stripped:
-            if blank_after_data is None:
-                blank_after_data = lineno
             continue
-        if blank_after_data is not None:
-            raise DataFormatError(spath, blank_after_data,
-                                  'empty line inside the data (rows follow it)')
         if stripped.startswith('#'):
-            raise DataFormatError(spath, lineno, 'metadata/comment line after the header; '
-                                  'metadata must lead')
-        rows.append(line.split(','))
-        linenos.append(lineno)
+            body = stripped[1:].strip()
+            if ':' in body:
+                key, _, value = body.partition(':')
+                key = key.strip()
+                if key in metadata:
+                    raise DataFormatError(
+                        spath, lineno, f'metadata key {key!r} given twice (first on line '
+                        f'{meta_lines[key]}, again as {value.strip()!r})', key=key,
+                        value=value.strip())
+                metadata[key] = value.strip()
+                meta_lines[key] = lineno
+            # A '#' line without 'key: value' is a free comment, not data.
+            continue
+        header = [c.strip() for c in stripped.split(',')]
+        header_line = lineno
+        break
     if header is None:
         raise DataFormatError(spath, None, 'has no header row and no data')
-    table = _Table(spath, metadata, meta_lines, header, header_line, rows, linenos)
+    if len(header) > MAX_COLUMNS:
+        raise DataFormatError(spath, header_line, f'header has {len(header)} columns; the '
+                              f'format has a few, at most {MAX_COLUMNS} are read')
+    table = _Table(spath, metadata, meta_lines, header, header_line)
     _check_metadata(table)
     if len(set(header)) != len(header):
         dup = sorted({c for c in header if header.count(c) > 1})
@@ -430,23 +484,63 @@ def _require_columns(table: _Table, required: Sequence[str], kind: str) -> None:
 
 
 def _columns(table: _Table, names: Sequence[str]) -> dict[str, np.ndarray]:
-    """Parse the named columns of every row (field count checked on every row)."""
+    """Stream the data rows and parse the named columns (field count checked on every row).
+
+    Only the named columns are kept, as float64 (8 bytes a value): memory grows with the
+    rows times the columns the record uses, never with the text.
+    """
     ncol = len(table.header)
-    index = {c: table.header.index(c) for c in names}
-    data = {c: np.empty(len(table.rows)) for c in names}
-    for r, (fields, lineno) in enumerate(zip(table.rows, table.linenos)):
+    index = [(c, table.header.index(c), c in _MAY_BE_MISSING) for c in names]
+    data = {c: array('d') for c in names}
+    linenos = array('q')
+    blank_after_data: int | None = None
+    spath = table.path
+    for lineno, line in _lines(spath, skip=table.header_line):
+        stripped = line.strip()
+        if not stripped:
+            if blank_after_data is None:
+                blank_after_data = lineno
+            continue
+        if blank_after_data is not None:
+            raise DataFormatError(spath, blank_after_data,
+                                  'empty line inside the data (rows follow it)')
+        if stripped.startswith('#'):
+            raise DataFormatError(spath, lineno, 'metadata/comment line after the header; '
+                                  'metadata must lead')
+        fields = stripped.split(',')
         if len(fields) != ncol:
             raise table.error(lineno, f'has {len(fields)} fields, expected {ncol} fields '
                               f'({",".join(table.header)})')
-        for c in names:
-            data[c][r] = _parse_float(table.path, lineno, c, fields[index[c]],
-                                      allow_missing=c in _MAY_BE_MISSING)
-    return data
+        if len(linenos) >= MAX_ROWS:
+            raise table.error(lineno, f'more than {MAX_ROWS} data rows; files of '
+                              f'{FORMAT_NAME} are read up to {MAX_ROWS} rows')
+        linenos.append(lineno)
+        for c, i, may_miss in index:
+            text = fields[i]
+            try:
+                value = float(text)
+            except ValueError:
+                value = math.nan
+            if value - value != 0.0:  # not a finite number: the full rules and message
+                value = _parse_float(spath, lineno, c, text, allow_missing=may_miss)
+            data[c].append(value)
+    table.linenos = _as_array(linenos, np.int64)
+    return {c: _as_array(v, np.float64) for c, v in data.items()}
+
+
+def _as_array(values: array, dtype: type) -> np.ndarray:
+    """The array's buffer as numpy (no copy)."""
+    if len(values) == 0:
+        return np.zeros(0, dtype=dtype)
+    return np.frombuffer(values, dtype=dtype)
 
 
 def _cell(table: _Table, row: int, column: str) -> str:
-    """The text of a field as the file has it (for messages)."""
-    return table.rows[row][table.header.index(column)].strip()
+    """The text of a field as the file has it (for messages; reads the file again)."""
+    target = int(table.linenos[row])
+    for lineno, line in _lines(table.path, skip=target - 1):
+        return line.strip().split(',')[table.header.index(column)].strip()
+    return ''
 
 
 def _refuse_cell(table: _Table, row: int, column: str, problem: str) -> DataFormatError:
@@ -480,17 +574,45 @@ def check_time_axis(path: str, t: np.ndarray, linenos: Sequence[int] | None) -> 
     """
     if t.size == 0:
         return
+    has_lines = linenos is not None and len(linenos) > 0
     if t[0] < 0.0:
-        raise DataFormatError(path, linenos[0] if linenos else None,
+        raise DataFormatError(path, int(linenos[0]) if has_lines else None,
                               f't = {t[0]!r} s is negative', key='t', value=repr(t[0]))
     steps = np.diff(t)
     bad = np.flatnonzero(steps <= 0.0)
     if bad.size:
         i = int(bad[0]) + 1
-        where = linenos[i] if linenos else None
+        where = int(linenos[i]) if has_lines else None
         raise DataFormatError(
             path, where, f't = {t[i]!r} s does not increase (previous sample t = {t[i - 1]!r} '
-            's)' + ('' if linenos else f' at message {i}'), key='t', value=repr(t[i]))
+            's)' + ('' if has_lines else f' at message {i}'), key='t', value=repr(t[i]))
+
+
+def _check_rate(table: _Table, t: np.ndarray) -> None:
+    """Refuse a time axis whose median step is far from ``1/sample_rate_hz`` (e.g. ms)."""
+    nominal = table.numeric.get('sample_rate_hz')
+    if nominal is None or t.size < 2:
+        return
+    dt = np.diff(t)
+    expected = 1.0 / nominal
+    median = float(np.median(dt))
+    if expected / _RATE_REFUSE_FACTOR <= median <= expected * _RATE_REFUSE_FACTOR:
+        return
+    off = np.flatnonzero((dt < expected / _RATE_REFUSE_FACTOR)
+                         | (dt > expected * _RATE_REFUSE_FACTOR))
+    i = int(off[0]) + 1
+    raise _refuse_cell(table, i, 't', f'is {dt[i - 1]:.6g} s after the previous row, but '
+                       f'sample_rate_hz {nominal:g} Hz means {expected:.6g} s (median step '
+                       f'{median:.6g} s: is t in seconds?)')
+
+
+def _check_current(table: _Table, current: np.ndarray) -> None:
+    """Refuse a current beyond the sensor's plausible range (:data:`MAX_ABS_CURRENT_A`)."""
+    with np.errstate(invalid='ignore'):
+        bad = np.flatnonzero(np.abs(current) > MAX_ABS_CURRENT_A)
+    if bad.size:
+        raise _refuse_cell(table, int(bad[0]), 'current', f'A is beyond the plausible '
+                           f'current range (|i| <= {MAX_ABS_CURRENT_A:g} A)')
 
 
 def _time_notes(t: np.ndarray, nominal: float | None) -> tuple[int, list[str]]:
@@ -521,7 +643,7 @@ def _missing_note(table: _Table, column: str, values: np.ndarray) -> tuple[int, 
     missing = np.flatnonzero(~np.isfinite(values))
     if missing.size == 0:
         return 0, []
-    first = [table.linenos[i] for i in missing[:5]]
+    first = [int(table.linenos[i]) for i in missing[:5]]
     return int(missing.size), [
         f'{missing.size} samples without a {column} value (lines {first}'
         f'{"..." if missing.size > 5 else ""}); kept as nan']
@@ -550,6 +672,8 @@ def _trace(table: _Table) -> TraceRecord:
     cols = _columns(table, present)
     t = cols['t']
     check_time_axis(table.path, t, table.linenos)
+    _check_rate(table, t)
+    _check_current(table, cols['current'])
     if 'duty' in cols:
         _check_duty(table, cols['duty'])
     n_missing, notes = _missing_note(table, 'current', cols['current'])
@@ -581,7 +705,7 @@ def _pressure(table: _Table, cols: dict[str, np.ndarray], column: str, key: str,
                                'Pa is below vacuum (pressures are gauge)')
         return values
     value = table.numeric.get(key, default)
-    return None if value is None else np.full(len(table.rows), float(value))
+    return None if value is None else np.full(table.linenos.size, float(value))
 
 
 def _operation(table: _Table) -> OperationRecord:
@@ -590,6 +714,8 @@ def _operation(table: _Table) -> OperationRecord:
     cols = _columns(table, present)
     t, duty, freq = cols['t'], cols['duty'], cols['pwm_frequency_hz']
     check_time_axis(table.path, t, table.linenos)
+    _check_rate(table, t)
+    _check_current(table, cols['current'])
     _check_duty(table, duty)
     bad = np.flatnonzero(freq <= 0.0)
     if bad.size:

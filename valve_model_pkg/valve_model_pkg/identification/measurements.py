@@ -68,6 +68,8 @@ bool position_measured
 """
 
 _MIN_SAMPLES = 10
+#: A coil voltage at or below this everywhere counts as no excitation [V].
+_MIN_EXCITATION_V = 1e-3
 
 
 @dataclass(frozen=True)
@@ -251,6 +253,7 @@ def read_csv(path: str | Path) -> Measurement:
                 "column 'coil_voltage' has no value (the model is driven by it)")
         voltage = record.coil_voltage_v
         notes.append('pwm record: the coil model is driven by the coil_voltage column')
+    _check_excitation(spath, voltage, record.line_numbers)
     if record.n_missing_values:
         notes = [n + ' and excluded from the errors' if 'without a current value' in n else n
                  for n in notes]
@@ -263,6 +266,22 @@ def read_csv(path: str | Path) -> Measurement:
         position_m=None if record.position_m is None else record.position_m.copy(),
         metadata=dict(record.metadata), notes=tuple(notes),
         n_missing_values=record.n_missing_values, n_gaps=record.n_gaps)
+
+
+def _check_excitation(source: str, voltage: np.ndarray, line_numbers: np.ndarray | None
+                      ) -> None:
+    """Refuse a record whose coil voltage is zero throughout: it excites nothing to fit.
+
+    Checked before any simulation, so such a record is refused at once instead of being
+    fitted for minutes.
+    """
+    if np.any(np.abs(voltage) > _MIN_EXCITATION_V):
+        return
+    where = (f' (lines {int(line_numbers[0])}..{int(line_numbers[-1])})'
+             if line_numbers is not None and len(line_numbers) else '')
+    raise MeasurementFormatError(
+        source, None, f'has no excitation: the coil voltage is 0 V in all {voltage.size} '
+        f'samples{where}; nothing to identify')
 
 
 def write_csv(path: str | Path, t_s: np.ndarray, voltage_v: np.ndarray, current_a: np.ndarray,
@@ -299,6 +318,11 @@ def write_csv(path: str | Path, t_s: np.ndarray, voltage_v: np.ndarray, current_
 # --------------------------------------------------------------------------------------
 # rosbag2
 # --------------------------------------------------------------------------------------
+
+def _one_line(err: object) -> str:
+    """An exception's text on one line (library messages may span several)."""
+    return ' '.join(str(err).split()) or type(err).__name__
+
 
 def _valve_typestore(connection: object) -> object:
     """A typestore that knows ValveState: from the bag if it embeds it, else from our text."""
@@ -358,8 +382,8 @@ def read_bag(path: str | Path, *, topic: str = '/valve/state',
         reader = Reader(Path(path))
         reader.open()
     except Exception as err:  # rosbags raises several unrelated types here
-        raise MeasurementFormatError(spath, None, f'cannot be opened as a rosbag2 bag: {err}'
-                                     ) from err
+        raise MeasurementFormatError(spath, None, f'cannot be opened as a rosbag2 bag: '
+                                     f'{_one_line(err)}') from err
     try:
         conns = [c for c in reader.connections if c.topic == topic]
         if not conns:
@@ -376,13 +400,25 @@ def read_bag(path: str | Path, *, topic: str = '/valve/state',
                 spath, None, f'message definition of {VALVE_STATE_TYPE} unusable: {err}'
             ) from err
         records: list[tuple] = []
-        for index, (conn, logtime, raw) in enumerate(reader.messages(connections=conns)):
+        messages = reader.messages(connections=conns)
+        index = 0
+        while True:
+            try:
+                conn, logtime, raw = next(messages)
+            except StopIteration:
+                break
+            except Exception as err:  # a damaged chunk: rosbags/mcap raise many types
+                raise MeasurementFormatError(
+                    spath, None, f'is damaged after message {index} on {topic} '
+                    f'({type(err).__name__}: {_one_line(err)}); try valve_recorder '
+                    '--recover') from err
             try:
                 msg = store.deserialize_cdr(raw, conn.msgtype)
             except Exception as err:  # a truncated or foreign payload
                 raise MeasurementFormatError(
-                    spath, None, f'message {index} on {topic} cannot be decoded: {err}'
-                ) from err
+                    spath, None, f'message {index} on {topic} cannot be decoded: '
+                    f'{_one_line(err)}') from err
+            index += 1
             stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
             records.append((msg.header.frame_id, stamp, logtime * 1e-9, int(msg.sequence),
                             msg.coil_voltage, msg.coil_current, msg.spool_position,
@@ -422,6 +458,7 @@ def _bag_records_to_measurement(spath: str, topic: str, valve: str | None,
     if bad_v.size:
         raise MeasurementFormatError(
             spath, None, f'message {int(bad_v[0])} has a non-finite coil_voltage')
+    _check_excitation(spath, voltage, None)
     n_missing = int(np.count_nonzero(~np.isfinite(current)))
     if n_missing:
         notes.append(f'{n_missing} messages with a non-finite coil_current; kept, excluded')

@@ -49,8 +49,12 @@ SUITE_TOPICS: dict[str, str] = {
 #: valve/state at 1 kHz: a deep queue so a slow subscriber (the recorder) does not lose
 #: a burst; 1000 = 1 s of state.
 STATE_QUEUE_DEPTH = 1000
-#: Commands and pressures: only the latest matters to a valve, a few are kept for a recorder.
-COMMAND_QUEUE_DEPTH = 50
+#: Commands and pressures. Documented command rate: up to 1 kHz per publisher (the
+#: position controller commands flow at 200 Hz by default, flow_to_duty answers every flow
+#: command and re-evaluates at most 100 Hz, pressures come at 200 Hz-1 kHz). 1000 = 1 s of
+#: commands at 1 kHz: a subscriber held up for up to 1 s loses none; beyond that the oldest
+#: are dropped and the consumers report them as lost (sequence gaps; docs/safety.md).
+COMMAND_QUEUE_DEPTH = 1000
 #: cylinder/joint_states at 200 Hz: 50 = 0.25 s.
 JOINT_STATES_QUEUE_DEPTH = 50
 #: /diagnostics at about 1 Hz per node.

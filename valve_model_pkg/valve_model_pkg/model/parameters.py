@@ -392,7 +392,8 @@ SAFE_RANGE_FACTOR = 1e3
 
 def _safe_range(name: str) -> tuple[float, float]:
     lo, hi = PLAUSIBLE_RANGES[name]
-    return lo / SAFE_RANGE_FACTOR, hi * SAFE_RANGE_FACTOR
+    # the 1e-12 keeps the printed edges (1e-07) themselves inside despite rounding
+    return lo / SAFE_RANGE_FACTOR * (1.0 - 1e-12), hi * SAFE_RANGE_FACTOR * (1.0 + 1e-12)
 
 
 def implausible_values(params: ValveParameters) -> list[tuple[str, float, tuple[float, float]]]:
@@ -583,6 +584,8 @@ def load_parameters(path: str | os.PathLike[str] | None = None, *,
         raise ParameterError(f'{where}: not valid YAML: {_one_line(problem)}') from err
     except yaml.YAMLError as err:
         raise ParameterError(f'{path}: not valid YAML: {_one_line(err)}') from err
+    except RecursionError as err:
+        raise ParameterError(f'{path}: not a parameter file: nested too deeply') from err
     finally:
         loader.dispose()
     try:

@@ -23,8 +23,14 @@ Rules (details in docs/maps.md):
   duty that drives the coil without opening the valve: below ``dead_band_zero_fraction`` of
   that flow it gets duty 0 (STATUS_SATURATED_LOW), else the opening duty
   (STATUS_DEAD_BAND_LIFTED);
-- NaN, infinite or negative commands are rejected with a warning (STATUS_REJECTED) and
-  the last valid command stays in force;
+- NaN, infinite, negative or implausibly large (above ``MAX_FLOW_COMMAND_KG_S``) commands
+  are rejected with a warning (STATUS_REJECTED) and the last valid command stays in force;
+  so are pressures outside [0, 100 bar gauge] absolute (docs/safety.md, "Node inputs"). The
+  first warning of each kind always appears, then at most one per second per kind; every
+  rejection is counted per kind in the diagnostics (``rejected_<topic>_<kind>``);
+- flow commands are counted by their ``sequence`` per publisher (``header.frame_id``):
+  ``commands`` received, ``rejected``, ``commands_lost`` (sequence gaps); the duty commands
+  sent carry this node's own sequence and its fully qualified name as ``frame_id``;
 - when the pressures change, the command in force is re-evaluated at most every
   ``republish_period_s`` and a new duty is published if it changed;
 - the map file must exist, be a valid duty map, contain ``pwm_frequency_hz`` and be made
@@ -49,7 +55,10 @@ from valve_msgs.msg import DutyCommand, FlowCommand, FlowToDutyStatus
 from valve_model_pkg.maps import (FlowStatus, FlowToDutyInverter, FlowToDutyResult, MapError,
                                   default_map_path, invalid_flow_reason, load_map)
 from valve_model_pkg.model import default_parameters_path, load_parameters
+from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ
 from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS
+from valve_model_pkg.nodes.inputs import (MAX_FLOW_COMMAND_KG_S, InputGuard, SequenceTracker,
+                                          pressure_reason, stamp_reason)
 from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, PRESSURE_QOS,
                                           TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
                                           TOPIC_FLOW_COMMAND, TOPIC_FLOW_STATUS,
@@ -58,8 +67,6 @@ from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, 
                                           gauge_from_absolute, key_values, run_node,
                                           STARTUP_ERRORS)
 
-#: Highest main PWM frequency accepted [Hz] (as the simulator).
-MAX_PWM_FREQUENCY_HZ = 1000.0
 #: A duty change smaller than this is not republished on a pressure change [1].
 _DUTY_EPS = 1e-9
 
@@ -165,6 +172,11 @@ class FlowToDutyNode(Node):
         self._rejected = 0
         self._last_reject = ''
         self._bad_pressures = 0
+        # Per-kind rejection counts and throttled warnings; the flow command stream
+        # counted by its sequence numbers (docs/safety.md, "Node inputs").
+        self._inputs = InputGuard(self.get_logger())
+        self._flow_commands = SequenceTracker()
+        self._duty_sequence = 0
         self._counts = {s: 0 for s in FlowStatus}
         self._max_compute_s = 0.0
         if self._republish_s > 0.0:
@@ -206,23 +218,36 @@ class FlowToDutyNode(Node):
     # --- inputs ---------------------------------------------------------------------------
     def _on_flow(self, msg: FlowCommand) -> None:
         self._commands += 1
+        self._flow_commands.update(msg.header.frame_id, msg.sequence)
         flow = msg.mass_flow
         reason = invalid_flow_reason(flow)
+        kind = 'not_finite' if reason is not None and (
+            'NaN' in reason or 'infinite' in reason) else 'out_of_range'
+        if reason is None and flow > MAX_FLOW_COMMAND_KG_S:
+            reason = (f'mass_flow {flow!r} kg/s is above {MAX_FLOW_COMMAND_KG_S:g} kg/s '
+                      '(implausible)')
+        if reason is None:
+            reason = stamp_reason(msg.header.stamp)
+            kind = 'bad_stamp'
         if reason is not None:
             self._reject(flow, f'flow command rejected: {reason}; keeping the last valid '
-                               f'command ({self._flow_in_force!r} kg/s)')
+                               f'command ({self._flow_in_force!r} kg/s)', kind)
             return
         self._flow_in_force = float(flow)
         self._answer(force=True)
 
     def _pressure_from(self, msg: FluidPressure, port: str) -> float | None:
         absolute = msg.fluid_pressure
-        if not isinstance(absolute, float) or not math.isfinite(absolute) or absolute < 0.0:
+        reason = pressure_reason(absolute)
+        if reason is None:
+            reason = stamp_reason(msg.header.stamp)
+        if reason is not None:
             self._bad_pressures += 1
-            self.get_logger().warning(
-                f'{port} pressure rejected: {absolute!r} Pa absolute is not a finite '
-                'non-negative pressure; keeping the last valid value',
-                throttle_duration_sec=1.0)
+            kind = 'not_finite' if 'not finite' in reason else (
+                'bad_stamp' if 'stamp' in reason else 'out_of_range')
+            self._inputs.reject(f'{port}_pressure', kind,
+                                f'{port} pressure rejected: {reason}; keeping the last valid '
+                                'value')
             return None
         return gauge_from_absolute(absolute)
 
@@ -250,7 +275,8 @@ class FlowToDutyNode(Node):
             res = self._inverter.compute(self._flow_in_force, self._supply_pa, self._output_pa)
         except (ValueError, ArithmeticError, TypeError) as err:
             # never crash on a message; say what happened and keep the last duty
-            self._reject(self._flow_in_force, f'flow command could not be converted: {err}')
+            self._reject(self._flow_in_force, f'flow command could not be converted: {err}',
+                         'not_convertible')
             return
         self._max_compute_s = max(self._max_compute_s, time.perf_counter() - t0)
         if not force and self._last_duty is not None \
@@ -260,6 +286,9 @@ class FlowToDutyNode(Node):
         now = self.get_clock().now().to_msg()
         cmd = DutyCommand()
         cmd.header.stamp = now
+        cmd.header.frame_id = self.get_fully_qualified_name()
+        cmd.sequence = self._duty_sequence
+        self._duty_sequence += 1
         cmd.duty = float(res.duty)
         cmd.pwm_frequency = float(res.pwm_frequency_hz)
         self._duty_pub.publish(cmd)
@@ -268,11 +297,11 @@ class FlowToDutyNode(Node):
         self._counts[res.status] += 1
         self._publish_status(res, now)
 
-    def _reject(self, flow: object, text: str) -> None:
+    def _reject(self, flow: object, text: str, kind: str) -> None:
         self._rejected += 1
         self._last_reject = text
         self._counts[FlowStatus.REJECTED] += 1
-        self.get_logger().warning(text, throttle_duration_sec=1.0)
+        self._inputs.reject('flow_command', kind, text)
         res = FlowToDutyResult(
             requested_mass_flow=float(flow) if isinstance(flow, (int, float)) else math.nan,
             achievable_mass_flow=math.nan, max_mass_flow=math.nan, position_fraction=math.nan,
@@ -300,13 +329,23 @@ class FlowToDutyNode(Node):
 
     def _publish_diagnostics(self) -> None:
         level, text = DiagnosticLevel.OK, 'converting flow commands'
-        if self._rejected:
-            level = DiagnosticLevel.WARN
-            text = f'{self._rejected} command(s) rejected; last: {self._last_reject}'
+        problems = []
+        if self._flow_commands.lost:
+            problems.append(f'{self._flow_commands.lost} flow command(s) lost (sequence gaps)')
+        if self._inputs.total:
+            problems.append(f'{self._inputs.total} message(s) rejected; last: '
+                            f'{self._inputs.last_reason}')
+        if problems:
+            level, text = DiagnosticLevel.WARN, '; '.join(problems)
         status = DiagnosticStatus(level=level, name=f'{self.get_name()}: flow to duty',
                                   message=text, hardware_id='valve')
         status.values = key_values(
             commands=self._commands, rejected=self._rejected,
+            commands_lost=self._flow_commands.lost,
+            **self._flow_commands.diagnostic_values('flow_commands'),
+            duty_commands_sent=self._duty_sequence,
+            rejected_messages=self._inputs.total,
+            **self._inputs.diagnostic_values(),
             saturated_high=self._counts[FlowStatus.SATURATED_HIGH],
             saturated_low=self._counts[FlowStatus.SATURATED_LOW],
             dead_band_lifted=self._counts[FlowStatus.DEAD_BAND_LIFTED],

@@ -1,7 +1,8 @@
 """StateProbe: a small rclpy node that commands a valve and summarises its state stream.
 
-Used by the demo and by the node tests: it publishes duty commands, counts state
-messages, checks their sequence for gaps and keeps windowed statistics.
+Used by the demo and by the node tests: it publishes duty commands (numbered by their
+``sequence``, ``header.frame_id`` = its own name), counts state messages, checks their
+sequence for gaps and keeps windowed statistics.
 """
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ class StateProbe(Node):
         self.create_subscription(ValveState, TOPIC_STATE, self._on_state, STATE_QOS)
         self.count = 0
         self.gaps = 0
+        self.commands_sent = 0  # also the sequence of the next duty command
         self.messages: list[ValveState] = []
         self.keep_messages = False
         self._last_seq: int | None = None
@@ -46,9 +48,12 @@ class StateProbe(Node):
         """Publish one duty command."""
         msg = DutyCommand()
         msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = self.get_fully_qualified_name()
+        msg.sequence = self.commands_sent
         msg.duty = float(duty)
         msg.pwm_frequency = float(pwm_frequency_hz)
         self._cmd_pub.publish(msg)
+        self.commands_sent += 1
 
     def reset_window(self) -> None:
         """Start a new statistics window."""

@@ -15,6 +15,12 @@ bounded (``max_advance_per_tick_s``): if the clock jumps further than that (a st
 process, a jump in simulated time), the model is advanced by the bound, then moved on to
 the clock without integrating the gap, and the tick is reported as fallen behind. Time
 running backwards (a replayed bag looping) resets the model.
+
+No message ends the node (docs/safety.md, "Node inputs"): a duty command or pressure
+outside its range is rejected with a warning (the first of each kind always, then at most
+one per second per kind) and counted per kind in the diagnostics (``rejected_<topic>_<kind>``,
+total ``rejected_commands``); the last valid value stays. Duty commands are also counted by
+their ``sequence`` per publisher (``duty_commands_received``, ``duty_commands_lost``, ...).
 """
 from __future__ import annotations
 
@@ -34,6 +40,8 @@ from valve_model_pkg.interface.ros import state_message
 from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS
 # The accepted PWM frequencies: one pair for simulator, CAN driver and DBC.
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
+from valve_model_pkg.nodes.inputs import (InputGuard, SequenceTracker, pressure_reason,
+                                          stamp_reason)
 from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, PRESSURE_QOS,
                                           STATE_QOS, TOPIC_DIAGNOSTICS,
                                           TOPIC_DUTY_COMMAND, TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
@@ -115,8 +123,10 @@ class ValveSimulatorNode(Node):
         self._behind_ticks = 0
         self._skipped_model_s = 0.0
         self._last_behind_reason = ''
-        self._rejected_commands = 0
-        self._last_reject_reason = ''
+        # Every message is checked; what is refused is counted per input and kind
+        # (docs/safety.md, "Node inputs"), and the command stream by its sequence numbers.
+        self._inputs = InputGuard(self.get_logger())
+        self._commands = SequenceTracker()
         self._max_tick_compute_s = 0.0
         self._window_start_wall = time.monotonic()
         self._window_ticks = 0
@@ -130,37 +140,53 @@ class ValveSimulatorNode(Node):
             f'capacitor {capacitor}')
 
     # --- inputs ---------------------------------------------------------------------------
-    def _reject(self, reason: str) -> None:
-        self._rejected_commands += 1
-        self._last_reject_reason = reason
-        self.get_logger().warning(reason)
-
     def _on_duty(self, msg: DutyCommand) -> None:
+        """Apply a duty command; refuse (and count) one the valve cannot take.
+
+        Valid: duty and pwm_frequency finite, pwm_frequency 0 (keep) or within
+        [MIN_PWM_FREQUENCY_HZ, MAX_PWM_FREQUENCY_HZ], header.stamp.nanosec < 10^9. A duty
+        outside [0, 1] is clamped (and counted): the command's intent is plain.
+        """
+        self._commands.update(msg.header.frame_id, msg.sequence)
         duty, freq = float(msg.duty), float(msg.pwm_frequency)
+        topic = 'duty_command'
+        keep = '; keeping the last valid command'
         if not math.isfinite(duty) or not math.isfinite(freq):
-            self._reject(f'duty command rejected: duty={duty!r}, pwm_frequency={freq!r} '
-                         'is not finite; keeping the last valid command')
+            self._inputs.reject(topic, 'not_finite',
+                                f'duty command rejected: duty={duty!r}, pwm_frequency={freq!r} '
+                                'is not finite' + keep)
             return
         if freq != 0.0 and not MIN_PWM_FREQUENCY_HZ <= freq <= MAX_PWM_FREQUENCY_HZ:
-            self._reject(f'duty command rejected: pwm_frequency={freq!r} Hz outside '
-                         f'[{MIN_PWM_FREQUENCY_HZ:g}, {MAX_PWM_FREQUENCY_HZ:g}] (0 = keep); '
-                         'keeping the last valid command')
+            self._inputs.reject(topic, 'frequency_out_of_range',
+                                f'duty command rejected: pwm_frequency={freq!r} Hz outside '
+                                f'[{MIN_PWM_FREQUENCY_HZ:g}, {MAX_PWM_FREQUENCY_HZ:g}] '
+                                '(0 = keep)' + keep)
+            return
+        reason = stamp_reason(msg.header.stamp)
+        if reason is not None:
+            self._inputs.reject(topic, 'bad_stamp', f'duty command rejected: {reason}' + keep)
             return
         if freq == 0.0:  # 0 = keep the frequency in force (DutyCommand.msg)
             freq = self._stepper.sample().pwm_frequency_hz
         if not 0.0 <= duty <= 1.0:
             clamped = min(max(duty, 0.0), 1.0)
-            self._reject(f'duty {duty!r} outside [0, 1]; clamped to {clamped:g}')
+            self._inputs.reject(topic, 'duty_clamped',
+                                f'duty {duty!r} outside [0, 1]; clamped to {clamped:g}')
             duty = clamped
         self._stepper.set_command(duty, freq)
 
     def _pressure_from(self, msg: FluidPressure, port: str) -> float | None:
-        absolute = float(msg.fluid_pressure)
-        if not math.isfinite(absolute) or absolute < 0.0:
-            self._reject(f'{port} pressure rejected: {absolute!r} Pa absolute is not a '
-                         'finite non-negative pressure; keeping the last valid value')
+        reason = pressure_reason(float(msg.fluid_pressure))
+        if reason is None:
+            reason = stamp_reason(msg.header.stamp)
+        if reason is not None:
+            kind = 'not_finite' if 'not finite' in reason else (
+                'bad_stamp' if 'stamp' in reason else 'out_of_range')
+            self._inputs.reject(f'{port}_pressure', kind,
+                                f'{port} pressure rejected: {reason}; keeping the last valid '
+                                'value')
             return None
-        return gauge_from_absolute(absolute)
+        return gauge_from_absolute(float(msg.fluid_pressure))
 
     def _on_supply(self, msg: FluidPressure) -> None:
         gauge = self._pressure_from(msg, 'supply')
@@ -175,13 +201,15 @@ class ValveSimulatorNode(Node):
             self._set_pressures('output', s.supply_pressure_pa, gauge)
 
     def _set_pressures(self, port: str, supply_pa: float, output_pa: float) -> None:
-        # The model refuses pressures it cannot simulate (ParameterError): a message must
-        # never end the node, so that becomes a counted rejection and the last value stays.
+        # The model refuses pressures it cannot simulate (ParameterError, e.g. near a
+        # perfect vacuum): a message must never end the node, so that becomes a counted
+        # rejection and the last value stays.
         try:
             self._stepper.set_pressures(supply_pa, output_pa)
         except ValueError as err:
-            self._reject(f'{port} pressure rejected by the model: {err}; keeping the last '
-                         'valid value')
+            self._inputs.reject(f'{port}_pressure', 'model_refused',
+                                f'{port} pressure rejected by the model: {err}; keeping the '
+                                'last valid value')
 
     # --- real-time loop -------------------------------------------------------------------
     def _on_tick(self) -> None:
@@ -266,9 +294,17 @@ class ValveSimulatorNode(Node):
             self._achieved_rate_hz = self._window_ticks / elapsed
         self._window_start_wall, self._window_ticks = wall, 0
         level, text = DiagnosticLevel.OK, 'running in real time'
+        problems = []
         if self._behind_ticks:
-            level = DiagnosticLevel.WARN
-            text = f'{self._behind_ticks} tick(s) fell behind; last: {self._last_behind_reason}'
+            problems.append(f'{self._behind_ticks} tick(s) fell behind; last: '
+                            f'{self._last_behind_reason}')
+        if self._commands.lost:
+            problems.append(f'{self._commands.lost} duty command(s) lost (sequence gaps)')
+        if self._inputs.total:
+            problems.append(f'{self._inputs.total} message(s) rejected; last: '
+                            f'{self._inputs.last_reason}')
+        if problems:
+            level, text = DiagnosticLevel.WARN, '; '.join(problems)
         self._publish_diagnostics(level, text)
         self._max_tick_compute_s = 0.0
 
@@ -283,8 +319,11 @@ class ValveSimulatorNode(Node):
             achieved_rate_hz=self._achieved_rate_hz, target_rate_hz=self._rate_hz,
             samples_published=self._sequence,
             max_tick_compute_s=self._max_tick_compute_s,
-            rejected_commands=self._rejected_commands,
-            last_rejection=self._last_reject_reason, model_time_s=s.t_s,
+            rejected_commands=self._inputs.total,
+            last_rejection=self._inputs.last_reason,
+            **self._commands.diagnostic_values('duty_commands'),
+            duty_commands_rejected=self._inputs.count('duty_command'),
+            **self._inputs.diagnostic_values(), model_time_s=s.t_s,
             duty=s.duty, pwm_frequency_hz=s.pwm_frequency_hz,
             supply_pressure_pa=s.supply_pressure_pa, params_file=self._params_path)
         array = DiagnosticArray()

@@ -8,6 +8,7 @@ off) is read up to its last complete chunk, with a warning.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import operator
 from collections.abc import Iterable
@@ -237,10 +238,22 @@ def _load_complete(path: Path, topics: set[str] | None) -> dict[str, TopicData]:
         accs: dict[str, _Accumulator] = {}
         for c in conns:
             accs.setdefault(c.topic, _Accumulator(c.topic, c.msgtype, reader.typestore))
-        for conn, timestamp, raw in reader.messages(connections=conns):
-            accs[conn.topic].add(timestamp, raw)
+        index = 0
+        try:
+            for conn, timestamp, raw in reader.messages(connections=conns):
+                accs[conn.topic].add(timestamp, raw)
+                index += 1
+        except (BagFormatError, MemoryError):
+            raise
+        except Exception as err:  # a damaged chunk or message: the libraries raise many
+            # types (OverflowError, struct.error, zstd errors, ...); one line for the user
+            detail = ' '.join(str(err).split())
+            raise BagFormatError(
+                f'{path} is damaged after {index} messages ({type(err).__name__}: {detail}); '
+                f'`valve_recorder --recover {path}` keeps the intact chunks') from err
     finally:
-        reader.close()
+        with contextlib.suppress(Exception):  # closing a damaged bag may fail as well
+            reader.close()
     return {t: a.result() for t, a in accs.items()}
 
 

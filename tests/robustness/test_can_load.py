@@ -1,0 +1,83 @@
+"""The CAN driver's diagnostics mean something under load (issue 11, item 5).
+
+Driver core and controller emulator run in real time on python-can's virtual bus beside two
+CPU-bound processes (``python3 -c 'while True: pass'``) for 20 s, fault-free: no status
+may go to ERROR. Frames that arrive late are no loss; only missing frames (counter gaps
+over 3 windows, or silence beyond 100 ms) are. Marked slow (about 25 s).
+"""
+from __future__ import annotations
+
+import gc
+import subprocess
+import sys
+import time
+
+import can
+import pytest
+
+from valve_driver_pkg.driver import CanDriverCore, DriverConfig, Level
+from valve_driver_pkg.emulator import ControllerEmulator, EmulatorConfig
+from valve_model_pkg.model import ElectronicsConfig, ValveStepper, load_parameters
+
+pytestmark = pytest.mark.slow
+
+RUN_S = 20.0
+
+
+def cpu_hogs(n: int = 2) -> list[subprocess.Popen]:
+    return [subprocess.Popen([sys.executable, '-c', 'while True: pass'])
+            for _ in range(n)]
+
+
+def test_no_error_transition_in_20_s_fault_free_under_two_cpu_hogs() -> None:
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(0.0005)   # as the programs do (README, "Timing")
+    gc.collect()
+    gc.freeze()
+    channel = 'robustness_can_load'
+    emu_bus = can.Bus(interface='virtual', channel=channel)
+    emu = ControllerEmulator(emu_bus, ValveStepper(load_parameters(), ElectronicsConfig()),
+                             EmulatorConfig())
+    errors: list[tuple[float, str, str]] = []
+    states = [0]
+    core: CanDriverCore | None = None
+
+    def on_diag() -> None:
+        for report in core.report():
+            if report.level >= Level.ERROR:
+                errors.append((time.monotonic(), report.name, report.message))
+
+    hogs = cpu_hogs()
+    try:
+        core = CanDriverCore(DriverConfig(interface='virtual', channel=channel,
+                                          command_timeout_s=0.0),
+                             on_state=lambda s: states.__setitem__(0, states[0] + 1),
+                             on_diagnostics_changed=on_diag)
+        emu.start()
+        core.open()
+        core.activate()
+        start = time.monotonic()
+        duty = 0.0
+        while time.monotonic() - start < RUN_S:
+            duty = 0.6 if duty == 0.2 else 0.2      # a controller's steady command stream
+            core.set_command(duty, 50.0)
+            time.sleep(0.01)
+        counters = core.counters
+        final = {r.name: (r.level, r.message) for r in core.report()}
+    finally:
+        for hog in hogs:
+            hog.kill()
+        for hog in hogs:
+            hog.wait()
+        if core is not None:
+            core.close()
+        emu.stop()
+        emu_bus.shutdown()
+        gc.unfreeze()
+        sys.setswitchinterval(interval)
+    summary = (f'{states[0]} states, {counters["frames_lost"]} frames lost in '
+               f'{counters["counter_jumps"]} gaps, {counters["telemetry_losses"]} losses, '
+               f'emulator {emu.stats}')
+    assert errors == [], f'ERROR transitions under load: {errors[:5]}; {summary}'
+    assert all(level < Level.ERROR for level, _ in final.values()), final
+    assert states[0] > 0.5 * RUN_S * 1000, summary     # the telemetry really flowed

@@ -1,0 +1,138 @@
+"""One valve's identification, run inside a worker process (local pool or Dask worker).
+
+:func:`run_valve` does what ``valve_identify`` does for one valve (the same public entry
+points: ``read_measurements``, ``load_parameters``, ``identify``, ``write_report``) in a
+private temporary folder and returns the files it wrote as bytes. The caller (the fleet
+runner, in the main process) alone writes into the output folder, so a worker never leaves
+half a valve there and a remote Dask worker needs no write access to it.
+
+This module imports nothing heavy at the top: the pool's initializer must set the thread
+limits before numba and numpy start their thread pools.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import tempfile
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+__all__ = ['init_worker', 'limit_threads', 'run_valve']
+
+#: thread-pool sizes of the numeric libraries: one valve uses one core of its worker, so N
+#: workers keep to N cores instead of N x cores threads fighting over them
+_THREAD_ENV = ('NUMBA_NUM_THREADS', 'OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS',
+               'MKL_NUM_THREADS')
+
+
+def limit_threads() -> None:
+    """One thread for numba's parallel loops and for BLAS in this process.
+
+    Environment variables act if the libraries are not loaded yet (a fresh pool worker);
+    in a Dask worker that has numba loaded already, ``numba.set_num_threads`` limits the
+    calling thread, and threadpoolctl (if installed) the BLAS pools.
+    """
+    for name in _THREAD_ENV:
+        os.environ[name] = '1'
+    import sys
+    if 'numba' in sys.modules:
+        import numba
+        numba.set_num_threads(1)
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return
+    threadpool_limits(1)
+
+
+def init_worker() -> None:
+    """Initializer of the local pool's processes.
+
+    Ctrl-C goes to the whole process group; the main process handles it (and ends the
+    workers), so a worker ignores it instead of printing a traceback of its own.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    limit_threads()
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err).strip().splitlines()
+    return f'{type(err).__name__}: {text[0]}' if text else type(err).__name__
+
+
+def run_valve(job: dict[str, Any]) -> dict[str, Any]:
+    """Identify one valve.
+
+    Parameters
+    ----------
+    job : dict
+        :meth:`ValveJob.to_json` form: ``valve_id``, ``fit``, ``validate`` (absolute paths)
+        and ``options``.
+
+    Returns
+    -------
+    dict
+        ``valve_id``; ``status`` (``ok`` or ``failed``); ``reason`` (one line, empty when
+        ok); ``detail`` (traceback or message of a failure); ``files`` (name -> bytes of
+        report.json, report.md, params.yaml, the PNGs and identify.log); ``duration_s``
+        (wall time in the worker); ``host`` and ``pid`` of the worker.
+    """
+    limit_threads()
+    import socket
+    start = time.perf_counter()
+    out: dict[str, Any] = {'valve_id': job['valve_id'], 'status': 'failed', 'reason': '',
+                           'detail': '', 'files': {}, 'duration_s': 0.0,
+                           'host': socket.gethostname(), 'pid': os.getpid()}
+    log: list[str] = []
+
+    def progress(msg: str) -> None:
+        log.append(f'[{time.perf_counter() - start:6.1f} s] {msg}')
+
+    opts = job.get('options', {})
+    try:
+        from ..identification.errors import IdentificationError, MeasurementFormatError
+        from ..identification.measurements import read_measurements
+        from ..identification.pipeline import IdentifySettings, identify
+        from ..identification.report import write_report
+        from ..model.parameters import ParameterError, load_parameters
+        try:
+            kw = {'topic': opts.get('topic', '/valve/state'), 'valve': opts.get('valve')}
+            fit = read_measurements(job['fit'], **kw)
+            val = read_measurements(job['validate'], **kw)
+            for m in fit + val:
+                if m.supply_pressure_pa is None:
+                    raise MeasurementFormatError(
+                        m.source, None, 'metadata lacks supply_pressure_pa (gauge, Pa)')
+                for note in m.notes:
+                    progress(f'{m.name}: {note}')
+            base = load_parameters(opts.get('params'))
+        except (MeasurementFormatError, ParameterError, FileNotFoundError) as err:
+            out['reason'] = f'refused input: {err}'.splitlines()[0]
+            out['detail'] = str(err)
+            return out
+        diagnose = bool(opts.get('diagnose', True))
+        settings = (IdentifySettings.quick(diagnose=diagnose) if opts.get('quick')
+                    else IdentifySettings(diagnose=diagnose))
+        try:
+            ident = identify(fit, val, base, settings, progress=progress)
+            with tempfile.TemporaryDirectory(prefix='valve-fleet-') as tmp:
+                write_report(ident, tmp, plots=bool(opts.get('plots', True)))
+                out['files'] = {p.name: p.read_bytes() for p in sorted(Path(tmp).iterdir())
+                                if p.is_file()}
+        except IdentificationError as err:
+            out['reason'] = f'identification failed: {_first_line(err)}'
+            out['detail'] = traceback.format_exc()
+            return out
+    except Exception as err:  # noqa: BLE001 - one valve's bug must not stop the fleet
+        out['reason'] = f'internal error: {_first_line(err)}'
+        out['detail'] = traceback.format_exc()
+        return out
+    finally:
+        out['duration_s'] = time.perf_counter() - start
+        log.append(f'[{out["duration_s"]:6.1f} s] done on {out["host"]} pid {out["pid"]}')
+        if out['files']:
+            out['files']['identify.log'] = ('\n'.join(log) + '\n').encode('utf-8')
+    out['status'] = 'ok'
+    return out
