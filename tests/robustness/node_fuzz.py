@@ -21,12 +21,13 @@ EXTREMES = [math.nan, math.inf, -math.inf, 0.0, -0.0, 1e308, -1e308, 5e-324, -5e
 any_float = st.one_of(st.sampled_from(EXTREMES), st.floats(allow_nan=True, allow_infinity=True))
 #: header.frame_id: empty, ordinary, odd unicode (no NUL: not representable in a ROS string),
 #: very long.
-frame_ids = st.one_of(st.just(''), st.text(st.characters(exclude_characters='\x00'),
-                                             max_size=40),
+frame_ids = st.one_of(st.just(''),
+                      st.text(st.characters(exclude_characters='\x00'), max_size=40),
                       st.just('x' * 10_000), st.just('/flow_to_duty'))
 #: header.stamp (sec int32, nanosec uint32); nanosec >= 10^9 is malformed.
 stamps = st.tuples(st.integers(-2**31, 2**31 - 1),
-                   st.one_of(st.integers(0, 999_999_999), st.integers(0, 2**32 - 1)))
+                   st.one_of(st.integers(0, 999_999_999), st.integers(0, 2**32 - 1),
+                             st.sampled_from([10**9, 2**32 - 1])))
 #: sequence (uint64).
 sequences = st.one_of(st.integers(0, 100), st.integers(0, 2**64 - 1))
 

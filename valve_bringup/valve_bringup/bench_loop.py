@@ -65,13 +65,14 @@ def record_bench_step(record: BenchRecord, bag: Path, effect_args: tuple[str, ..
     from rclpy.executors import SingleThreadedExecutor
 
     from valve_bringup.backend import can_backend_processes
+    from valve_model_pkg.interface import TOPIC_DUTY_COMMAND, TOPIC_STATE
     from valve_model_pkg.nodes.probe import StateProbe
 
     emulator_args = ('--no-current-control', '--no-capacitor',
                      '--supply-voltage-v', f'{record.supply_voltage_v:g}',
                      '--supply-pressure-pa', f'{supply_pressure_pa:g}', *effect_args)
     specs = can_backend_processes(rate_hz=1000.0, emulator_args=emulator_args) + [
-        ProcessSpec('valve_recorder', ['valve_recorder', 'valve/state', 'valve/duty_command',
+        ProcessSpec('valve_recorder', ['valve_recorder', TOPIC_STATE, TOPIC_DUTY_COMMAND,
                                        '-o', str(bag)])]
     with Supervisor() as sup:
         for spec in specs:

@@ -23,6 +23,8 @@ __all__ = ['main']
 
 
 def _parser() -> argparse.ArgumentParser:
+    from valve_model_pkg.interface import TOPIC_STATE
+
     p = argparse.ArgumentParser(
         prog='valve_identify',
         description='Identify the valve parameters from measured current (paper Section 4), '
@@ -39,7 +41,7 @@ def _parser() -> argparse.ArgumentParser:
                         'warning (values beyond the numerically safe range are refused '
                         'anyway)')
     p.add_argument('-o', '--out', required=True, metavar='DIR', help='output directory')
-    p.add_argument('--topic', default='/valve/state', help='valve state topic in bags')
+    p.add_argument('--topic', default='/' + TOPIC_STATE, help='valve state topic in bags')
     p.add_argument('--valve', default=None, help='frame_id of the valve in multi-valve bags')
     p.add_argument('--no-diagnosis', action='store_true',
                    help='stop after the baseline fit (no effect search)')

@@ -20,7 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from valve_model_pkg.interface import ATMOSPHERIC_PRESSURE_PA
+from valve_model_pkg.interface import (ATMOSPHERIC_PRESSURE_PA, TOPIC_DUTY_COMMAND,
+                                       TOPIC_FLOW_COMMAND, TOPIC_JOINT_STATES,
+                                       TOPIC_OUTPUT_PRESSURE, TOPIC_POSITION_SETPOINT,
+                                       TOPIC_STATE)
 from valve_model_pkg.recording import load_bag, sequence_gaps
 from valve_model_pkg.recording.errors import RecordingError
 
@@ -118,9 +121,9 @@ def write_report(bag: Path, out: Path, title: str = 'valve suite run') -> Path:
     """Write ``out/report.md`` and its plots from ``bag``; returns the report path."""
     data = load_bag(bag)
     out.mkdir(parents=True, exist_ok=True)
-    state = data.get('/valve/state')
+    state = data.get('/' + TOPIC_STATE)
     if state is None or len(state) == 0:
-        raise ValueError(f'{bag}: no /valve/state messages; is it a bag of the suite?')
+        raise ValueError(f'{bag}: no /{TOPIC_STATE} messages; is it a bag of the suite?')
     origin = int(state.stamp_ns[0])
     ts = _times(state, origin)
     lines = [f'# {title}', '', f'Bag: `{bag}`', '']
@@ -139,8 +142,8 @@ def write_report(bag: Path, out: Path, title: str = 'valve suite run') -> Path:
     lines.append('')
 
     # --- position steps ---------------------------------------------------------------
-    joints = data.get('/cylinder/joint_states')
-    setp = data.get('/cylinder/position_setpoint')
+    joints = data.get('/' + TOPIC_JOINT_STATES)
+    setp = data.get('/' + TOPIC_POSITION_SETPOINT)
     plots: list[tuple[str, list[tuple]]] = []
     if joints is not None and len(joints):
         tj = _times(joints, origin)
@@ -163,13 +166,13 @@ def write_report(bag: Path, out: Path, title: str = 'valve suite run') -> Path:
                              f'{s.steady_error_m * 1e3:+.2f} |')
             lines.append('')
         plots.append(('position [mm]', pos_lines))
-    pressure = data.get('/valve/output_pressure')
+    pressure = data.get('/' + TOPIC_OUTPUT_PRESSURE)
     if pressure is not None and len(pressure):
         plots.append(('chamber pressure\n[bar gauge]', [
             (_times(pressure, origin),
              (pressure['fluid_pressure'] - ATMOSPHERIC_PRESSURE_PA) / 1e5, 'chamber', '-')]))
     flow_lines = []
-    flow_cmd = data.get('/valve/flow_command')
+    flow_cmd = data.get('/' + TOPIC_FLOW_COMMAND)
     if flow_cmd is not None and len(flow_cmd):
         flow_lines.append((_times(flow_cmd, origin), flow_cmd['mass_flow'] * 1e3,
                            'commanded', '-'))
@@ -177,7 +180,7 @@ def write_report(bag: Path, out: Path, title: str = 'valve suite run') -> Path:
                        'achieved (valve/state, 20 ms mean)', '-'))
     plots.append(('mass flow [g/s]', flow_lines))
     duty_lines = [(ts, state['duty'] * 100.0, 'in force (valve/state)', '-')]
-    duty_cmd = data.get('/valve/duty_command')
+    duty_cmd = data.get('/' + TOPIC_DUTY_COMMAND)
     if duty_cmd is not None and len(duty_cmd):
         duty_lines.insert(0, (_times(duty_cmd, origin), duty_cmd['duty'] * 100.0,
                               'commanded', '.'))

@@ -11,20 +11,42 @@ limits before numba and numpy start their thread pools.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import tempfile
 import time
 import traceback
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
-__all__ = ['init_worker', 'limit_threads', 'run_valve']
+__all__ = ['init_worker', 'limit_threads', 'run_valve', 'single_thread_env']
 
 #: thread-pool sizes of the numeric libraries: one valve uses one core of its worker, so N
 #: workers keep to N cores instead of N x cores threads fighting over them
 _THREAD_ENV = ('NUMBA_NUM_THREADS', 'OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS',
                'MKL_NUM_THREADS')
+
+
+@contextlib.contextmanager
+def single_thread_env() -> Iterator[None]:
+    """While active, processes started by this one inherit the one-thread limits.
+
+    A spawned worker imports numpy (and with it BLAS) while it unpickles its first task,
+    before any initializer could set the limits; the inherited environment is in force
+    from its first instruction. This process's own libraries are already loaded and keep
+    their sizes; the variables are restored on exit.
+    """
+    saved = {name: os.environ.get(name) for name in _THREAD_ENV}
+    os.environ.update({name: '1' for name in _THREAD_ENV})
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def limit_threads() -> None:

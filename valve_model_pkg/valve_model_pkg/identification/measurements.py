@@ -28,6 +28,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from valve_model_pkg import dataformat
+from valve_model_pkg.interface import TOPIC_STATE
 
 from .errors import MeasurementFormatError
 
@@ -339,7 +340,7 @@ def _valve_typestore(connection: object) -> object:
     return store
 
 
-def read_bag(path: str | Path, *, topic: str = '/valve/state',
+def read_bag(path: str | Path, *, topic: str = '/' + TOPIC_STATE,
              valve: str | None = None) -> Measurement:
     """Read the valve state stream of a rosbag2 bag recorded from the suite.
 
@@ -497,7 +498,7 @@ def _bag_records_to_measurement(spath: str, topic: str, valve: str | None,
         notes=tuple(notes), n_missing_values=n_missing, n_gaps=n_gaps)
 
 
-def read_measurements(paths: Iterable[str | Path], *, topic: str = '/valve/state',
+def read_measurements(paths: Iterable[str | Path], *, topic: str = '/' + TOPIC_STATE,
                       valve: str | None = None) -> list[Measurement]:
     """Read CSV files and bag directories (chosen by what each path is).
 

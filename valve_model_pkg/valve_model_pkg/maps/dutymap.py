@@ -50,6 +50,7 @@ from typing import Any
 
 import numpy as np
 
+from ..model.constants import ATMOSPHERIC_PRESSURE_PA
 from .curves import DEFAULT_STOP_TOLERANCE, CurveFeatures, curve_features
 from .errors import MapFormatError, MapParameterMismatchError
 
@@ -629,7 +630,7 @@ def _check_grid(d: np.ndarray, p: np.ndarray, f: np.ndarray) -> None:
     if d.size < 2 or abs(d[0]) > 1e-12 or abs(d[-1] - 1.0) > 1e-12:
         raise ValueError(f'duty must run from 0 to 1 with at least 2 points, got '
                          f'{d.size} points from {d[0]:g} to {d[-1]:g}')
-    if p[0] < -101_325.0:
+    if p[0] < -ATMOSPHERIC_PRESSURE_PA:
         raise ValueError(f'supply pressure below vacuum: {p[0]:g} Pa gauge')
     if f[0] <= 0.0:
         raise ValueError(f'PWM frequencies must be positive, got {f[0]:g} Hz')

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from ..model.constants import ATMOSPHERIC_PRESSURE_PA
 from .curves import monotone_envelope
 from .dutymap import DutyMap
 
@@ -45,7 +46,6 @@ __all__ = ['ATMOSPHERIC_PRESSURE_PA', 'FlowStatus', 'FlowToDutyResult', 'Orifice
            'FlowToDutyInverter', 'flow_per_opening', 'invalid_flow_reason']
 
 #: Standard atmosphere [Pa], added to gauge pressures for eq. (12).
-ATMOSPHERIC_PRESSURE_PA = 101_325.0
 #: Relative slack before a demand counts as above the largest reachable opening.
 _SATURATION_SLACK = 1e-9
 

@@ -15,6 +15,7 @@ dependency beyond rosbags.
 from __future__ import annotations
 
 import logging
+import mmap
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -96,6 +97,10 @@ class ScanReport:
     messages: int = 0           #: messages yielded
     profile: str = ''
     library: str = ''
+    #: Damaged parts passed over (a chunk failing its CRC or decompression, or garbage up
+    #: to the next intact chunk), one description each with offset and reason.
+    skipped: list[str] = field(default_factory=list)
+    skipped_bytes: int = 0      #: bytes of the damaged parts passed over
 
     @property
     def discarded_bytes(self) -> int:
@@ -212,6 +217,41 @@ class McapScanner:
     def _stop(self, reason: str) -> None:
         self.report.stop_reason = reason
 
+    def _skip(self, offset: int, length: int, reason: str) -> None:
+        rep = self.report
+        rep.skipped.append(f'{length} bytes at offset {offset}: {reason}')
+        rep.skipped_bytes += length
+        _LOG.warning('%s: skipped %d damaged bytes at offset %d (%s)', self.path, length,
+                     offset, reason)
+
+    def _resync(self, f: BinaryIO, start: int) -> tuple[int, int, list] | None:
+        """The next intact chunk after ``start``: (offset, record length, its records).
+
+        A chunk is taken only when it decodes and its size (and CRC, when the writer set
+        one) check out, so a chance 0x06 byte in damaged data is not mistaken for one.
+        """
+        size = self.report.size_bytes
+        if size <= start + 1:
+            return None
+        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            pos = start + 1
+            while True:
+                idx = mm.find(bytes([_OP_CHUNK]), pos)
+                if idx < 0 or idx + _REC_HEAD.size > size:
+                    return None
+                pos = idx + 1
+                _, length = _REC_HEAD.unpack_from(mm, idx)
+                body_start = idx + _REC_HEAD.size
+                if length < _CHUNK_HEAD.size + 12 or body_start + length > size:
+                    continue
+                try:
+                    records = self._decode(_OP_CHUNK, memoryview(mm[body_start:
+                                                                    body_start + length]))
+                except (ValueError, struct.error, UnicodeDecodeError, ReaderError,
+                        MemoryError, OverflowError):
+                    continue
+                return idx, length, records
+
     def _records(self, f: BinaryIO) -> Iterator[McapSchema | McapChannel | McapMessage]:
         rep = self.report
         while True:
@@ -224,15 +264,27 @@ class McapScanner:
                 self._stop(f'record header at offset {offset} is cut off')
                 return
             op, length = _REC_HEAD.unpack(head)
-            if op not in _KNOWN_OPS or length > _MAX_RECORD:
-                self._stop(f'no valid record at offset {offset} (opcode 0x{op:02x}, '
-                           f'length {length}); garbage or zero-filled tail')
-                return
             left = rep.size_bytes - offset - _REC_HEAD.size
-            if length > left:
-                self._stop(f'record 0x{op:02x} at offset {offset} is cut off: {length} bytes '
+            problem = ''
+            if op not in _KNOWN_OPS or length > _MAX_RECORD:
+                problem = (f'no valid record at offset {offset} (opcode 0x{op:02x}, '
+                           f'length {length}); garbage or zero-filled tail')
+            elif length > left:
+                problem = (f'record 0x{op:02x} at offset {offset} is cut off: {length} bytes '
                            f'announced, {left} present')
-                return
+            if problem:
+                # A cut-off tail, or damage in the middle: an intact chunk further on
+                # tells the two apart; its records are kept and the damage skipped.
+                found = self._resync(f, offset)
+                if found is None:
+                    self._stop(problem)
+                    return
+                idx, length, records = found
+                self._skip(offset, idx - offset, problem)
+                f.seek(idx + _REC_HEAD.size + length)
+                rep.valid_bytes = f.tell()
+                yield from self._count(records)
+                continue
             if op == _OP_FOOTER:
                 rep.valid_bytes = rep.size_bytes
                 rep.complete = True
@@ -248,14 +300,25 @@ class McapScanner:
             rec = memoryview(f.read(length))
             try:
                 records = self._decode(op, rec)
-            except (ValueError, struct.error, UnicodeDecodeError, ReaderError) as err:
-                self._stop(f'record 0x{op:02x} at offset {offset} is damaged: {err}')
-                return
+            except (ValueError, struct.error, UnicodeDecodeError, ReaderError,
+                    OverflowError) as err:
+                if op == _OP_HEADER:
+                    self._stop(f'record 0x{op:02x} at offset {offset} is damaged: {err}')
+                    return
+                # the record's length is intact (the next record header is where it says):
+                # skip this record and go on with the next
+                self._skip(offset, _REC_HEAD.size + length,
+                           f'record 0x{op:02x} is damaged: {err}')
+                rep.valid_bytes = offset + _REC_HEAD.size + length
+                continue
             rep.valid_bytes = offset + _REC_HEAD.size + length
-            for r in records:
-                if isinstance(r, McapMessage):
-                    rep.messages += 1
-                yield r
+            yield from self._count(records)
+
+    def _count(self, records: list) -> Iterator[McapSchema | McapChannel | McapMessage]:
+        for r in records:
+            if isinstance(r, McapMessage):
+                self.report.messages += 1
+            yield r
 
     def _decode(self, op: int, rec: memoryview) -> list:
         if op == _OP_HEADER:
@@ -359,6 +422,10 @@ class RecoveryReport:
         if self.messages:
             lines.append(f'time span {(self.last_ns - self.first_ns) * 1e-9:.3f} s')
         lines += [f'  {t}: {n}' for t, n in sorted(self.counts.items())]
+        if s.skipped:
+            lines.append(f'skipped {len(s.skipped)} damaged parts ({s.skipped_bytes} bytes); '
+                         'every intact chunk around them is kept:')
+            lines += [f'  skipped {d}' for d in s.skipped]
         if self.orphans:
             lines.append(f'{self.orphans} messages of unknown channels dropped')
         return '\n'.join(lines)
