@@ -392,3 +392,28 @@ def test_two_drivers_on_one_node_id_both_report_a_second_host(start_node, ros) -
                  'second-host ERROR from both drivers')
     assert 'another host (host id 2)' in seen[names[0]].message
     assert 'another host (host id 1)' in seen[names[1]].message
+
+
+def test_stale_and_lost_duty_commands_are_counted(start_node, ros) -> None:
+    port = free_loopback_port()
+    commands = can_backend_commands(1000.0, port=port, command_timeout_s=0.0)
+    start_emulator(start_node, port)
+    start_node(*commands['valve_can_driver'])
+    client = ros.add(Client())
+    ros.wait_for(lambda: client.level('commands') == 0, 30.0, 'driver active')
+    old = DutyCommand()
+    stamp = client.get_clock().now().nanoseconds - 500_000_000      # issued 0.5 s ago
+    old.header.stamp.sec, old.header.stamp.nanosec = divmod(stamp, 10**9)
+    old.duty, old.pwm_frequency = 0.3, 50.0
+    client.duty_pub.publish(old)
+    ros.wait_for(lambda: int(client.value('commands', 'stale_commands')) >= 1, 10.0,
+                 'stale command counted')
+    assert float(client.value('commands', 'max_command_age_s')) >= 0.5
+    if not hasattr(DutyCommand(), 'sequence'):
+        pytest.skip('DutyCommand has no sequence field in this build')
+    for seq in (1, 2, 5):
+        msg = DutyCommand(duty=0.2, pwm_frequency=50.0, sequence=seq)
+        msg.header.frame_id = 'test_commander'
+        client.duty_pub.publish(msg)
+    ros.wait_for(lambda: client.value('commands', 'commands_lost') == '2', 10.0,
+                 'two lost commands counted')

@@ -88,9 +88,9 @@ def test_a_small_binary_file_is_refused_at_its_first_bytes(tmp_path: Path) -> No
 
 
 def test_streaming_read_keeps_memory_near_the_data(tmp_path: Path) -> None:
-    """200 000 rows are read into float arrays, not held as text or Python objects."""
+    """50 000 rows are read into float arrays, not held as text or Python objects."""
     import tracemalloc
-    n = 200_000
+    n = 50_000
     path = _write(tmp_path, HEAD + _rows(n, current=lambda k: 0.5))
     size = path.stat().st_size
     tracemalloc.start()
@@ -100,7 +100,7 @@ def test_streaming_read_keeps_memory_near_the_data(tmp_path: Path) -> None:
     assert rec.t_s.size == n
     # the parsed columns (t, voltage, current, line numbers: 32 B a row) plus a bounded
     # overhead; reading the whole text into Python objects took about 20 x the file size
-    assert peak < 32 * n + size // 2 + (8 << 20), peak
+    assert peak < 32 * n + (4 << 20), (peak, size)
 
 
 def test_time_in_ms_is_refused_naming_line_spacing_and_expected(tmp_path: Path) -> None:
@@ -144,7 +144,7 @@ def test_limits_on_lines_columns_and_rows(tmp_path: Path, monkeypatch) -> None:
     with pytest.raises(DataFormatError, match='longer than'):
         read_record(wide)
     many = _write(tmp_path, ','.join(f'c{i}' for i in range(2000)) + '\n', 'many.csv')
-    with pytest.raises(DataFormatError, match='2001 columns'):
+    with pytest.raises(DataFormatError, match='2000 columns'):
         read_record(many)
     from valve_model_pkg.dataformat import csv as csv_module
     monkeypatch.setattr(csv_module, 'MAX_ROWS', 30)

@@ -31,27 +31,33 @@ _REOPEN_TIMEOUT_S = 0.2
 _priority_noted: set[str] = set()
 
 
-def raise_thread_priority(nice: int, what: str) -> bool:
-    """Give the calling thread the nice value ``nice`` (Linux: per thread); quiet fallback.
+def raise_thread_priority(nice: int, what: str, realtime: int = 0) -> bool:
+    """Raise the calling thread's priority (Linux: per thread); quiet fallback.
 
-    Lowering a nice value below 0 needs CAP_SYS_NICE (root, or ``ulimit -e``); without it
+    ``realtime`` > 0 asks for SCHED_FIFO at that priority, else the nice value ``nice``.
+    Both need CAP_SYS_NICE below the defaults (root, or ``ulimit -e`` / ``-r``); without it
     the thread keeps its priority and one INFO line says so (per kind of thread).
 
     Returns
     -------
     bool
-        True if the nice value was set.
+        True if the priority was changed.
     """
-    if nice == 0 or not hasattr(os, 'setpriority'):
-        return False
+    tid = threading.get_native_id()
     try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)
+        if realtime > 0 and hasattr(os, 'sched_setscheduler'):
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(realtime))
+            return True
+        if nice == 0 or not hasattr(os, 'setpriority'):
+            return False
+        os.setpriority(os.PRIO_PROCESS, tid, nice)
         return True
-    except (OSError, PermissionError) as err:
+    except OSError as err:
         if what not in _priority_noted:
             _priority_noted.add(what)
-            logger.info('CAN %s thread keeps its priority (nice %d not permitted: %s)', what,
-                        nice, err.strerror or err)
+            logger.info('CAN %s thread keeps its priority (%s not permitted: %s)', what,
+                        f'SCHED_FIFO {realtime}' if realtime > 0 else f'nice {nice}',
+                        err.strerror or err)
         return False
 
 
@@ -65,7 +71,7 @@ class _Listener(can.Listener):
     def on_message_received(self, msg: can.Message) -> None:
         if self._thread_id != threading.get_native_id():   # first frame on this thread
             self._thread_id = threading.get_native_id()
-            raise_thread_priority(self._link.nice, 'receive')
+            raise_thread_priority(self._link.nice, 'receive', self._link.realtime)
         self._link._deliver(msg)
 
     def on_error(self, exc: Exception) -> None:
@@ -112,6 +118,7 @@ class BusLink:
         self.condition = BusCondition.ERROR_ACTIVE
         self.last_error_frame = ''
         self.nice = config.io_nice
+        self.realtime = config.io_realtime_priority
 
     # --- open / close (caller's thread or the I/O thread) ------------------------------------
     def open(self, connect_timeout: float | None = None) -> None:

@@ -96,6 +96,9 @@ class DriverConfig:
                                      'counted as stale [s]', 0.001, 10.0)
     io_nice: int = setting(-10, 'Nice value of the driver\'s bus I/O threads (Linux, needs '
                            'CAP_SYS_NICE to go below 0); 0 = leave as is', -20, 19)
+    io_realtime_priority: int = setting(0, 'SCHED_FIFO priority of the bus I/O threads '
+                                        '(Linux, needs CAP_SYS_NICE); 0 = off (then io_nice '
+                                        'applies)', 0, 99)
     supply_pressure_pa: float = setting(400_000.0, 'Supply pressure, gauge [Pa], until '
                                         'valve/supply_pressure is received', 0.0, 1.0e6)
     output_pressure_pa: float = setting(0.0, 'Output port pressure, gauge [Pa], until '

@@ -300,7 +300,8 @@ class CanDriverCore:
 
     # --- I/O thread --------------------------------------------------------------------------
     def _io_loop(self) -> None:
-        self.io_priority_raised = raise_thread_priority(self.config.io_nice, 'I/O')
+        self.io_priority_raised = raise_thread_priority(
+            self.config.io_nice, 'I/O', self.config.io_realtime_priority)
         next_level_check = 0.0
         while not self._stop.is_set():
             try:

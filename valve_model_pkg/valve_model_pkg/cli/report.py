@@ -14,6 +14,7 @@ naming it), 1 a failure inside (writing the report).
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -222,16 +223,42 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--title', default='valve suite run')
     args = parser.parse_args(argv)
     out = args.out or args.bag.with_name(args.bag.name + '_report')
+    # The reader's warnings (a killed or damaged bag read as far as it goes) are held back:
+    # printed after a written report, dropped when the bag is refused (one line then).
+    held = _HeldWarnings()
+    recording_log = logging.getLogger('valve_model_pkg.recording')
+    recording_log.addHandler(held)
+    propagate, recording_log.propagate = recording_log.propagate, False
     try:
         report = write_report(args.bag, out, args.title)
     except (RecordingError, ValueError) as err:  # the bag: refused input
-        print(f'valve_report: error: {err}', file=sys.stderr)
+        print(f'valve_report: error: {_one_line(err)}', file=sys.stderr)
         return 2
     except OSError as err:  # writing the report
-        print(f'valve_report: error: {err}', file=sys.stderr)
+        print(f'valve_report: error: {_one_line(err)}', file=sys.stderr)
         return 1
+    finally:
+        recording_log.removeHandler(held)
+        recording_log.propagate = propagate
+    for message in held.messages:
+        print(f'valve_report: warning: {message}', file=sys.stderr)
     print(f'valve_report: wrote {report}')
     return 0
+
+
+class _HeldWarnings(logging.Handler):
+    """Keeps the warnings of the bag reader until the outcome is known."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(_one_line(record.getMessage()))
+
+
+def _one_line(text: object) -> str:
+    return ' '.join(str(text).split())
 
 
 if __name__ == '__main__':

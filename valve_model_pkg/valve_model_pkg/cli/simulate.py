@@ -282,8 +282,10 @@ def main(argv: list[str] | None = None) -> int:
         # raised before this, carry the usage as well)
         print(f'valve_simulate: error: {err}', file=sys.stderr)
         return 2
-    except OSError as err:
-        print(f'valve_simulate: error: {err}', file=sys.stderr)
+    except (OSError, ArithmeticError) as err:
+        # writing the file, or the model failing on accepted (--allow-implausible) values
+        print(f'valve_simulate: error: {type(err).__name__}: {err}' if isinstance(
+            err, ArithmeticError) else f'valve_simulate: error: {err}', file=sys.stderr)
         return 1
 
 

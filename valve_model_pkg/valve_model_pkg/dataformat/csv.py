@@ -369,8 +369,7 @@ def _lines(path: str | os.PathLike[str], skip: int = 0) -> Iterator[tuple[int, s
             lineno += 1
             if lineno <= skip:
                 continue
-            if len(raw) > MAX_LINE_CHARS + 1 or (len(raw) == MAX_LINE_CHARS + 2
-                                                  and not raw.endswith(b'\n')):
+            if len(raw) == MAX_LINE_CHARS + 2 and not raw.endswith(b'\n'):
                 raise DataFormatError(spath, lineno, f'is longer than {MAX_LINE_CHARS} '
                                       'characters (not a file of the format)')
             if b'\x00' in raw:

@@ -15,6 +15,7 @@ import contextlib
 import os
 import signal
 import tempfile
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -77,6 +78,16 @@ def init_worker() -> None:
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     limit_threads()
+    # A main process killed outright (SIGKILL, OOM) cannot end its pool; the workers would
+    # stay, idle or finishing a valve no one saves. They go when their parent goes.
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, name='parent-watch', daemon=True).start()
 
 
 def _first_line(err: BaseException) -> str:
