@@ -73,7 +73,19 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``valve_identify_batch``."""
     args = _parser().parse_args(argv)
-    from ..fleet import THRESHOLD, ManifestError, StoreBusyError, read_manifest, run_fleet
+    try:
+        return _main(args)
+    except KeyboardInterrupt:
+        # Whatever was interrupted: the finished valves are saved whole (atomic renames).
+        done = len(list(Path(args.out).glob('valves/*/report.json')))
+        print(f'{PROG}: interrupted; {done} valves finished in {args.out}/valves; '
+              'rerun the same command to go on', file=sys.stderr)
+        return 130
+
+
+def _main(args: argparse.Namespace) -> int:
+    from ..fleet import (THRESHOLD, ManifestError, SchedulerError, StoreBusyError, read_manifest,
+                         run_fleet)
 
     start = time.perf_counter()
 
@@ -117,20 +129,15 @@ def main(argv: list[str] | None = None) -> int:
         res = run_fleet(jobs, str(out), workers=args.workers, scheduler=args.scheduler,
                         resume=args.resume, threshold=threshold, progress=say,
                         show=not args.quiet)
-    except KeyboardInterrupt:
-        done = sum(1 for j in jobs if (out / 'valves' / j.valve_id / 'report.json').exists())
-        print(f'{PROG}: interrupted; {done} of {len(jobs)} valves finished in {out}/valves; '
-              'rerun the same command to go on', file=sys.stderr)
-        return 130
     except StoreBusyError as err:
         return refuse(str(err))
     except ImportError as err:
         print(f'{PROG}: error: {err.name or err}: not installed; {out}/fleet.csv written, '
               'fleet.parquet not (pip install -r requirements/python.txt)', file=sys.stderr)
         return 1
+    except SchedulerError as err:
+        return refuse(str(err))
     except OSError as err:
-        if args.scheduler is not None and 'connect' in str(err).lower():
-            return refuse(f'--scheduler {args.scheduler}: cannot reach the scheduler ({err})')
         print(f'{PROG}: error: {err}', file=sys.stderr)
         return 1
     flagged = [r['valve_id'] for r in res.rows if r.get('outlier') == 'yes']

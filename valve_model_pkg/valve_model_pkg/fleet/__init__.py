@@ -8,9 +8,10 @@ docs/fleet.md the user's guide.
 """
 from .manifest import ManifestError, ValveJob, read_manifest
 from .outliers import MIN_VALVES, THRESHOLD, OutlierVerdict, flag_outliers, robust_z
-from .runner import FleetResult, default_workers, run_fleet
+from .runner import FleetResult, SchedulerError, default_workers, run_fleet
 from .store import FleetStore, StoreBusyError
 
 __all__ = ['ManifestError', 'ValveJob', 'read_manifest', 'MIN_VALVES', 'THRESHOLD',
-           'OutlierVerdict', 'flag_outliers', 'robust_z', 'FleetResult', 'default_workers',
+           'OutlierVerdict', 'flag_outliers', 'robust_z', 'FleetResult', 'SchedulerError',
+           'default_workers',
            'run_fleet', 'FleetStore', 'StoreBusyError']

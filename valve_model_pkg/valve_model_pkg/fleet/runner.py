@@ -21,7 +21,11 @@ from .store import FleetStore
 from .table import failed_row, fleet_rows, valve_row, write_table
 from .worker import init_worker, run_valve, single_thread_env
 
-__all__ = ['FleetResult', 'default_workers', 'run_fleet']
+__all__ = ['FleetResult', 'SchedulerError', 'default_workers', 'run_fleet']
+
+
+class SchedulerError(ConnectionError):
+    """The Dask scheduler cannot be reached (bad or dead address)."""
 
 
 def default_workers() -> int:
@@ -121,11 +125,10 @@ def _local(jobs: Sequence[ValveJob], workers: int) -> Iterator[tuple[ValveJob, d
     pool.shutdown(wait=True)
 
 
-def _dask(jobs: Sequence[ValveJob], address: str) -> Iterator[tuple[ValveJob, dict]]:
-    """Results of a Dask cluster, as they finish."""
-    from distributed import Client, as_completed
+def _dask(jobs: Sequence[ValveJob], client: Any) -> Iterator[tuple[ValveJob, dict]]:
+    """Results of a Dask cluster (``distributed.Client``), as they finish."""
+    from distributed import as_completed
 
-    client = Client(address, timeout='15s')
     futures = {}
     try:
         for job in jobs:
@@ -146,7 +149,6 @@ def _dask(jobs: Sequence[ValveJob], address: str) -> Iterator[tuple[ValveJob, di
     finally:
         # On Ctrl-C the cluster stops working on this run's valves; it keeps running.
         client.cancel([f for f, _ in futures.values()], force=True)
-        client.close()
 
 
 def run_fleet(jobs: Sequence[ValveJob], out_dir: str, *, workers: int | None = None,
@@ -191,6 +193,28 @@ def run_fleet(jobs: Sequence[ValveJob], out_dir: str, *, workers: int | None = N
     """
     say = progress or (lambda s: None)
     start = time.perf_counter()
+    client = None
+    if scheduler:
+        from distributed import Client
+
+        # Connected before anything is written: an unreachable scheduler leaves no trace.
+        try:
+            client = Client(scheduler, timeout='15s')
+        except (OSError, ValueError, TypeError) as err:
+            raise SchedulerError(f'--scheduler {scheduler}: cannot reach the Dask scheduler '
+                                 f'({err})') from None
+    try:
+        return _run(jobs, out_dir, workers, client, scheduler, resume, threshold, min_valves,
+                    say, show, parquet, start)
+    finally:
+        if client is not None:
+            client.close()
+
+
+def _run(jobs: Sequence[ValveJob], out_dir: str, workers: int | None, client: Any,
+         scheduler: str | None, resume: bool, threshold: float, min_valves: int,
+         say: Callable[[str], None], show: bool, parquet: bool, start: float
+         ) -> FleetResult:
     res = FleetResult()
     rows: dict[str, dict[str, Any]] = {}
     with FleetStore(out_dir) as store:
@@ -211,7 +235,7 @@ def run_fleet(jobs: Sequence[ValveJob], out_dir: str, *, workers: int | None = N
         if todo:
             say(f'identifying {len(todo)} valves on {where}')
         bar = _Progress(len(todo), say, show)
-        stream = (_dask(todo, scheduler) if scheduler
+        stream = (_dask(todo, client) if client is not None
                   else _local(todo, min(workers or default_workers(), max(1, len(todo)))))
         try:
             for job, result in (stream if todo else ()):

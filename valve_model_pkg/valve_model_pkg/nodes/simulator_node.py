@@ -36,7 +36,7 @@ from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_model_pkg.model import ElectronicsConfig, ValveStepper, default_parameters_path, \
     load_parameters
-from valve_model_pkg.interface.ros import state_message
+from valve_model_pkg.interface.ros import forward_logging, state_message
 from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS
 # The accepted PWM frequencies: one pair for simulator, CAN driver and DBC.
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
@@ -91,7 +91,14 @@ class ValveSimulatorNode(Node):
                                     'Period of the diagnostics summary [s]', 0.05, 60.0)
 
         path = params_file or str(default_parameters_path())
-        self._params = load_parameters(path)  # refuses a bad file with the field and value
+        allow_implausible = declare_bool(
+            self, 'allow_implausible', False,
+            'Accept parameter values outside their plausible ranges, with a warning (values '
+            'beyond the numerically safe range are refused anyway)')
+        # the loader warns through logging: show it in this node's log and /rosout
+        forward_logging(self, 'valve_model_pkg.model.parameters')
+        # refuses a bad file naming the file, key and value
+        self._params = load_parameters(path, allow_implausible=allow_implausible)
         electronics = dataclasses.replace(ElectronicsConfig(), current_control=current_control,
                                           negative_voltage=capacitor)
         # Load (or compile) the model's kernel before the clock starts: the first call can
