@@ -28,7 +28,9 @@ def test_robust_z_is_the_modified_z_score_and_ignores_nan() -> None:
 def test_one_valve_far_off_is_flagged_with_the_parameter_and_its_z() -> None:
     rng = np.random.default_rng(3)
     n = 12
-    values = {p: list(1.0 + 0.02 * rng.standard_normal(n)) for p in PARAMS}
+    # Each parameter spread evenly over +-2 % (shuffled), the fleet's ordinary scatter.
+    values = {p: list(1.0 + 0.02 * rng.permutation(np.linspace(-1.0, 1.0, n)))
+              for p in PARAMS}
     values['stroke_m'][7] = 1.5            # 50 % off, the rest within a few %
     verdicts = flag_outliers(values)
     assert [v.flag for v in verdicts].count('yes') == 1

@@ -36,8 +36,7 @@ from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_model_pkg.model import ElectronicsConfig, ValveStepper, default_parameters_path, \
     load_parameters
-from valve_model_pkg.interface.ros import forward_logging, state_message
-from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS
+from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS, forward_logging, state_message
 # The accepted PWM frequencies: one pair for simulator, CAN driver and DBC.
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
 from valve_model_pkg.nodes.inputs import (InputGuard, SequenceTracker, pressure_reason,
