@@ -212,7 +212,9 @@ def test_checksum_failures_are_rejected_and_counted(live) -> None:
 def test_frozen_counter_is_an_error(live) -> None:
     live.emu.inject(EmulatorFault.FREEZE_COUNTER)
     wait_for(lambda: live.core.counters['rejected_counter_frozen'] >= 3, what='frozen frames')
-    wait_for(lambda: 'frozen' in live.status('telemetry').message, what='frozen message')
+    # The WARN before the limit also names 'counter_frozen': wait for the ERROR itself.
+    wait_for(lambda: 'counter frozen at' in live.status('telemetry').message,
+             what='frozen message')
     assert live.level('telemetry') is Level.ERROR
     live.emu.inject(EmulatorFault.FREEZE_COUNTER, active=False)
     wait_for(lambda: live.level('telemetry') is not Level.ERROR, what='recovery')
