@@ -29,6 +29,7 @@ setup(
         'console_scripts': [
             # ROS 2 nodes
             'valve_simulator = valve_model_pkg.nodes.simulator_node:main',
+            'valve_lockstep_sim = valve_model_pkg.nodes.lockstep_sim_node:main',
             'flow_to_duty = valve_model_pkg.nodes.flow_to_duty_node:main',
             'pneumatic_cylinder = valve_model_pkg.nodes.cylinder_node:main',
             'position_controller = valve_model_pkg.nodes.position_controller_node:main',
@@ -38,6 +39,7 @@ setup(
             'valve_map = valve_model_pkg.cli.map:main',
             'valve_flow_check = valve_model_pkg.cli.flow_check:main',
             'valve_identify = valve_model_pkg.cli.identify:main',
+            'valve_identify_batch = valve_model_pkg.cli.identify_batch:main',
             'valve_report = valve_model_pkg.cli.report:main',
             # valve_demo and valve_bench_loop start the whole suite: package valve_bringup
         ],

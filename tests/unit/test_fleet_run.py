@@ -123,11 +123,55 @@ def test_dask_local_cluster(manifest: Path, tmp_path: Path,
 
 
 def test_an_unreachable_scheduler_is_refused_and_nothing_written(
-        manifest: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+        manifest: Path, tmp_path: Path, capsys: pytest.CaptureFixture,
+        monkeypatch: pytest.MonkeyPatch) -> None:
     pytest.importorskip('distributed')
+    from valve_model_pkg.fleet import runner
+    monkeypatch.setattr(runner, 'CONNECT_TIMEOUT_S', 1.0)
     out = tmp_path / 'out'
     assert main([str(manifest), '-o', str(out), '--scheduler', 'tcp://127.0.0.1:9',
                  '--quiet']) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith('valve_identify_batch: error: --scheduler')
     assert not out.exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('sig', ['SIGINT', 'SIGKILL'])
+def test_an_interrupted_run_resumes_with_the_same_command(manifest: Path, tmp_path: Path,
+                                                          sig: str) -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from suite_paths import REPO_ROOT
+
+    out = tmp_path / 'out'
+    cmd = [sys.executable, '-m', 'valve_model_pkg.cli.identify_batch', str(manifest), '-o',
+           str(out), *OPTS]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(REPO_ROOT / 'valve_model_pkg'), os.environ.get('PYTHONPATH', '')]))
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+                            env=env, start_new_session=True)   # own group, as a terminal has
+    deadline = time.monotonic() + 120
+    while not list(out.glob('valves/V0*/report.json')) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert list(out.glob('valves/V0*/report.json')), 'no valve finished in 120 s'
+    if sig == 'SIGINT':
+        os.killpg(proc.pid, signal.SIGINT)                 # Ctrl-C reaches the whole group
+    else:
+        os.kill(proc.pid, signal.SIGKILL)                  # the main process only
+    _, err = proc.communicate(timeout=60)   # returns once the workers let go of stderr too
+    finished = sorted(p.parent.name for p in out.glob('valves/*/report.json'))
+    if sig == 'SIGINT':
+        assert proc.returncode == 130, err
+        assert 'Traceback' not in err and 'interrupted' in err.splitlines()[-1]
+        assert not list((out / 'valves').glob('.*'))       # no half-written valve
+    rerun = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    assert rerun.returncode == 1, rerun.stderr               # V05 still malformed
+    kept = len(finished)
+    assert (f'resume: {kept} of 5 valves finished earlier, kept; {5 - kept} to identify'
+            in rerun.stderr)
+    _check_table(out)

@@ -24,6 +24,10 @@ from .worker import init_worker, run_valve, single_thread_env
 __all__ = ['FleetResult', 'SchedulerError', 'default_workers', 'run_fleet']
 
 
+#: how long to keep trying to reach a Dask scheduler before giving up, s
+CONNECT_TIMEOUT_S = 15.0
+
+
 class SchedulerError(ConnectionError):
     """The Dask scheduler cannot be reached (bad or dead address)."""
 
@@ -199,7 +203,7 @@ def run_fleet(jobs: Sequence[ValveJob], out_dir: str, *, workers: int | None = N
 
         # Connected before anything is written: an unreachable scheduler leaves no trace.
         try:
-            client = Client(scheduler, timeout='15s')
+            client = Client(scheduler, timeout=f'{CONNECT_TIMEOUT_S}s')
         except (OSError, ValueError, TypeError) as err:
             raise SchedulerError(f'--scheduler {scheduler}: cannot reach the Dask scheduler '
                                  f'({err})') from None

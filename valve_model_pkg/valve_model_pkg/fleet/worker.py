@@ -51,11 +51,11 @@ def single_thread_env() -> Iterator[None]:
 
 
 def limit_threads() -> None:
-    """One thread for numba's parallel loops and for BLAS in this process.
+    """One thread for numba's parallel loops (and BLAS, if not loaded yet) in this process.
 
     Environment variables act if the libraries are not loaded yet (a fresh pool worker);
     in a Dask worker that has numba loaded already, ``numba.set_num_threads`` limits the
-    calling thread, and threadpoolctl (if installed) the BLAS pools.
+    calling thread (the identification's BLAS work is small: its pool is left alone).
     """
     for name in _THREAD_ENV:
         os.environ[name] = '1'
@@ -63,11 +63,6 @@ def limit_threads() -> None:
     if 'numba' in sys.modules:
         import numba
         numba.set_num_threads(1)
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return
-    threadpool_limits(1)
 
 
 def init_worker() -> None:
@@ -131,7 +126,9 @@ def run_valve(job: dict[str, Any]) -> dict[str, Any]:
         from ..identification.report import write_report
         from ..model.parameters import ParameterError, load_parameters
         try:
-            kw = {'topic': opts.get('topic', '/valve/state'), 'valve': opts.get('valve')}
+            # Bag topic and frame only when the manifest names them: the reader's defaults
+            # are the suite's.
+            kw = {k: opts[k] for k in ('topic', 'valve') if k in opts}
             fit = read_measurements(job['fit'], **kw)
             val = read_measurements(job['validate'], **kw)
             for m in fit + val:

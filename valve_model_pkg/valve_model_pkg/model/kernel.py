@@ -52,9 +52,9 @@ margin) for a held one.
 
 Data layout (all float64 arrays so the compiled code caches and runs in ``prange``):
 ``p`` derived parameters (``_derive``), ``e`` electronics (``electronics.E_*``), ``y``
-the continuous state ``[i_m, x, x_dot, dT, q, q_i, q_v]`` (q = integral of x, for period
-averages; q_i, q_v = integrals of the terminal current and voltage, for interval means;
-the three integrals do not feed back into the dynamics),
+the continuous state ``[i_m, x, x_dot, dT, q]`` (q = integral of x, for period averages;
+the integrals of the terminal current and voltage, for interval means, are integrated
+with it but kept in ``d[D_QI]``, ``d[D_QV]``; no integral feeds back into the dynamics),
 ``d`` the discrete drive/mode state (``D_*``).
 """
 from __future__ import annotations
@@ -76,6 +76,7 @@ from .parameters import PARAMETER_FIELDS
 __all__ = [
     'DEFAULT_H_FREE_S', 'DEFAULT_H_STOP_S', 'N_OUT', 'N_Y', 'N_D',
     'derive_parameters', 'new_drive_state', 'advance', 'step_batch', 'pwm_batch',
+    'trace_batch',
 ]
 
 #: Default RK4 step while the spool moves, s.
@@ -137,9 +138,7 @@ Y_X = 1
 Y_V = 2
 Y_DT = 3
 Y_Q = 4
-Y_QI = 5       # integral of the terminal current, A s (interval means)
-Y_QV = 6       # integral of the terminal voltage, V s (interval means)
-N_Y = 7
+N_Y = 5
 
 # Drive phases (what the driver applies to the coil).
 PH_OFF = 0        # main PWM low: capacitor pulse or 0 V
@@ -185,6 +184,11 @@ D_SAMPLE_DT = 34
 D_PREV_PERIOD = 35
 D_SAMPLE_T0 = 36
 D_N_FORCED = 37  # steps forced by the no-progress guard (0 unless the kernel has a bug)
+# Integrals of the terminal current (A s) and voltage (V s) since t = 0, for interval
+# means. Integrated by RK4 with y (as the 6th/7th component of the step tuple) but kept
+# here, so y keeps its N_Y = 5 layout; they do not feed back into the dynamics.
+D_QI = 38
+D_QV = 39
 N_D = 40
 
 # Output channels of recorded samples.
@@ -194,7 +198,7 @@ O_X = 2
 O_XDOT = 3
 O_DT = 4
 O_MODE = 5
-O_QX = 6       # accumulators y[Y_Q], y[Y_QI], y[Y_QV] at the sample (interval means)
+O_QX = 6       # integrals y[Y_Q], d[D_QI], d[D_QV] at the sample (interval means)
 O_QI = 7
 O_QV = 8
 N_OUT = 9
@@ -269,7 +273,7 @@ def _voltage(t: float, phase: int, d: np.ndarray, e: np.ndarray) -> float:
 def _rhs(t: float, i_m: float, x: float, v: float, d_temp: float, mode: int, phase: int,
          f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray
          ) -> tuple[float, float, float, float, float, float, float]:
-    """Derivatives of y = [i_m, x, x_dot, dT, q, q_i, q_v]: eqs. (7), (11) and the sums."""
+    """Derivatives of (i_m, x, x_dot, dT, q, q_i, q_v): eqs. (7), (11) and the integrals."""
     ind = _inductance(x, p[P_KL], p[P_L0], p[P_B2])
     slope = _inductance_slope(ind, p[P_KL], p[P_B2])
     r = _resistance(p[P_R], d_temp)
@@ -291,7 +295,7 @@ def _rhs(t: float, i_m: float, x: float, v: float, d_temp: float, mode: int, pha
 @njit(cache=True)
 def _rk4(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, p: np.ndarray,
          d: np.ndarray, e: np.ndarray) -> tuple:
-    """One classical RK4 step of length h from the state tuple y (N_Y floats)."""
+    """One classical RK4 step of length h from the tuple (y[0..4], q_i, q_v)."""
     y0, y1, y2, y3, y4, y5, y6 = y
     a0, a1, a2, a3, a4, a5, a6 = _rhs(t, y0, y1, y2, y3, mode, phase, f_prs, p, d, e)
     hh = 0.5 * h
@@ -483,9 +487,10 @@ def _record(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray, e: np.ndarray
         out[k, O_XDOT] = y[Y_V]
         out[k, O_DT] = y[Y_DT]
         out[k, O_MODE] = d[D_MODE]
-        out[k, O_QX] = y[Y_Q]
-        out[k, O_QI] = y[Y_QI]
-        out[k, O_QV] = y[Y_QV]
+        if out.shape[1] > O_QV:  # (a buffer of the older 6 columns stays valid)
+            out[k, O_QX] = y[Y_Q]
+            out[k, O_QI] = d[D_QI]
+            out[k, O_QV] = d[D_QV]
     d[D_SAMPLE_IDX] = k + 1.0
     if k + 1 >= out.shape[0]:
         d[D_NEXT_SAMPLE] = _INF
@@ -703,7 +708,7 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
                 d[D_MODE] = MODE_FREE
                 continue
         t_new, h = _step_to(t, target, h_free if mode == MODE_FREE else h_stop)
-        y_0 = (y[0], y[1], y[2], y[3], y[4], y[5], y[6])
+        y_0 = (y[0], y[1], y[2], y[3], y[4], d[D_QI], d[D_QV])
         z = _rk4(t, h, y_0, mode, phase, f_prs, p, d, e)
         d[D_N_STEPS] += 1.0
         if mode == MODE_FREE:
@@ -722,6 +727,8 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
             d[D_N_FORCED] += 1.0
         for k in range(N_Y):
             y[k] = z[k]
+        d[D_QI] = z[5]
+        d[D_QV] = z[6]
         if phase == PH_OFF and y[Y_I] < 0.0 and e[_el.E_BLOCK_REVERSE] != 0.0:
             y[Y_I] = 0.0
         d[D_T] = t_new
@@ -806,8 +813,7 @@ def advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: f
     e : numpy.ndarray, shape (N_E,)
         ``ElectronicsConfig.to_vector()``.
     y : numpy.ndarray, shape (N_Y,)
-        Continuous state [i_m (A), x (m), x_dot (m/s), dT (K), q (m s), q_i (A s),
-        q_v (V s)], updated in place.
+        Continuous state [i_m (A), x (m), x_dot (m/s), dT (K), q (m s)], updated in place.
     d : numpy.ndarray, shape (N_D,)
         Discrete state (:func:`new_drive_state`), updated in place.
     t_end : float
@@ -891,3 +897,76 @@ def pwm_batch(raw: np.ndarray, e: np.ndarray, supply_v: np.ndarray, duty: np.nda
     _pwm_batch(np.ascontiguousarray(raw, np.float64), e, supply_v, duty, period, p_sup,
                p_out, float(h_free), float(h_stop), avg)
     return avg
+
+
+# --------------------------------------------------------------------------------------
+# Trace batches (model.trace.simulate_trace_batch). They live in this file because numba's
+# cache is invalidated only by a change of the file that defines a function: compiled
+# callers of _advance elsewhere would keep a stale copy of it.
+# --------------------------------------------------------------------------------------
+#: An input change is applied this long before its time (the event tolerance is 1 ps), so
+#: a sample or a PWM period start at the same instant sees the new input, as the model's
+#: own step response does (it matters with eddy currents).
+_TRACE_LEAD_S = 3e-12
+
+
+@njit(cache=True)
+def _trace_run(raw_r: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.ndarray,
+               seg_duty: np.ndarray, seg_period: np.ndarray, p_sup: float, p_out: float,
+               t_samp: np.ndarray, h_free: float, h_stop: float, out_r: np.ndarray,
+               stats_r: np.ndarray) -> None:
+    """One run: apply the input changes and record a row of ``out_r`` per sample time."""
+    p = _derive(raw_r)
+    y = np.zeros(N_Y)
+    d = _drive_state(seg_vs[0], seg_duty[0], seg_period[0], 0.0, p_sup, p_out, _INF, 0.0)
+    no_samples = np.zeros((0, N_OUT))
+    no_avg = np.zeros(0)
+    n_seg = seg_t.shape[0]
+    s = 1
+    for k in range(t_samp.shape[0]):
+        t_k = t_samp[k]
+        while s < n_seg and seg_t[s] - _TRACE_LEAD_S < t_k:
+            _advance(p, e, y, d, seg_t[s] - _TRACE_LEAD_S, h_free, h_stop, no_samples, no_avg)
+            d[D_VS] = seg_vs[s]
+            d[D_PEND_DUTY] = seg_duty[s]
+            d[D_PEND_PERIOD] = seg_period[s]
+            s += 1
+        _advance(p, e, y, d, t_k, h_free, h_stop, no_samples, no_avg)
+        _record(d[D_T], y, p, d, e, out_r)  # writes row D_SAMPLE_IDX = k
+    stats_r[0] = d[D_N_STEPS]
+    stats_r[1] = d[D_N_FORCED]
+
+
+@njit(cache=True, parallel=True)
+def _trace_parallel(raw: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.ndarray,
+                    seg_duty: np.ndarray, seg_period: np.ndarray, p_sup: np.ndarray,
+                    p_out: np.ndarray, t_samp: np.ndarray, h_free: float, h_stop: float,
+                    out: np.ndarray, stats: np.ndarray) -> None:
+    for r in prange(raw.shape[0]):
+        _trace_run(raw[r], e, seg_t, seg_vs, seg_duty, seg_period, p_sup[r], p_out[r],
+                   t_samp, h_free, h_stop, out[r], stats[r])
+
+
+@njit(cache=True, nogil=True)
+def _trace_serial(raw: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.ndarray,
+                  seg_duty: np.ndarray, seg_period: np.ndarray, p_sup: np.ndarray,
+                  p_out: np.ndarray, t_samp: np.ndarray, h_free: float, h_stop: float,
+                  out: np.ndarray, stats: np.ndarray) -> None:
+    for r in range(raw.shape[0]):
+        _trace_run(raw[r], e, seg_t, seg_vs, seg_duty, seg_period, p_sup[r], p_out[r],
+                   t_samp, h_free, h_stop, out[r], stats[r])
+
+
+def trace_batch(raw: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.ndarray,
+                seg_duty: np.ndarray, seg_period: np.ndarray, p_sup: np.ndarray,
+                p_out: np.ndarray, t_samp: np.ndarray, h_free: float, h_stop: float,
+                out: np.ndarray, stats: np.ndarray, parallel: bool = True) -> None:
+    """Runs under piecewise-constant inputs, one ``out[r]`` row per sample time (in place).
+
+    Input ``k`` (supply voltage V, pending duty, pending period s) applies from
+    ``seg_t[k]`` (the first from t = 0); ``out`` has shape (n_runs, n_samples, N_OUT),
+    ``stats`` (n_runs, 2) receives the step count and the forced-step count.
+    """
+    kernel = _trace_parallel if parallel else _trace_serial
+    kernel(np.ascontiguousarray(raw, np.float64), e, seg_t, seg_vs, seg_duty, seg_period,
+           p_sup, p_out, t_samp, float(h_free), float(h_stop), out, stats)

@@ -33,7 +33,6 @@ import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
-from numba import njit, prange
 
 from . import kernel as _k
 from .electronics import ElectronicsConfig
@@ -50,11 +49,6 @@ SAMPLING_MODES = ('instant', 'interval_mean')
 #: few runs costs more than it gains, badly so on a busy machine (measured: 12 ms instead
 #: of 2 ms for one run with another process per core).
 PARALLEL_MIN_BATCH = 8
-
-#: An input change is applied this long before its time (the kernel's event tolerance is
-#: 1 ps), so a sample or a PWM period start at the same instant sees the new input, as
-#: the model's own step response does (it matters with eddy currents).
-_LEAD_S = 3e-12
 
 _E_BARE = ElectronicsConfig.off().to_vector()
 
@@ -213,54 +207,6 @@ class TraceBatchResult:
     n_steps: np.ndarray
 
 
-@njit(cache=True)
-def _trace_run(raw_r: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.ndarray,
-               seg_duty: np.ndarray, seg_period: np.ndarray, p_sup: float, p_out: float,
-               t_samp: np.ndarray, h_free: float, h_stop: float, out_r: np.ndarray,
-               stats_r: np.ndarray) -> None:
-    """One run: apply the input changes and record a row of ``out_r`` per sample time."""
-    p = _k._derive(raw_r)
-    y = np.zeros(_k.N_Y)
-    d = _k._drive_state(seg_vs[0], seg_duty[0], seg_period[0], 0.0, p_sup, p_out, np.inf,
-                        0.0)
-    no_samples = np.zeros((0, _k.N_OUT))
-    no_avg = np.zeros(0)
-    n_seg = seg_t.shape[0]
-    s = 1
-    for k in range(t_samp.shape[0]):
-        t_k = t_samp[k]
-        while s < n_seg and seg_t[s] - _LEAD_S < t_k:
-            _k._advance(p, e, y, d, seg_t[s] - _LEAD_S, h_free, h_stop, no_samples, no_avg)
-            d[_k.D_VS] = seg_vs[s]
-            d[_k.D_PEND_DUTY] = seg_duty[s]
-            d[_k.D_PEND_PERIOD] = seg_period[s]
-            s += 1
-        _k._advance(p, e, y, d, t_k, h_free, h_stop, no_samples, no_avg)
-        _k._record(d[_k.D_T], y, p, d, e, out_r)  # writes row D_SAMPLE_IDX = k
-    stats_r[0] = d[_k.D_N_STEPS]
-    stats_r[1] = d[_k.D_N_FORCED]
-
-
-@njit(cache=True, parallel=True)
-def _trace_parallel(raw: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.ndarray,
-                    seg_duty: np.ndarray, seg_period: np.ndarray, p_sup: np.ndarray,
-                    p_out: np.ndarray, t_samp: np.ndarray, h_free: float, h_stop: float,
-                    out: np.ndarray, stats: np.ndarray) -> None:
-    for r in prange(raw.shape[0]):
-        _trace_run(raw[r], e, seg_t, seg_vs, seg_duty, seg_period, p_sup[r], p_out[r],
-                   t_samp, h_free, h_stop, out[r], stats[r])
-
-
-@njit(cache=True, nogil=True)
-def _trace_serial(raw: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.ndarray,
-                  seg_duty: np.ndarray, seg_period: np.ndarray, p_sup: np.ndarray,
-                  p_out: np.ndarray, t_samp: np.ndarray, h_free: float, h_stop: float,
-                  out: np.ndarray, stats: np.ndarray) -> None:
-    for r in range(raw.shape[0]):
-        _trace_run(raw[r], e, seg_t, seg_vs, seg_duty, seg_period, p_sup[r], p_out[r],
-                   t_samp, h_free, h_stop, out[r], stats[r])
-
-
 def _interval_means(t: np.ndarray, acc: np.ndarray, start: float,
                     instant: np.ndarray) -> np.ndarray:
     """Mean over each sample interval from an accumulated integral ``acc`` (runs x n)."""
@@ -365,10 +311,10 @@ def simulate_trace_batch(params_list: ValveParameters | Sequence[ValveParameters
         raise ParameterError('pressures must be gauge pressures above -1 bar')
     out = np.zeros((n, t.size, _k.N_OUT))
     stats = np.zeros((n, 2))
-    kernel = _trace_parallel if parallel and n >= PARALLEL_MIN_BATCH else _trace_serial
-    kernel(mat, e, trace.t_s, trace.supply_voltage_v, trace.duty, trace.period_s,
-           arr['supply_pressure_pa'], arr['output_pressure_pa'], t, float(h_free_s),
-           float(h_stop_s), out, stats)
+    _k.trace_batch(mat, e, trace.t_s, trace.supply_voltage_v, trace.duty, trace.period_s,
+                   arr['supply_pressure_pa'], arr['output_pressure_pa'], t, float(h_free_s),
+                   float(h_stop_s), out, stats,
+                   parallel=parallel and n >= PARALLEL_MIN_BATCH)
     cur = out[:, :, _k.O_I]
     volt = out[:, :, _k.O_V]
     pos = out[:, :, _k.O_X]

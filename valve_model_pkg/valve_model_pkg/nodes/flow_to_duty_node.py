@@ -47,6 +47,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import FluidPressure
@@ -63,7 +64,8 @@ from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, 
                                           TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
                                           TOPIC_FLOW_COMMAND, TOPIC_FLOW_STATUS,
                                           TOPIC_OUTPUT_PRESSURE, TOPIC_SUPPLY_PRESSURE,
-                                          declare_float, declare_string, DiagnosticLevel,
+                                          declare_bool, declare_float, declare_string,
+                                          DiagnosticLevel,
                                           gauge_from_absolute, key_values, run_node,
                                           STARTUP_ERRORS)
 
@@ -119,6 +121,18 @@ class FlowToDutyNode(Node):
             'publish if the duty changed [s]; 0 = only answer flow commands', 0.0, 10.0)
         diag_period = declare_float(self, 'diagnostics_period_s', 1.0,
                                     'Period of the diagnostics summary [s]', 0.05, 60.0)
+        self._lockstep = declare_bool(
+            self, 'lockstep', False,
+            'Simulation in lockstep (valve_lockstep_sim): answer each flow command with the '
+            'output pressure stamped at or after its stamp (waiting for it if the command '
+            'came first), stamp the duty command with the flow command\'s stamp, and never '
+            'republish on pressure changes')
+        self._lockstep_timeout_s = declare_float(
+            self, 'lockstep_pressure_timeout_s', 1.0,
+            'Lockstep: wall time to wait for the matching output pressure before answering '
+            'with the latest one (counted) [s]', 0.001, 60.0)
+        if self._lockstep:
+            self._republish_s = 0.0
 
         self._map_path = map_file or _default_map_or_fail()
         self._params_path = params_file or str(default_parameters_path())
@@ -165,6 +179,11 @@ class FlowToDutyNode(Node):
                                  PRESSURE_QOS)
 
         self._flow_in_force: float | None = None
+        self._flow_stamp = None                # stamp of the command in force (lockstep)
+        self._output_stamp_ns = -1             # stamp of the last output pressure
+        self._pending_since: float | None = None  # lockstep: waiting for its pressure
+        self._pressure_waits = 0
+        self._pressure_wait_timeouts = 0
         self._last_duty: float | None = None
         self._last_status: int | None = None
         self._pressure_dirty = False
@@ -179,6 +198,9 @@ class FlowToDutyNode(Node):
         self._duty_sequence = 0
         self._counts = {s: 0 for s in FlowStatus}
         self._max_compute_s = 0.0
+        if self._lockstep:
+            self.create_timer(0.05, self._check_pending,
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
         if self._republish_s > 0.0:
             self.create_timer(self._republish_s, self._on_republish)
         self.create_timer(diag_period, self._publish_diagnostics)
@@ -234,6 +256,13 @@ class FlowToDutyNode(Node):
                                f'command ({self._flow_in_force!r} kg/s)', kind)
             return
         self._flow_in_force = float(flow)
+        self._flow_stamp = msg.header.stamp
+        if self._lockstep and _ns(msg.header.stamp) > self._output_stamp_ns:
+            # The command overtook the pressure of its tick: answer when that arrives.
+            self._pending_since = time.monotonic()
+            self._pressure_waits += 1
+            return
+        self._pending_since = None
         self._answer(force=True)
 
     def _pressure_from(self, msg: FluidPressure, port: str) -> float | None:
@@ -259,9 +288,27 @@ class FlowToDutyNode(Node):
 
     def _on_output(self, msg: FluidPressure) -> None:
         gauge = self._pressure_from(msg, 'output')
+        if gauge is not None:
+            self._output_stamp_ns = max(self._output_stamp_ns, _ns(msg.header.stamp))
         if gauge is not None and gauge != self._output_pa:
             self._output_pa = gauge
             self._pressure_dirty = True
+        if self._pending_since is not None and self._flow_stamp is not None \
+                and self._output_stamp_ns >= _ns(self._flow_stamp):
+            self._pending_since = None
+            self._answer(force=True)
+
+    def _check_pending(self) -> None:
+        """Lockstep: answer with the latest pressure if the matching one never came."""
+        if self._pending_since is not None \
+                and time.monotonic() - self._pending_since > self._lockstep_timeout_s:
+            self._pending_since = None
+            self._pressure_wait_timeouts += 1
+            self.get_logger().warning(
+                'lockstep: no output pressure stamped at the flow command\'s tick within '
+                f'{self._lockstep_timeout_s:g} s; answered with the latest pressure',
+                throttle_duration_sec=1.0)
+            self._answer(force=True)
 
     def _on_republish(self) -> None:
         if self._pressure_dirty and self._flow_in_force is not None:
@@ -284,6 +331,8 @@ class FlowToDutyNode(Node):
                 and int(res.status) == self._last_status:
             return
         now = self.get_clock().now().to_msg()
+        if self._lockstep and self._flow_stamp is not None:
+            now = self._flow_stamp  # the answer to the tick of that flow command
         cmd = DutyCommand()
         cmd.header.stamp = now
         cmd.header.frame_id = self.get_fully_qualified_name()
@@ -351,6 +400,8 @@ class FlowToDutyNode(Node):
             dead_band_lifted=self._counts[FlowStatus.DEAD_BAND_LIFTED],
             no_pressure=self._counts[FlowStatus.NO_PRESSURE],
             bad_pressure_messages=self._bad_pressures,
+            lockstep=self._lockstep, lockstep_pressure_waits=self._pressure_waits,
+            lockstep_pressure_wait_timeouts=self._pressure_wait_timeouts,
             max_compute_s=self._max_compute_s, supply_pressure_pa=self._supply_pa,
             output_pressure_pa=self._output_pa, map_file=self._map_path,
             params_file=self._params_path)
@@ -366,6 +417,10 @@ def _default_map_or_fail() -> str:
         return str(default_map_path())
     except FileNotFoundError as err:
         raise StartupError(f'map file refused: {err}') from err
+
+
+def _ns(stamp: object) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def _nearest(values: object, v: float) -> int:

@@ -17,8 +17,15 @@ stroke by more than 10 % of it or a speed above ``MAX_PISTON_SPEED_M_S`` is reje
 warning (the first of each kind always, then at most one per second per kind) and counted;
 the last valid value stays.
 
-The control law (valve_model_pkg.pneumatics.controller) is PID on position with a bleed
-feedforward, in mass flow; flow_to_duty turns the flow into PWM duty.
+The control law (valve_model_pkg.pneumatics.controller): by default a cascade -- position
+error -> force -> chamber pressure reference -> mass flow, on the plant model, with the
+chamber pressure taken from the joint state's effort (net pressure force); without an
+effort, or with ``structure:=pid``, PID on position with a bleed feed-forward. Its output
+is mass flow; flow_to_duty turns it into PWM duty.
+
+With ``lockstep:=true`` (the lockstep simulation, ``valve_lockstep_sim``) there is no timer:
+every joint state of a new tick is answered at once with a flow command stamped with the
+joint state's stamp, and a goal is acknowledged at once on ``cylinder/position_setpoint``.
 """
 from __future__ import annotations
 
@@ -30,11 +37,13 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from valve_msgs.msg import FlowCommand
 
-from valve_model_pkg.interface import (TOPIC_DIAGNOSTICS, TOPIC_JOINT_STATES,
-                                       TOPIC_POSITION_GOAL, TOPIC_POSITION_SETPOINT)
+from valve_model_pkg.interface import (ATMOSPHERIC_PRESSURE_PA, TOPIC_DIAGNOSTICS,
+                                       TOPIC_JOINT_STATES, TOPIC_POSITION_GOAL,
+                                       TOPIC_POSITION_SETPOINT)
 from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS, JOINT_STATES_QOS
 from valve_model_pkg.nodes.common import (COMMAND_QOS, TOPIC_FLOW_COMMAND, DiagnosticLevel,
-                                          declare_bool, declare_float, key_values, run_node)
+                                          declare_bool, declare_float, declare_string,
+                                          key_values, run_node)
 from valve_model_pkg.nodes.inputs import InputGuard
 from valve_model_pkg.pneumatics.controller import ControllerGains, PositionController
 from valve_model_pkg.pneumatics.cylinder import PARAMETER_INFO, CylinderParameters
@@ -62,7 +71,24 @@ class PositionControllerNode(Node):
                                              g.max_mass_flow_kg_s,
                                              'Largest flow command [kg/s]', 0.0, 1.0),
             feedforward=declare_bool(self, 'feedforward', True,
-                                     'Add the bleed flow at the setpoint\'s pressure'))
+                                     'Add the model-based feed-forward (holding pressure, '
+                                     'bleed)'),
+            structure=declare_string(self, 'structure', g.structure,
+                                     'Control law: cascade (position -> pressure -> flow, '
+                                     'uses the measured chamber pressure) or pid (flow PID)'),
+            stiffness_n_per_m=declare_float(self, 'stiffness_n_per_m', g.stiffness_n_per_m,
+                                            'Cascade: force per metre of error [N/m]',
+                                            0.0, 1e6),
+            integral_n_per_m_s=declare_float(self, 'integral_n_per_m_s', g.integral_n_per_m_s,
+                                             'Cascade: integral gain [N/(m s)]', 0.0, 1e7),
+            damping_n_s_per_m=declare_float(self, 'damping_n_s_per_m', g.damping_n_s_per_m,
+                                            'Cascade: velocity damping [N s/m]', 0.0, 1e5),
+            pressure_time_constant_s=declare_float(
+                self, 'pressure_time_constant_s', g.pressure_time_constant_s,
+                'Cascade: time constant of the pressure loop [s]', 1e-3, 10.0),
+            integral_zone_m=declare_float(self, 'integral_zone_m', g.integral_zone_m,
+                                          'Cascade: integrate only within this error [m]',
+                                          0.0, 2.0))
         # The feedforward needs the plant's model: the same parameters as the cylinder's.
         defaults = CylinderParameters()
         plant = {name: declare_float(self, f'plant.{name}', getattr(defaults, name), text,
@@ -70,11 +96,18 @@ class PositionControllerNode(Node):
                  for name, (text, low, high) in PARAMETER_INFO.items()}
         self._controller = PositionController(gains, CylinderParameters(**plant))
         self._rate_hz = declare_float(self, 'rate_hz', 200.0, 'Control rate [Hz]', 1.0, 2000.0)
+        self._lockstep = declare_bool(
+            self, 'lockstep', False,
+            'Simulation in lockstep: answer every joint state of a new tick at once with a '
+            'flow command stamped with that tick (no timer); see valve_lockstep_sim')
+        self._last_tick_ns = -1
         self._setpoint_m = declare_float(self, 'initial_setpoint_m', 0.0,
                                          'Setpoint until a goal arrives [m]', 0.0, 2.0)
         self._stroke_m = plant['stroke_m']
         self._position_m: float | None = None
         self._velocity_m_s = 0.0
+        self._pressure_pa: float | None = None  # chamber, absolute; from the joint's effort
+        self._area_m2 = CylinderParameters(**plant).piston_area_m2
         diag_period = declare_float(self, 'diagnostics_period_s', 1.0,
                                     'Period of the diagnostics summary [s]', 0.05, 60.0)
         self._inputs = InputGuard(self.get_logger())
@@ -86,7 +119,8 @@ class PositionControllerNode(Node):
         self.create_subscription(JointState, TOPIC_JOINT_STATES, self._on_joint,
                                  JOINT_STATES_QOS)
         self.create_subscription(Float64, TOPIC_POSITION_GOAL, self._on_goal, COMMAND_QOS)
-        self.create_timer(1.0 / self._rate_hz, self._on_tick)
+        if not self._lockstep:
+            self.create_timer(1.0 / self._rate_hz, self._on_tick)
         self.create_timer(diag_period, self._publish_diagnostics)
 
     def _on_goal(self, msg: Float64) -> None:
@@ -99,6 +133,8 @@ class PositionControllerNode(Node):
             return
         self.get_logger().info(f'new position goal {goal * 1e3:.1f} mm')
         self._setpoint_m = goal
+        # Acknowledge at once: a driver holding the simulation knows the goal is in force.
+        self._setpoint_pub.publish(Float64(data=self._setpoint_m))
 
     def _on_joint(self, msg: JointState) -> None:
         """Take the piston's position and velocity; refuse (and count) what is implausible."""
@@ -125,16 +161,27 @@ class PositionControllerNode(Node):
                                 f'{MAX_PISTON_SPEED_M_S:g} m/s' + keep)
             return
         self._position_m, self._velocity_m_s = position, velocity
+        effort = float(msg.effort[i]) if len(msg.effort) > i else math.nan
+        # effort = net pressure force on the piston (the plant's convention): the chamber
+        # pressure the cascade's pressure loop needs; without it the flow PID runs.
+        self._pressure_pa = ATMOSPHERIC_PRESSURE_PA + effort / self._area_m2 \
+            if math.isfinite(effort) else None
+        if self._lockstep:
+            stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            if stamp_ns > self._last_tick_ns:  # a tick sent again is answered once only
+                self._last_tick_ns = stamp_ns
+                self._on_tick(msg.header.stamp)
 
-    def _on_tick(self) -> None:
+    def _on_tick(self, stamp: object | None = None) -> None:
         setpoint = Float64(data=self._setpoint_m)
         self._setpoint_pub.publish(setpoint)
         if self._position_m is None:
             return  # no feedback yet: command nothing rather than guess
         flow = self._controller.update(self._setpoint_m, self._position_m,
-                                       self._velocity_m_s, 1.0 / self._rate_hz)
+                                       self._velocity_m_s, 1.0 / self._rate_hz,
+                                       self._pressure_pa)
         msg = FlowCommand()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = stamp if stamp is not None else self.get_clock().now().to_msg()
         msg.header.frame_id = self.get_fully_qualified_name()
         msg.sequence = self._sequence
         msg.mass_flow = flow

@@ -1,9 +1,11 @@
 """The demo's control loop without ROS: controller -> flow_to_duty -> valve model -> cylinder.
 
-The same pieces the nodes run (PositionController, FlowToDutyInverter, ValveStepper,
-Cylinder), connected directly with the node rates and with the delays the messages add
-(one controller period for the command, one valve tick for the opening). Used to tune
-the controller and to test the loop deterministically; the nodes add only transport.
+The same pieces the nodes run (PositionController, FlowToDutyInverter, and the
+SimulatedAxis of valve model and cylinder that ``valve_lockstep_sim`` runs), connected
+directly with the node rates. The controller sees the plant at its tick and its command
+acts from that tick on, as in the lockstep protocol; ``feedback_delay_s`` adds transport
+delay to check robustness. Used to tune the controller and to test the loop
+deterministically.
 """
 from __future__ import annotations
 
@@ -12,11 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from valve_model_pkg.maps.dutymap import load_map
+from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
 from valve_model_pkg.maps.inversion import FlowToDutyInverter
-from valve_model_pkg.model import ElectronicsConfig, ValveParameters, ValveStepper, \
-    load_parameters
+from valve_model_pkg.model import ValveParameters, load_parameters
 from valve_model_pkg.pneumatics.controller import ControllerGains, PositionController
-from valve_model_pkg.pneumatics.cylinder import Cylinder, CylinderParameters
+from valve_model_pkg.pneumatics.axis import SimulatedAxis
+from valve_model_pkg.pneumatics.cylinder import CylinderParameters
 
 __all__ = ['LoopResult', 'simulate_closed_loop']
 
@@ -53,9 +56,10 @@ def simulate_closed_loop(goals: list[tuple[float, float]], *, supply_pressure_pa
     plant = plant or CylinderParameters()
     ctl = PositionController(gains, plant)
     inverter = FlowToDutyInverter(load_map(), pwm_frequency_hz)
-    stepper = ValveStepper(valve, ElectronicsConfig(), supply_pressure_pa=supply_pressure_pa)
-    stepper.set_command(0.0, pwm_frequency_hz)
-    cyl = Cylinder(plant, valve_params=valve)
+    axis = SimulatedAxis('single', step_ns=int(round(1e9 / valve_rate_hz)), valve=valve,
+                         plant=plant, supply_pressure_pa=supply_pressure_pa,
+                         pwm_frequency_hz=pwm_frequency_hz)
+    cyl = axis.cylinder
     dt = 1.0 / valve_rate_hz
     every = max(1, int(round(valve_rate_hz / control_rate_hz)))
     n = int(round(sum(h for _, h in goals) * valve_rate_hz))
@@ -64,23 +68,21 @@ def simulate_closed_loop(goals: list[tuple[float, float]], *, supply_pressure_pa
     flow_cmd = 0.0
     duty = 0.0
     lag = int(round(feedback_delay_s * valve_rate_hz))
-    history = [(0.0, 0.0)] * (lag + 1)  # (position, velocity) ring, oldest first
+    history = [(0.0, 0.0, ATMOSPHERIC_PRESSURE_PA)] * (lag + 1)  # (y, v, p) ring, oldest first
     for k in range(n):
         t = k * dt
         sp = float(setpoints[min(k, setpoints.size - 1)])
-        history.append((cyl.state.position_m, cyl.state.velocity_m_s))
+        history.append((cyl.state.position_m, cyl.state.velocity_m_s, cyl.state.pressure_pa))
         del history[0]
         if k % every == 0:
-            y_seen, v_seen = history[0]
-            flow_cmd = ctl.update(sp, y_seen, v_seen, every * dt)
+            y_seen, v_seen, p_seen = history[0]
+            flow_cmd = ctl.update(sp, y_seen, v_seen, every * dt, p_seen)
             result = inverter.compute(flow_cmd, supply_pressure_pa,
                                       cyl.chamber_gauge_pressure_pa)
             duty = result.duty
-            stepper.set_command(duty, pwm_frequency_hz)
-        stepper.set_pressures(supply_pressure_pa, cyl.chamber_gauge_pressure_pa)
-        stepper.advance_to(t + dt)
-        sample = stepper.sample()
-        cyl.step_with_valve(dt, sample.spool_position_m, supply_pressure_pa)
+            axis.set_command('', duty, pwm_frequency_hz)
+        axis.step()
+        sample = axis.sample('')
         out['t_s'][k] = t + dt
         out['setpoint_m'][k] = sp
         out['position_m'][k] = cyl.state.position_m

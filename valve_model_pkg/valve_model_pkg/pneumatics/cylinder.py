@@ -267,6 +267,10 @@ class Cylinder:
         self.last_bleed_kg_s = par.bleed_mass_flow_kg_s(p)
         return self.state
 
+    def net_pressure_force_n(self) -> float:
+        """Net pressure force on the piston [N] (what joint_states carries as effort)."""
+        return (self.state.pressure_pa - ATMOSPHERIC_PRESSURE_PA) * self.params.piston_area_m2
+
     @property
     def chamber_gauge_pressure_pa(self) -> float:
         """Chamber pressure, gauge [Pa]: the valve's output pressure."""
