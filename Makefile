@@ -9,13 +9,16 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 
 # make demo BACKEND=can runs the same demo with the CAN driver + controller emulator.
 BACKEND ?= sim
+# make demo CYLINDER=double: the double-acting example; LIVE=1: Foxglove WebSocket view.
+CYLINDER ?= single
+LIVE ?= 0
 DEMO_ARGS ?=
 PYTEST_ARGS ?=
 
 .PHONY: help setup demo test bench lint clean distclean
 
 help:
-	@echo "make demo     set up (if needed) and run the suite's demo (BACKEND=sim|can)"
+	@echo "make demo     set up (if needed) and run the suite's demo (BACKEND=sim|can, LIVE=1)"
 	@echo "make test     set up (if needed) and run all tests"
 	@echo "make bench    run the benchmarks, write benchmarks/results.json and the README table"
 	@echo "make setup    only the set-up: venv, pinned ROS 2 wheels, wheel path fix, colcon build"
@@ -25,7 +28,8 @@ setup:
 	@bash $(ROOT)/scripts/setup.sh
 
 demo: setup
-	@$(ENV) && valve_demo --backend $(BACKEND) $(DEMO_ARGS)
+	@$(ENV) && valve_demo --backend $(BACKEND) --cylinder $(CYLINDER) \
+		$(if $(filter 1 yes true,$(LIVE)),--live,) $(DEMO_ARGS)
 
 test: setup
 	@$(ENV) && cd $(ROOT) && python -m pytest tests $(PYTEST_ARGS)

@@ -21,6 +21,7 @@ COMMANDS = {
     'valve_map': ['--show', f'{MISSING}.json', '--no-figures'],
     'valve_report': [MISSING, '-o', 'OUT/report'],
     'valve_recorder': ['--info', MISSING],
+    'valve_identify_batch': [f'{MISSING}.csv', '-o', 'OUT/fleet'],
 }
 
 

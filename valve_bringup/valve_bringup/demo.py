@@ -487,6 +487,13 @@ def main(argv: list[str] | None = None) -> int:
     effect_args = tuple(a for name in args.effect for a in ('--effect', name))
     if effect_args and args.backend != 'can':
         parser.error('--effect needs --backend can (the emulator carries the effect)')
+    if args.cylinder == 'double':
+        # The plumbing (valve namespaces cap/ and rod/, one flow_to_duty each, the
+        # simulation's per-valve topics) is in place; the double-acting plant model and the
+        # controller's two-valve law are not yet (issue 14, item 4).
+        print('valve_demo: error: --cylinder double: the double-acting example is not '
+              'available yet', file=sys.stderr)
+        return 2
     if args.cylinder == 'double' and (args.backend != 'sim' or args.clock != 'lockstep'):
         parser.error('--cylinder double needs the lockstep simulation (--backend sim '
                      '--clock lockstep)')

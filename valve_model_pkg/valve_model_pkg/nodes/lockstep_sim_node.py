@@ -232,8 +232,11 @@ class LockstepSimulationNode(Node):
                     self._publish_tick()  # for a node that started late
                 return
             if self._run_until_ns is not None and self._axis.t_ns >= self._run_until_ns:
-                if not self._holding:
-                    self._holding = True
+                self._holding = True
+                if wall - self._last_resend > 0.25:
+                    # the clock of the hold, for a node that started (or matched) late
+                    self._last_resend = wall
+                    self._clock_pub.publish(ClockMsg(clock=_stamp(self._axis.t_ns)))
                 return
             if not self._pacer.may_step(wall, self._axis.t_ns):
                 return

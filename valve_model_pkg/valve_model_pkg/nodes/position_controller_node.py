@@ -101,6 +101,7 @@ class PositionControllerNode(Node):
             'Simulation in lockstep: answer every joint state of a new tick at once with a '
             'flow command stamped with that tick (no timer); see valve_lockstep_sim')
         self._last_tick_ns = -1
+        self._last_flow: FlowCommand | None = None
         self._setpoint_m = declare_float(self, 'initial_setpoint_m', 0.0,
                                          'Setpoint until a goal arrives [m]', 0.0, 2.0)
         self._stroke_m = plant['stroke_m']
@@ -168,9 +169,16 @@ class PositionControllerNode(Node):
             if math.isfinite(effort) else None
         if self._lockstep:
             stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            if stamp_ns > self._last_tick_ns:  # a tick sent again is answered once only
+            if stamp_ns > self._last_tick_ns:
                 self._last_tick_ns = stamp_ns
                 self._on_tick(msg.header.stamp)
+            elif stamp_ns == self._last_tick_ns and self._last_flow is not None:
+                # The simulation sent the tick again: our answer was lost (e.g. published
+                # before discovery matched). Send the same answer again; the control law
+                # runs once per tick, so its state does not depend on resends.
+                self._last_flow.sequence = self._sequence
+                self._flow_pub.publish(self._last_flow)
+                self._sequence += 1
 
     def _on_tick(self, stamp: object | None = None) -> None:
         setpoint = Float64(data=self._setpoint_m)
@@ -186,6 +194,7 @@ class PositionControllerNode(Node):
         msg.sequence = self._sequence
         msg.mass_flow = flow
         self._flow_pub.publish(msg)
+        self._last_flow = msg
         self._sequence += 1
 
     def _publish_diagnostics(self) -> None:

@@ -64,10 +64,10 @@ class ControllerGains:
     feedforward: bool = True
     structure: str = 'cascade'
     stiffness_n_per_m: float = 3000.0
-    integral_n_per_m_s: float = 10000.0
+    integral_n_per_m_s: float = 20000.0
     damping_n_s_per_m: float = 250.0
     pressure_time_constant_s: float = 0.08
-    integral_zone_m: float = 0.003
+    integral_zone_m: float = 0.001
 
     def __post_init__(self) -> None:
         for name in ('kp_kg_s_per_m', 'ki_kg_s_per_m_s', 'kd_kg_per_m', 'max_mass_flow_kg_s',
