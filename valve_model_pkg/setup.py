@@ -29,6 +29,7 @@ setup(
         'console_scripts': [
             # ROS 2 nodes
             'valve_simulator = valve_model_pkg.nodes.simulator_node:main',
+            'valve_bank_simulator = valve_model_pkg.nodes.bank_simulator_node:main',
             'valve_lockstep_sim = valve_model_pkg.nodes.lockstep_sim_node:main',
             'flow_to_duty = valve_model_pkg.nodes.flow_to_duty_node:main',
             'pneumatic_cylinder = valve_model_pkg.nodes.cylinder_node:main',

@@ -60,11 +60,12 @@ def test_make_demo_runs_records_reports_and_leaves_nothing(tmp_path, backend):
     summary = json.loads((tmp_path / 'report' / 'report.json').read_text())
     assert summary['backend'] == backend
     assert summary['real_time_factor'] > 0.0
-    assert [round(s['setpoint_mm']) for s in summary['steps']] == [20, 60, 40, 80, 30]
     for step in summary['steps']:
         assert {'setpoint_mm', 'final_mm', 'overshoot_mm', 'settling_s', 'steady_error_mm',
                 'settled'} <= set(step)
     if backend == 'sim':
+        # Lockstep: every step is there (no pre-roll row) whatever the computer's load.
+        assert [round(s['setpoint_mm']) for s in summary['steps']] == [20, 60, 40, 80, 30]
         assert summary['clock'] == 'simulation (lockstep)'
         assert summary['lockstep_timeouts'] == 0
 

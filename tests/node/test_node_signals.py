@@ -21,7 +21,8 @@ pytestmark = pytest.mark.node
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 NODES = ('valve_simulator', 'flow_to_duty', 'pneumatic_cylinder', 'position_controller',
-         'valve_recorder', 'valve_can_driver', 'valve_controller_emulator')
+         'valve_recorder', 'valve_can_driver', 'valve_controller_emulator',
+         'valve_lockstep_sim')
 
 
 def _hub_up(port: int) -> bool:

@@ -8,6 +8,7 @@ import pytest
 
 from valve_driver_pkg.driver import CanDriverCore, DriverConfig
 from valve_driver_pkg.protocol import (COMMAND, CONTROL, PERIOD, PRESSURE, STATUS, TELEMETRY,
+                                       TELEMETRY_MEAN,
                                        EmulatorFault, ValveCodec, crc8, default_dbc_path,
                                        fault_injection_dbc_path)
 from valve_driver_pkg.protocol.codec import MAX_NODE_ID
@@ -16,6 +17,8 @@ from valve_driver_pkg.protocol.codec import MAX_NODE_ID
 TIMING = {COMMAND: (10, 'CyclicAndSpontaneous'), TELEMETRY: (1, 'Cyclic'),
           PERIOD: (100, 'CyclicAndSpontaneous'), PRESSURE: (100, 'CyclicAndSpontaneous'),
           STATUS: (100, 'Cyclic')}
+# The one message with a 29-bit id (the 11-bit block beside CANopen is full).
+TIMING_EXTENDED = {TELEMETRY_MEAN: (1, 'Cyclic')}
 
 
 def _canopen_ids() -> set[int]:
@@ -32,8 +35,8 @@ def _canopen_ids() -> set[int]:
 def test_cycle_times_send_types_and_bus_type_are_attributes() -> None:
     db = cantools.database.load_file(str(default_dbc_path()), strict=True)
     assert db.dbc.attributes['BusType'].value == 'CAN'
-    assert {m.name for m in db.messages} == set(TIMING)
-    for name, (cycle_ms, send_type) in TIMING.items():
+    assert {m.name for m in db.messages} == set(TIMING) | set(TIMING_EXTENDED)
+    for name, (cycle_ms, send_type) in (TIMING | TIMING_EXTENDED).items():
         message = db.get_message_by_name(name)
         assert message.dbc.attributes['GenMsgCycleTime'].value == cycle_ms, name
         assert (message.cycle_time, message.send_type) == (cycle_ms, send_type), name
@@ -62,6 +65,18 @@ def test_default_ids_coexist_with_canopen_devices() -> None:
             for node in range(MAX_NODE_ID + 1)}
     assert used <= set(range(0x680, 0x6E0))
     assert not used & _canopen_ids()
+
+
+def test_the_extended_ids_never_meet_an_11_bit_id() -> None:
+    """ValveTelemetryMean: 29-bit ids 0x16900 + node, protected by a 4-byte id checksum."""
+    codec = ValveCodec(0, include_test_messages=True)
+    ids = {codec.frame_id(TELEMETRY_MEAN, node) for node in range(MAX_NODE_ID + 1)}
+    assert ids == set(range(0x16900, 0x16910))
+    msg = codec.encode(TELEMETRY_MEAN, {'CoilCurrentMean': 0.5, 'CoilVoltageMean': 12.0,
+                                        'MeanInterval': 1e-3}, 3)
+    assert msg.is_extended_id and codec.decode(msg).name == TELEMETRY_MEAN
+    db = cantools.database.load_file(str(default_dbc_path()), strict=True)
+    assert [m.name for m in db.messages if m.is_extended_frame] == [TELEMETRY_MEAN]
 
 
 def test_the_driver_never_loads_the_test_messages() -> None:

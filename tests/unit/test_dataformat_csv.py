@@ -167,16 +167,22 @@ def test_kind_readers_refuse_other_kinds(tmp_path: Path) -> None:
         read_operation(_write(tmp_path, 't,voltage,current\n0,0,0\n', 's.csv'))
 
 
-def test_identification_refuses_operation_records_and_pwm_without_coil_voltage(
+def test_identification_reads_operation_records_and_pwm_through_the_electronics(
         tmp_path: Path) -> None:
+    # issue 12: operation records and pwm records without coil_voltage are identified with
+    # the drive electronics in the loop (formerly refused as not implemented)
     op = _write(tmp_path, OPERATION + _operation_rows())
-    with pytest.raises(MeasurementFormatError, match='operation record.*not implemented yet'):
-        read_csv(op)
+    m = read_csv(op)
+    assert m.through_electronics and m.sampling == 'interval_mean'
+    no_v = _write(tmp_path, OPERATION.replace('# supply_voltage_v: 24\n', '')
+                  + _operation_rows(), 'nv.csv')
+    with pytest.raises(MeasurementFormatError, match='supply_voltage_v'):
+        read_csv(no_v)
     t = np.arange(20) * 1e-4
     pwm = write_table(tmp_path / 'p.csv', {'experiment': 'pwm', 'supply_pressure_pa': 4e5},
                       {'t': t, 'voltage': np.full(20, 24.0), 'current': np.zeros(20)})
-    with pytest.raises(MeasurementFormatError, match='without a coil_voltage column'):
-        read_csv(pwm)
+    m = read_csv(pwm)
+    assert m.through_electronics and any('drive electronics' in n for n in m.notes)
 
 
 def test_valve_simulate_output_is_read_by_the_format_and_the_identification(

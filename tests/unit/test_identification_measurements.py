@@ -121,12 +121,15 @@ def test_valve_state_msg_text_matches_the_interface_file() -> None:
 
 
 def _write_bag(path: Path, *, embed_definition: bool, n: int = 40, frame: str = 'v1',
-               extra_frame: str | None = None, stamps: bool = True) -> None:
+               extra_frame: str | None = None, stamps: bool = True, pwm: bool = False,
+               with_mean: bool = True) -> None:
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
-    store.register(get_types_from_msg(VALVE_STATE_MSG, VALVE_STATE_TYPE))
+    text = VALVE_STATE_MSG if with_mean else '\n'.join(
+        ln for ln in VALVE_STATE_MSG.splitlines() if '_mean' not in ln) + '\n'
+    store.register(get_types_from_msg(text, VALVE_STATE_TYPE))
     State = store.types[VALVE_STATE_TYPE]
     Header = store.types['std_msgs/msg/Header']
     Time = store.types['builtin_interfaces/msg/Time']
@@ -140,14 +143,17 @@ def _write_bag(path: Path, *, embed_definition: bool, n: int = 40, frame: str = 
             frames = [frame] + ([extra_frame] if extra_frame else [])
             for fr in frames:
                 t_ns = 1_000_000_000 + k * 1_000_000
+                extra = {'coil_current_mean': 0.01 * k,
+                         'coil_voltage_mean': 0.0} if with_mean else {}
                 msg = State(
                     header=Header(stamp=Time(sec=t_ns // 10**9, nanosec=t_ns % 10**9)
                                   if stamps else Time(sec=0, nanosec=0), frame_id=fr),
                     sequence=seq, coil_voltage=24.0 if k >= 2 else 0.0,
                     coil_current=0.01 * k if k != 7 else float('nan'),
                     spool_position=0.0, spool_velocity=0.0, spool_position_avg=0.0,
-                    mass_flow=0.0, duty=1.0, pwm_frequency=0.0, supply_pressure=4e5,
-                    output_pressure=0.0, source=0, position_measured=False)
+                    mass_flow=0.0, duty=(0.4 if k >= 25 else 0.0) if pwm else 1.0,
+                    pwm_frequency=50.0 if pwm else 0.0, supply_pressure=4e5,
+                    output_pressure=0.0, source=0, position_measured=False, **extra)
                 w.write(conn, t_ns, store.serialize_cdr(msg, VALVE_STATE_TYPE))
             seq += 1
 
@@ -209,3 +215,18 @@ def test_files_with_different_sample_rates_are_combined(tmp_path: Path) -> None:
     t5 = files[1].t_s
     np.testing.assert_allclose(sim[1][0][0], np.interp(t5, files[0].t_s, sim[0][0][0]),
                                atol=2e-4)
+
+
+def test_pwm_bag_is_an_operation_record_and_needs_the_mean_current(tmp_path: Path) -> None:
+    """A bag of the suite running PWM is read as an operational record (issue 12)."""
+    bag = tmp_path / 'ops'
+    _write_bag(bag, embed_definition=True, pwm=True, n=60)
+    m = read_bag(bag)
+    assert m.through_electronics and m.experiment == 'operation'
+    assert m.sampling == 'interval_mean'
+    np.testing.assert_allclose(m.current_a[:3], [0.0, 0.01, 0.02])
+    assert any('24 V' in n for n in m.notes)
+    old = tmp_path / 'old'
+    _write_bag(old, embed_definition=True, pwm=True, n=60, with_mean=False)
+    with pytest.raises(MeasurementFormatError, match="'coil_current_mean'"):
+        read_bag(old)

@@ -285,7 +285,10 @@ def _drive_lockstep(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
     try:
         sup.say('waiting for the simulation and for every node to subscribe ...')
         state_topic = '/' + _topic(cfg.valves[0], 'valve/state')
-        needs = [('/cylinder/joint_states', 2)]  # controller + recorder
+        needs = [('/cylinder/joint_states', 2),        # controller + recorder
+                 ('/cylinder/position_goal', 2),       # controller + recorder
+                 ('/cylinder/position_setpoint', 2)]   # this watcher + recorder: the
+        # report finds the steps from the recorded setpoints, the first one included
         for ns in cfg.valves:
             needs += [('/' + _topic(ns, 'valve/flow_command'), 2),   # flow_to_duty + recorder
                       ('/' + _topic(ns, 'valve/output_pressure'), 2),

@@ -40,7 +40,7 @@ from valve_driver_pkg.driver.health import TelemetryHealth
 from valve_driver_pkg.driver.transmit import TransmitScheduler
 from valve_driver_pkg.errors import FrameRejected
 from valve_driver_pkg.protocol.codec import (COMMAND, PERIOD, PRESSURE, STATUS, TELEMETRY,
-                                             CounterCheck, CounterTracker, RejectReason,
+                                             TELEMETRY_MEAN, CounterCheck, CounterTracker, RejectReason,
                                              ValveCodec)
 from valve_model_pkg.model.averaging import PeriodAverager
 from valve_model_pkg.model.sample import ValveSample
@@ -103,6 +103,10 @@ class ReceiveTracker:
         self._telemetry_counter = CounterTracker()
         self._status_counter = CounterTracker()
         self._period_counter = CounterTracker()
+        self._mean_counter = CounterTracker()
+        # (mean current A, mean voltage V, counter) of the last ValveTelemetryMean, paired
+        # with the ValveTelemetry frame of the same instant (same counter) and then dropped
+        self._mean: tuple[float, float, int] | None = None
         self.frozen_run = 0
         self.last_valid_mono: float | None = None
         self.opened_mono = 0.0
@@ -129,6 +133,8 @@ class ReceiveTracker:
         self._telemetry_counter.reset()
         self._status_counter.reset()
         self._period_counter.reset()
+        self._mean_counter.reset()
+        self._mean = None
         self.opened_mono = now
         self.health.reset(now)
 
@@ -182,6 +188,9 @@ class ReceiveTracker:
         elif frame.name == STATUS:
             with self._lock:
                 self._on_status(frame.signals, frame.counter)
+        elif frame.name == TELEMETRY_MEAN:
+            with self._lock:
+                self._on_mean(frame.signals, frame.counter)
 
     def _on_host_command(self, msg: can.Message) -> None:
         """A ValveCommand for our node on the bus: ours echoed, or another host's.
@@ -222,6 +231,22 @@ class ReceiveTracker:
         self.period = (float(signals['PositionAverage']), float(signals['DutyActive']),
                        float(signals['PwmFrequencyActive']), time.monotonic())
 
+    def _on_mean(self, signals: dict, counter: int) -> None:
+        if self._mean_counter.check(counter) is CounterCheck.FROZEN:
+            self._reject(RejectReason.COUNTER_FROZEN.value,
+                         f'ValveTelemetryMean counter stuck at {counter}')
+            return
+        self._tally.count('mean_frames')
+        self._mean = (float(signals['CoilCurrentMean']), float(signals['CoilVoltageMean']),
+                      counter)
+
+    def _take_mean(self, counter: int) -> tuple[float, float]:
+        """The interval means sent with telemetry frame ``counter`` (NaN if none came)."""
+        mean, self._mean = self._mean, None
+        if mean is None or mean[2] != counter:
+            return math.nan, math.nan
+        return mean[0], mean[1]
+
     def _on_status(self, signals: dict, counter: int) -> None:
         if self._status_counter.check(counter) is CounterCheck.FROZEN:
             self._reject(RejectReason.COUNTER_FROZEN.value,
@@ -234,6 +259,7 @@ class ReceiveTracker:
     def _on_telemetry(self, signals: dict, counter: int) -> None:
         with self._lock:
             state, changed = self._track_telemetry(signals, counter)
+            current_mean, voltage_mean = self._take_mean(counter)
         if changed:
             self._on_change()
         if state is None or self._on_sample is None:
@@ -247,7 +273,8 @@ class ReceiveTracker:
             spool_position_m=float(signals['SpoolPosition']), spool_velocity_m_s=velocity,
             position_avg_m=average, mass_flow_kg_s=flow, duty=duty, pwm_frequency_hz=pwm_hz,
             supply_pressure_pa=supply, output_pressure_pa=output,
-            position_measured=bool(signals['PositionValid'])))
+            position_measured=bool(signals['PositionValid']),
+            coil_current_mean_a=current_mean, coil_voltage_mean_v=voltage_mean))
 
     def _track_telemetry(self, signals: dict, counter: int) -> tuple[tuple | None, bool]:
         """Account for one telemetry frame (lock held).

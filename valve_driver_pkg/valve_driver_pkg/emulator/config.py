@@ -5,7 +5,8 @@ from dataclasses import dataclass
 from typing import Protocol
 
 __all__ = ['StepperLike', 'ControllerState', 'EmulatorConfig', 'UNKNOWN_INJECTED_ID',
-           'FLAG_HOLD_S', 'PERIOD_REFRESH_S', 'MIN_PRESSURE_PA', 'clamp']
+           'FLAG_HOLD_S', 'PERIOD_REFRESH_S', 'MIN_PRESSURE_PA', 'DEFAULT_COMMAND_TIMEOUT_S',
+           'clamp']
 
 #: Id of the frames the ``UNKNOWN_ID`` fault puts on the bus (outside every protocol range).
 UNKNOWN_INJECTED_ID = 0x5A5
@@ -13,6 +14,11 @@ UNKNOWN_INJECTED_ID = 0x5A5
 FLAG_HOLD_S = 1.0
 #: ValvePeriod is repeated at least this often even when nothing changed [s].
 PERIOD_REFRESH_S = 0.1
+#: The controller's own command timeout (host loss) [s]: while enabled, no valid
+#: ``ValveCommand`` for this long switches the coil off at once (``CommandTimeout``) until
+#: the next valid command. The driver sends at 100 Hz, so 10 commands in a row must be lost.
+#: The coil is off within this time plus one telemetry period (docs/safety.md).
+DEFAULT_COMMAND_TIMEOUT_S = 0.1
 #: Lowest gauge pressure the model accepts [Pa] (lower values are clamped).
 MIN_PRESSURE_PA = -1.0e5
 
@@ -29,6 +35,7 @@ class StepperLike(Protocol):
     def set_pressures(self, supply_pa: float, output_pa: float) -> None: ...
     def advance_to(self, t_s: float) -> None: ...
     def sample(self): ...
+    def interval_means(self) -> tuple[float, float]: ...   # optional (sampled values else)
     def reset(self) -> None: ...
 
 
@@ -75,7 +82,7 @@ class EmulatorConfig:
     node_id: int = 0
     telemetry_rate_hz: float = 1000.0
     status_rate_hz: float = 10.0
-    command_timeout_s: float = 0.1
+    command_timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S
     position_estimate: bool = True
     fault_injection: bool = False
     supply_voltage_v: float = 24.0

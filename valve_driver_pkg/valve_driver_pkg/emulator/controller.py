@@ -21,6 +21,13 @@ What the firmware does (see the package README for the frame table):
 * ``ValvePressure``: port pressures for the model.
 * ``ValveTelemetry`` every ``1/telemetry_rate_hz`` of model time: the sampled coil current,
   coil voltage and spool position (the controller's estimate; here the model's position).
+* ``ValveTelemetryMean`` just before each ``ValveTelemetry``: the coil current and voltage
+  averaged over the telemetry period that ends at that instant, as firmware averaging its
+  ADC samples over the period would report them; here the model's exact integrals
+  (``ValveStepper.interval_means``), so the mean has no aliasing of the 20 kHz chopper.
+* Close semantics (docs/safety.md): a command with duty 0 or ``Enable=0``, the command
+  watchdog and an overcurrent switch the coil off at once (the model's duty-0 rule); any
+  other duty or frequency takes effect at the next main PWM period start.
 * ``ValvePeriod`` just before the telemetry frame of an instant at which the position
   averaged over the last complete PWM period, or the duty/frequency in force, changed
   (i.e. once per PWM period), and at least every 0.1 s: what a firmware computes at its
@@ -44,7 +51,7 @@ from valve_driver_pkg.emulator.fault_handling import FaultHandling
 from valve_driver_pkg.emulator.faults import FaultInjector
 from valve_driver_pkg.errors import FrameRejected, ProtocolEncodeError
 from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, PERIOD, PRESSURE, STATUS,
-                                             TELEMETRY, CounterCheck, CounterTracker,
+                                             TELEMETRY, TELEMETRY_MEAN, CounterCheck, CounterTracker,
                                              EmulatorFault, ValveCodec)
 
 __all__ = ['StepperLike', 'EmulatorConfig', 'ControllerEmulator', 'ControllerState',
@@ -86,10 +93,13 @@ class ControllerEmulator(FaultHandling):
         self._v_lo, self._v_hi = self.codec.signal_range(TELEMETRY, 'CoilVoltage')
         self._x_lo, self._x_hi = self.codec.signal_range(TELEMETRY, 'SpoolPosition')
         self._f_lo, self._f_hi = self.codec.signal_range(COMMAND, 'PwmFrequency')
+        self._w_lo, self._w_hi = self.codec.signal_range(TELEMETRY_MEAN, 'MeanInterval')
         self._model_t = 0.0
         self._next_telemetry_k = 0
         self._next_status_t = 0.0
         self._telemetry_counter = 0
+        self._mean_counter = 0
+        self._mean_t = 0.0          # model time the running averaging interval started
         self._status_counter = 0
         self._period_counter = 0
         self._period_sent: tuple[int, int, int] | None = None
@@ -228,8 +238,12 @@ class ControllerEmulator(FaultHandling):
                 skip = due - max_burst
                 self._next_telemetry_k += skip
                 self._telemetry_counter = (self._telemetry_counter + skip) & 0xF
+                self._mean_counter = (self._mean_counter + skip) & 0xF
                 self.stats['overruns'] += skip
                 instants += skip
+                # the next mean covers one telemetry period, like the firmware's average
+                self._advance((self._next_telemetry_k - 1) * period)
+                self._close_mean_interval()
             while self._next_telemetry_k * period <= t_s + 1e-12:
                 t_k = self._next_telemetry_k * period
                 self._advance(t_k)
@@ -281,13 +295,37 @@ class ControllerEmulator(FaultHandling):
         return self._overcurrent or self._timed_out or any(
             until > self._model_t for until in self._flag_until.values())
 
+    def _close_mean_interval(self) -> tuple[float, float, float]:
+        """End the averaging interval now: (mean current A, mean voltage V, length s)."""
+        interval_means = getattr(self.stepper, 'interval_means', None)
+        if interval_means is None:   # a test double without means: the sampled values
+            s = self.stepper.sample()
+            current, voltage = float(s.coil_current_a), float(s.coil_voltage_v)
+        else:
+            current, voltage = interval_means()
+        width = self._model_t - self._mean_t
+        self._mean_t = self._model_t
+        return current, voltage, width
+
+    def _send_mean(self, current: float, voltage: float, width: float) -> None:
+        counter = self._mean_counter
+        if not self.faults.is_active(EmulatorFault.FREEZE_COUNTER):
+            self._mean_counter = (counter + 1) & 0xF
+        signals = {'CoilCurrentMean': clamp(current, self._i_lo, self._i_hi),
+                   'CoilVoltageMean': clamp(voltage, self._v_lo, self._v_hi),
+                   'MeanInterval': clamp(width, self._w_lo, self._w_hi)}
+        self._send(self.codec.encode(TELEMETRY_MEAN, signals, counter, timestamp=time.time()))
+
     def _send_telemetry(self) -> None:
         faults = self.faults
         counter = self._telemetry_counter
+        mean = self._close_mean_interval()   # every period, sent or not: one period each
         if not faults.is_active(EmulatorFault.FREEZE_COUNTER):
             self._telemetry_counter = (counter + 1) & 0xF
         if self._silent() or faults.hits(EmulatorFault.DROP_TELEMETRY):
             self.stats['telemetry_suppressed'] += 1
+            if not faults.is_active(EmulatorFault.FREEZE_COUNTER):
+                self._mean_counter = (self._mean_counter + 1) & 0xF
             return
         s = self.stepper.sample()
         current = float(s.coil_current_a)
@@ -298,6 +336,7 @@ class ControllerEmulator(FaultHandling):
             logger.warning('emulator: overcurrent %.3f A; output off until ClearFaults', current)
         position = float(s.spool_position_m) if self.config.position_estimate else 0.0
         self._send_period(s)
+        self._send_mean(*mean)
         signals = {
             'CoilCurrent': clamp(current, self._i_lo, self._i_hi),
             'CoilVoltage': clamp(float(s.coil_voltage_v), self._v_lo, self._v_hi),

@@ -38,6 +38,7 @@ import can
 
 from valve_driver_pkg.canbus.factory import open_bus
 from valve_driver_pkg.canbus.tcp_loopback import TcpLoopbackHub
+from valve_driver_pkg.emulator.config import DEFAULT_COMMAND_TIMEOUT_S
 from valve_driver_pkg.emulator.controller import ControllerEmulator, EmulatorConfig
 from valve_driver_pkg.emulator.faults import FAULT_NAMES, parse_fault_spec
 from valve_driver_pkg.errors import BusOpenError
@@ -69,9 +70,10 @@ def build_parser() -> argparse.ArgumentParser:
     fw = p.add_argument_group('firmware')
     fw.add_argument('--telemetry-rate-hz', type=float, default=1000.0)
     fw.add_argument('--status-rate-hz', type=float, default=10.0)
-    fw.add_argument('--command-timeout-s', type=float, default=0.1,
-                    help='firmware watchdog: no valid command this long closes the valve '
-                         '(0 = off)')
+    fw.add_argument('--command-timeout-s', type=float, default=DEFAULT_COMMAND_TIMEOUT_S,
+                    help='firmware watchdog (host loss): no valid command this long switches '
+                         f'the coil off at once (default {DEFAULT_COMMAND_TIMEOUT_S:g} s; '
+                         '0 = off)')
     fw.add_argument('--no-position-estimate', action='store_true',
                     help='report PositionValid=0 (a controller without an estimator)')
     fw.add_argument('--fault-injection', action='store_true',

@@ -10,8 +10,12 @@ tools (``include_test_messages=True``). Every frame is 8 bytes with the same tra
 * bits 48..51: ``Counter``, a 4-bit rolling counter, +1 (mod 16) per frame of that message;
 * byte 7: ``Checksum``, CRC-8/SAE-J1850 (polynomial 0x1D, init 0xFF, final xor 0xFF;
   computed by crccheck's ``Crc8SaeJ1850``) over the two bytes of the 11-bit frame id (low
-  byte first) followed by data bytes 0..6. The id is part of the checksum so a frame of
-  another node or message can never pass for ours.
+  byte first; the four bytes of a 29-bit id) followed by data bytes 0..6. The id is part
+  of the checksum so a frame of another node or message can never pass for ours.
+
+Every message has an 11-bit id except ``ValveTelemetryMean`` (the interval means, 1 kHz):
+the 11-bit block beside CANopen is full (6 messages x 16 nodes), so it uses the 29-bit ids
+0x16900 + node, which no CANopen device uses (:data:`EXTENDED_MESSAGE_NAMES`).
 
 Encoding is strict: a signal outside its DBC range raises :class:`ProtocolEncodeError`
 naming the signal, the limit and the value (callers clamp first; see the driver core).
@@ -34,20 +38,23 @@ from crccheck.crc import Crc8SaeJ1850
 from valve_driver_pkg.errors import DbcError, FrameRejected, ProtocolEncodeError
 
 __all__ = [
-    'COMMAND', 'TELEMETRY', 'PERIOD', 'PRESSURE', 'STATUS', 'CONTROL', 'MESSAGE_NAMES',
-    'TEST_MESSAGE_NAMES', 'MAX_NODE_ID', 'FRAME_LENGTH', 'RejectReason', 'EmulatorFault',
+    'COMMAND', 'TELEMETRY', 'TELEMETRY_MEAN', 'PERIOD', 'PRESSURE', 'STATUS', 'CONTROL',
+    'MESSAGE_NAMES', 'TEST_MESSAGE_NAMES', 'EXTENDED_MESSAGE_NAMES', 'MAX_NODE_ID', 'FRAME_LENGTH', 'RejectReason', 'EmulatorFault',
     'DecodedFrame', 'ValveCodec', 'CounterCheck', 'CounterTracker', 'crc8', 'frame_checksum',
     'default_dbc_path', 'fault_injection_dbc_path',
 ]
 
 COMMAND = 'ValveCommand'          # host -> controller, 100 Hz + on change
 TELEMETRY = 'ValveTelemetry'      # controller -> host, 1 kHz
+TELEMETRY_MEAN = 'ValveTelemetryMean'  # controller -> host, 1 kHz interval means (29-bit id)
 PERIOD = 'ValvePeriod'            # controller -> host, per PWM period / on change + 10 Hz
 PRESSURE = 'ValvePressure'        # host -> controller, 10 Hz + on change
 STATUS = 'ValveStatus'            # controller -> host, 10 Hz heartbeat
 CONTROL = 'EmulatorControl'       # tester -> emulator, fault injection (valve_test.dbc)
 #: The messages of the protocol (valve.dbc), the only ones the driver knows.
-MESSAGE_NAMES = (COMMAND, TELEMETRY, PERIOD, PRESSURE, STATUS)
+MESSAGE_NAMES = (COMMAND, TELEMETRY, PERIOD, PRESSURE, STATUS, TELEMETRY_MEAN)
+#: Messages with a 29-bit id (all others: 11-bit).
+EXTENDED_MESSAGE_NAMES = (TELEMETRY_MEAN,)
 #: Test-only messages (valve_test.dbc): the emulator and test tools add them.
 TEST_MESSAGE_NAMES = (CONTROL,)
 
@@ -105,9 +112,12 @@ def crc8(data: bytes | bytearray) -> int:
     return Crc8SaeJ1850.calc(data)
 
 
-def frame_checksum(arbitration_id: int, data: bytes | bytearray) -> int:
-    """Checksum byte of a protocol frame: CRC-8 over the id (2 bytes, LE) and data[0:7]."""
-    return crc8(bytes((arbitration_id & 0xFF, (arbitration_id >> 8) & 0xFF)) + bytes(data[:7]))
+def frame_checksum(arbitration_id: int, data: bytes | bytearray, extended: bool = False) -> int:
+    """Checksum byte of a protocol frame: CRC-8 over the id (LE: 2 bytes, 4 for a 29-bit
+    id) and data[0:7]."""
+    ident = (arbitration_id & 0x1FFFFFFF).to_bytes(4, 'little') if extended \
+        else (arbitration_id & 0xFFFF).to_bytes(2, 'little')
+    return crc8(ident + bytes(data[:7]))
 
 
 def default_dbc_path() -> Path:
@@ -195,7 +205,8 @@ class ValveCodec:
             self._ranges[name] = tuple(
                 (s.name, s.minimum, s.maximum) for s in message.signals
                 if s.name not in ('Counter', 'Checksum'))
-        spans = sorted((base, base + MAX_NODE_ID, name) for name, base in self._base_ids.items())
+        spans = sorted((base, base + MAX_NODE_ID, name) for name, base in self._base_ids.items()
+                       if name not in EXTENDED_MESSAGE_NAMES)
         for (lo_a, hi_a, a), (lo_b, _, b) in zip(spans, spans[1:]):
             if lo_b <= hi_a:
                 raise DbcError(f'DBC {self.dbc_path}: id ranges of {a} and {b} overlap '
@@ -203,15 +214,18 @@ class ValveCodec:
         if spans[-1][1] > 0x7FF:
             raise DbcError(f'DBC {self.dbc_path}: {spans[-1][2]} ids exceed 11 bits')
         # id -> (message name, node id) for every id of the protocol, for O(1) lookups.
+        # (29-bit ids are above 0x7FF, so one table holds both kinds.)
         self._by_id = {base + n: (name, n) for name, base in self._base_ids.items()
                        for n in range(MAX_NODE_ID + 1)}
+        self._extended = {name for name in self._messages if name in EXTENDED_MESSAGE_NAMES}
 
     def _check_layout(self, message) -> None:
         if message.length != FRAME_LENGTH:
             raise DbcError(f'DBC {self.dbc_path}: {message.name} is {message.length} bytes, '
                            f'the protocol needs {FRAME_LENGTH}')
-        if message.is_extended_frame:
-            raise DbcError(f'DBC {self.dbc_path}: {message.name} must use an 11-bit id')
+        if message.is_extended_frame != (message.name in EXTENDED_MESSAGE_NAMES):
+            bits = 29 if message.name in EXTENDED_MESSAGE_NAMES else 11
+            raise DbcError(f'DBC {self.dbc_path}: {message.name} must use a {bits}-bit id')
         for name, start, length in (('Counter', _COUNTER_START_BIT, 4),
                                     ('Checksum', _CHECKSUM_START_BIT, 8)):
             try:
@@ -277,8 +291,9 @@ class ValveCodec:
         except (EncodeError, KeyError, ValueError, TypeError) as err:
             raise ProtocolEncodeError(f'cannot encode {name}: {err}') from err
         arbitration_id = self.frame_id(name, node_id)
-        data[7] = frame_checksum(arbitration_id, data)
-        return can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False,
+        extended = name in self._extended
+        data[7] = frame_checksum(arbitration_id, data, extended)
+        return can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=extended,
                            timestamp=timestamp)
 
     # --- decoding ----------------------------------------------------------------------------
@@ -302,13 +317,15 @@ class ValveCodec:
             With ``reason`` a :class:`RejectReason` value and a message naming the check.
         """
         arbitration_id = msg.arbitration_id
-        if msg.is_remote_frame or msg.is_extended_id or msg.is_fd or msg.is_error_frame:
+        found = self._by_id.get(arbitration_id)
+        extended = found is not None and found[0] in self._extended
+        if (msg.is_remote_frame or msg.is_extended_id != extended or msg.is_fd
+                or msg.is_error_frame):
             kind = ('remote' if msg.is_remote_frame else 'error' if msg.is_error_frame
                     else 'CAN FD' if msg.is_fd else 'extended-id')
             raise FrameRejected(RejectReason.FRAME_TYPE.value,
                                 f'{kind} frame with id 0x{arbitration_id:X} is not part of '
                                 'the protocol')
-        found = self._by_id.get(arbitration_id)
         if found is None or (expect_node and found[1] != self.node_id):
             raise FrameRejected(RejectReason.UNKNOWN_ID.value,
                                 f'frame id 0x{arbitration_id:X} is not a protocol id of node '
@@ -319,7 +336,7 @@ class ValveCodec:
             raise FrameRejected(RejectReason.WRONG_LENGTH.value,
                                 f'{name} (0x{arbitration_id:X}) has {len(data)} data bytes '
                                 f'(dlc {msg.dlc}), expected {FRAME_LENGTH}')
-        expected = frame_checksum(arbitration_id, data)
+        expected = frame_checksum(arbitration_id, data, extended)
         if data[7] != expected:
             raise FrameRejected(RejectReason.CHECKSUM.value,
                                 f'{name} (0x{arbitration_id:X}) checksum 0x{data[7]:02X}, '

@@ -113,6 +113,15 @@ class Diagnosis:
     numbers: dict[str, object]
     params: ValveParameters
     unexplained_structure: bool
+    #: Effects in the augmented model (the claimed one, and a second that paid too).
+    kept_effects: list[str] = field(default_factory=list)
+    #: Candidates the data cannot tell from the claimed one.
+    indistinguishable: list[str] = field(default_factory=list)
+    second: dict[str, object] | None = None
+    remaining: dict[str, object] | None = None
+    #: Judged on (set by select): data and the baseline's noise, for the second effect.
+    judge: object = None
+    base_mae: dict | None = None
 
 
 def _stack(data: FitData, arrays: list[np.ndarray]) -> np.ndarray:
@@ -220,16 +229,31 @@ def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, 
     return ext.params(best.u), best.cost, ext
 
 
+#: Error floor of the BIC comparison, relative to each file's current range: below it
+#: two models are equal (the model's integration accuracy, the current's quantisation);
+#: without it two noise-free fits that differ by numerics look like strong evidence.
+MAE_FLOOR_FRACTION = 2e-4
+
+
 def _dbic(base_mae: dict[str, float], aug_mae: dict[str, float], counts: dict[str, int],
-          p: int) -> float:
+          p: int, floors: dict[str, float] | None = None) -> float:
     """Laplace-likelihood BIC difference (augmented minus baseline), per-file MAEs."""
     total = sum(counts.values())
     d = 0.0
     for name, n in counts.items():
-        b, a = base_mae[name], aug_mae[name]
+        f = floors.get(name, 0.0) if floors else 0.0
+        b, a = base_mae[name] + f, aug_mae[name] + f
         if b > 0 and a > 0:
             d += 2.0 * n * math.log(a / b)
     return d + p * math.log(max(total, 2))
+
+
+def _floors(data: FitData) -> dict[str, float]:
+    out = {}
+    for m, v in zip(data.measurements, data.valid):
+        c = m.current_a[v]
+        out[m.name] = MAE_FLOOR_FRACTION * float(np.ptp(c)) if c.size else 0.0
+    return out
 
 
 def _noise_per_file(data: FitData, params: ValveParameters) -> list[float]:
@@ -260,9 +284,20 @@ def _has_release(m: object) -> bool:
     return bool(np.any(v[first:] < 0.1 * v.max()))
 
 
+#: A runner-up that gains this share of the winner's validation gain cannot be told apart.
+INDISTINGUISHABLE = 0.8
+#: Structured RMS left after the claimed effect, relative to the noise, above which the
+#: claim is only of low confidence (something else is at work, maybe outside the list).
+REMAINING_STRUCTURE = 1.0
+
+
 def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
-           baseline: ValveParameters) -> Diagnosis:
+           baseline: ValveParameters, *, baseline_at_bound: list[str] | None = None,
+           space: ParameterSpace | None = None) -> Diagnosis:
     """Apply the keep rule (module notes) and decide the diagnosis."""
+    floors_fit = _floors(fit)
+    floors_val = _floors(val) if val is not None else {}
+    at_bound = list(baseline_at_bound or [])
     counts_fit = {m.name: int(v.sum()) for m, v in zip(fit.measurements, fit.valid)}
     base_fit = fit.errors(baseline)
     base_val = val.errors(baseline) if val is not None else None
@@ -279,12 +314,14 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
         aug_fit = fit.errors(c.params)
         c.fit_cost = sum(aug_fit.mae_per_file.values())
         c.fit_gain = 1.0 - c.fit_cost / sum(base_fit.mae_per_file.values())
-        c.dbic_fit = _dbic(base_fit.mae_per_file, aug_fit.mae_per_file, counts_fit, p)
+        c.dbic_fit = _dbic(base_fit.mae_per_file, aug_fit.mae_per_file, counts_fit, p,
+                           floors_fit)
         if val is not None and base_val is not None:
             aug_val = val.errors(c.params)
             c.val_cost = sum(aug_val.mae_per_file.values())
             c.val_gain = 1.0 - c.val_cost / sum(base_val.mae_per_file.values())
-            c.dbic_val = _dbic(base_val.mae_per_file, aug_val.mae_per_file, counts_val, p)
+            c.dbic_val = _dbic(base_val.mae_per_file, aug_val.mae_per_file, counts_val, p,
+                               floors_val)
         struct_aug = _structured_energy(judge, c.params, noise)
         c.structure_explained = (1.0 - struct_aug / struct_base) if struct_base > 0 else 0.0
         reasons = []
@@ -297,6 +334,11 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
             if not c.val_gain >= MIN_VALIDATION_GAIN:
                 reasons.append(f'validation error falls {100 * c.val_gain:.2f} %, less than '
                                f'{100 * MIN_VALIDATION_GAIN:g} %')
+        if at_bound and space is not None:
+            still = [n for n in fit.at_bound(space, c.params) if n in space.names]
+            if still:
+                reasons.append('its refit keeps baseline parameters at a search bound ('
+                               + ', '.join(still) + '): a misfit, not an effect')
         c.kept = not reasons
         c.reason = 'pays for its parameters on fit and validation data' if c.kept else \
             '; '.join(reasons)
@@ -350,9 +392,23 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
         else:
             effect, params = best.effect, best.params
             runner = kept[1] if len(kept) > 1 else None
-            close = runner is not None and runner.val_gain > 0.8 * best.val_gain
+            gain_of = (lambda c: c.val_gain if math.isfinite(c.val_gain) else c.fit_gain)
+            close = [c for c in kept[1:] if gain_of(c) > INDISTINGUISHABLE * gain_of(best)]
             weak = not sizeable or best.structure_explained < 0.7
-            confidence = 'medium' if close or weak else 'high'
+            confidence = 'medium' if weak else 'high'
+            if close:
+                confidence = 'low'
+                evidence.append(
+                    'the data cannot separate ' + ' and '.join(
+                        [best.effect] + [c.effect for c in close]) + ': '
+                    + ', '.join(f'{c.effect} gains {100 * gain_of(c):.1f} %'
+                                for c in [best] + close)
+                    + f' (within {100 * (1 - INDISTINGUISHABLE):.0f} %); confidence low')
+            if at_bound:
+                confidence = 'low' if confidence == 'low' else 'medium'
+                evidence.append('the baseline had parameters at a search bound ('
+                                + ', '.join(at_bound) + '); the augmented model brings them '
+                                'inside, so the claim stands, with at most medium confidence')
             if not sizeable:
                 evidence.append('the baseline residual is hardly above the noise: the effect '
                                 'is small and the hold-out gain is the main evidence')
@@ -365,10 +421,94 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
                 evidence.append(f'runner-up {runner.effect}: validation '
                                 f'{100 * runner.val_gain:.1f} %')
             unexplained = sizeable and best.structure_explained < 0.9
+    if at_bound and effect == 'none':
+        evidence.append('baseline parameters at a search bound (' + ', '.join(at_bound)
+                        + '): the baseline misfits; its residual is not read as a missing '
+                        'effect')
+        confidence = 'low'
+        unexplained = True
     if not any(_has_release(m) for m in fit.measurements + (val.measurements if val else [])):
         evidence.append('no file switches the voltage off after the valve opened: without a '
                         'closing stroke coulomb_friction acts exactly like a larger spring '
                         'pre-tension (delta + F_c/k) and cannot be detected')
+    numbers['baseline_at_search_bound'] = at_bound
+    indist = []
+    if effect != 'none':
+        gain_of = (lambda c: c.val_gain if math.isfinite(c.val_gain) else c.fit_gain)
+        b0 = kept[0]
+        indist = [c.effect for c in kept[1:] if gain_of(c) > INDISTINGUISHABLE * gain_of(b0)]
+        numbers['indistinguishable_from'] = indist
     return Diagnosis(effect=effect, confidence=confidence, candidates=ranked,
                      evidence=evidence, numbers=numbers, params=params,
-                     unexplained_structure=bool(unexplained))
+                     unexplained_structure=bool(unexplained),
+                     kept_effects=[effect] if effect != 'none' else [],
+                     indistinguishable=indist, judge=judge,
+                     base_mae={'noise': noise, 'struct_base': struct_base})
+
+
+def describe_remaining(diag: Diagnosis, augmented: object) -> None:
+    """After the claimed effect: how much structure is left (the augmented model's
+    residual analysis); a claim that leaves much of it is lowered to confidence low."""
+    rep = augmented.residual_validation or augmented.residual_fit
+    sigma = rep.noise_std_a
+    left = rep.structured_rms_a
+    ratio = left / sigma if sigma > 0 else math.inf
+    diag.remaining = {'structured_rms_a': left, 'noise_std_a': sigma,
+                      'structured_over_noise': ratio, 'white': rep.white,
+                      'dominant_phase': rep.dominant_phase,
+                      'on': 'validation' if augmented.residual_validation else 'fit'}
+    text = (f'after {" + ".join(diag.kept_effects)}: {1e3 * left:.2f} mA of structured '
+            f'residual left against {1e3 * sigma:.2f} mA noise ({ratio:.2f} x noise, '
+            f'{"white" if rep.white else "not white"}, mostly {rep.dominant_phase})')
+    diag.evidence.append(text)
+    if ratio > REMAINING_STRUCTURE and diag.confidence != 'low':
+        diag.confidence = 'low'
+        diag.unexplained_structure = True
+        diag.evidence.append('structure beyond the noise remains after the claimed effect: '
+                             'something else (maybe outside the candidate list) is at work; '
+                             'confidence low')
+
+
+def second_effect(diag: Diagnosis, space: ParameterSpace, fit: FitData, val: FitData | None,
+                  settings: SearchSettings, say: Callable[[str], None]) -> None:
+    """Try the best other kept candidate on top of the claimed effect; keep both when the
+    pair pays for the extra parameters under the same two criteria."""
+    others = [c for c in diag.candidates if c.kept and c.effect != diag.effect]
+    if not others:
+        return
+    other = others[0]
+    ext = effect_space(space, diag.effect)
+    p2, _, _ = refit_effect(ext, fit.serial(), diag.params, other.effect, settings)
+    counts_fit = {m.name: int(v.sum()) for m, v in zip(fit.measurements, fit.valid)}
+    one_fit, two_fit = fit.errors(diag.params), fit.errors(p2)
+    p = len(other.fields)
+    dfit = _dbic(one_fit.mae_per_file, two_fit.mae_per_file, counts_fit, p, _floors(fit))
+    dval = math.nan
+    gain_val = math.nan
+    if val is not None:
+        counts_val = {m.name: int(v.sum()) for m, v in zip(val.measurements, val.valid)}
+        one_val, two_val = val.errors(diag.params), val.errors(p2)
+        dval = _dbic(one_val.mae_per_file, two_val.mae_per_file, counts_val, p, _floors(val))
+        gain_val = 1.0 - sum(two_val.mae_per_file.values()) / sum(
+            one_val.mae_per_file.values())
+    val_ok = val is None or (dval < DBIC_THRESHOLD and gain_val >= MIN_VALIDATION_GAIN)
+    ok = dfit < DBIC_THRESHOLD and val_ok
+    diag.second = {'effect': other.effect, 'delta_bic_fit': dfit,
+                   'delta_bic_validation': dval,
+                   'validation_error_reduction_pct': 100.0 * gain_val
+                   if math.isfinite(gain_val) else None,
+                   'kept': bool(ok),
+                   'parameters': {f: getattr(p2, f) for f in other.fields}}
+    say(f'second effect {other.effect} on top of {diag.effect}: dBIC fit {dfit:.1f}, '
+        f'validation {dval:.1f} -> {"kept" if ok else "not kept"}')
+    if ok:
+        diag.kept_effects.append(other.effect)
+        diag.params = p2
+        diag.evidence.append(
+            f'a second listed effect also pays for its parameters on top of {diag.effect}: '
+            f'{other.effect} (dBIC fit {dfit:.0f}, validation {dval:.0f}, validation error '
+            f'{100 * gain_val:+.1f} %); both are kept in the augmented model')
+    else:
+        diag.evidence.append(
+            f'second effect tried on top of {diag.effect}: {other.effect} does not pay for '
+            f'its parameters again (dBIC fit {dfit:.1f}, validation {dval:.1f})')

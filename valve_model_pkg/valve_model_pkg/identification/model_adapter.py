@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..model import (DEFAULT_H_FREE_S, DEFAULT_H_STOP_S, PARAMETER_FIELDS, InputTrace,
+from ..model import (DEFAULT_H_FREE_S, DEFAULT_H_STOP_S, PARAMETER_FIELDS,
+                     ElectronicsConfig, InputTrace,
                      simulate_trace_batch as simulate_model_trace_batch)
 from .errors import ModelAdapterError
 from .measurements import Measurement
@@ -61,6 +62,11 @@ class TraceSetup:
         Pressures, gauge [Pa].
     h_stop_s : float
         Kernel step while the spool rests on a stop [s].
+    drive : InputTrace or None
+        Main PWM commands through the drive electronics (operation and pwm records);
+        ``None`` drives the bare coil with ``seg_v``.
+    sampling : str
+        ``instant`` or ``interval_mean`` (how the record's current was sampled).
     """
 
     seg_t0_s: np.ndarray
@@ -74,6 +80,8 @@ class TraceSetup:
     supply_pressure_pa: float
     output_pressure_pa: float
     h_stop_s: float
+    drive: InputTrace | None = None
+    sampling: str = 'instant'
 
 
 def _segments(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -121,6 +129,20 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
     if m.supply_pressure_pa is None:
         raise ModelAdapterError(
             f'{m.source}: no supply_pressure_pa in the metadata; the model needs it')
+    if m.drive is not None:
+        # Through the electronics: the model is sampled exactly at the record's times
+        # (interval means over the record's own intervals), no grid.
+        d = m.drive
+        t = m.t_s if keep is None else m.t_s[keep]
+        return TraceSetup(
+            seg_t0_s=np.zeros(1), seg_v=np.zeros(1), t_end_s=float(t[-1]),
+            grid_t0_s=float(t[0]), grid_dt_s=float(np.median(np.diff(t))), n_grid=t.size,
+            index=None, t_s=t, supply_pressure_pa=float(m.supply_pressure_pa),
+            output_pressure_pa=float(m.output_pressure_pa),
+            h_stop_s=float(DEFAULT_H_STOP_S if h_stop_s is None else h_stop_s),
+            drive=InputTrace.pwm_commands(d.t_s, d.duty, d.pwm_frequency_hz,
+                                          d.supply_voltage_v),
+            sampling=m.sampling)
     seg_t0, seg_v = _segments(m.t_s, m.voltage_v)
     t = m.t_s if keep is None else m.t_s[keep]
     dt = float(np.median(np.diff(t)))
@@ -146,7 +168,8 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
 
 
 def simulate_trace_batch(raw: np.ndarray, setup: TraceSetup, *,
-                         h_free_s: float = DEFAULT_H_FREE_S, parallel: bool = True
+                         h_free_s: float = DEFAULT_H_FREE_S, parallel: bool = True,
+                         electronics: ElectronicsConfig | None = None
                          ) -> tuple[np.ndarray, np.ndarray]:
     """Simulate many parameter vectors under one measured voltage trace.
 
@@ -175,6 +198,13 @@ def simulate_trace_batch(raw: np.ndarray, setup: TraceSetup, *,
             f'parameter matrix has {raw.shape[1]} columns, the model has '
             f'{len(PARAMETER_FIELDS)} fields')
     n = raw.shape[0]
+    if setup.drive is not None:
+        res = simulate_model_trace_batch(
+            raw, setup.drive, setup.t_s, electronics=electronics or ElectronicsConfig(),
+            sampling=setup.sampling, supply_pressure_pa=setup.supply_pressure_pa,
+            output_pressure_pa=setup.output_pressure_pa, h_free_s=float(h_free_s),
+            h_stop_s=setup.h_stop_s, validate=False, parallel=parallel)
+        return res.coil_current_a, res.spool_position_m
     grid = setup.grid_t0_s + setup.grid_dt_s * np.arange(setup.n_grid)
     res = simulate_model_trace_batch(
         raw, InputTrace.coil_voltage(setup.seg_t0_s, setup.seg_v), grid,

@@ -21,6 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..model import ElectronicsConfig
 from ..model.parameters import EFFECTS, ValveParameters
 from .errors import IdentificationError
 from .measurements import Measurement
@@ -296,6 +297,8 @@ LONG_RECORD_RATE_HZ = 1000.0
 
 def _decimation(m: Measurement) -> np.ndarray | None:
     """Samples kept for fitting: all, or every k-th of a long, fast record."""
+    if m.drive is not None and m.sampling == 'interval_mean':
+        return None  # interval means are compared over the record's own intervals
     if m.duration_s < LONG_RECORD_S or m.sample_rate_hz <= 1.2 * LONG_RECORD_RATE_HZ:
         return None
     k = int(m.sample_rate_hz // LONG_RECORD_RATE_HZ)
@@ -336,11 +339,22 @@ class FitData:
             self.setups.append(prepare_trace(m, keep=keep))
             self.measurements.append(m if keep is None else _subset(m, keep))
         self.valid = [m.valid for m in self.measurements]
+        if not any(v.sum() >= 10 for v in self.valid):
+            raise IdentificationError('fewer than 10 samples left to compare after the '
+                                      'discarded start of the records')
         self.weights = [_trapezoid_weights(m.t_s, v)
                         for m, v in zip(self.measurements, self.valid)]
         self.durations = [float(w.sum()) for w in self.weights]
         self._count = [0]  # shared with serial() views, so threads' runs are counted too
         self.parallel = True
+        #: Drive electronics of the records through the electronics (identified
+        #: separately, :mod:`.drive`); the same for every run of a batch.
+        self.electronics = ElectronicsConfig()
+
+    @property
+    def through_electronics(self) -> bool:
+        """True when any file runs the drive electronics."""
+        return any(s.drive is not None for s in self.setups)
 
     @property
     def simulations(self) -> int:
@@ -365,7 +379,14 @@ class FitData:
         """Simulated (current, position) of each file, each of shape (m, n_samples)."""
         raw = np.atleast_2d(raw)
         self._count[0] += raw.shape[0] * len(self.setups)
-        return [simulate_trace_batch(raw, s, parallel=self.parallel) for s in self.setups]
+        return [simulate_trace_batch(raw, s, parallel=self.parallel,
+                                     electronics=self.electronics) for s in self.setups]
+
+    def at_bound(self, space: 'ParameterSpace', params: ValveParameters,
+                 fraction: float = 0.01) -> list[str]:
+        """Free parameters of ``space`` within ``fraction`` of their range from a bound."""
+        u = space.to_unit(params)
+        return [n for n, x in zip(space.names, u) if x <= fraction or x >= 1.0 - fraction]
 
     def cost(self, raw: np.ndarray) -> np.ndarray:
         """Sum over files of the mean absolute current error [A], shape (m,)."""
@@ -373,8 +394,10 @@ class FitData:
         total = np.zeros(raw.shape[0])
         for m, setup, w, T in zip(self.measurements, self.setups, self.weights,
                                   self.durations):
-            cur, _ = simulate_trace_batch(raw, setup, parallel=self.parallel)
+            cur, _ = simulate_trace_batch(raw, setup, parallel=self.parallel,
+                                          electronics=self.electronics)
             err = np.abs(np.where(np.isfinite(m.current_a), m.current_a, 0.0)[None, :] - cur)
+            err[~np.isfinite(err)] = np.inf
             total += err @ w / T
         self._count[0] += raw.shape[0] * len(self.setups)
         return np.where(np.isfinite(total), total, np.inf)
@@ -382,7 +405,8 @@ class FitData:
     def residuals(self, params: ValveParameters) -> list[np.ndarray]:
         """Measured minus simulated current of each file [A] (nan where not measured)."""
         sims = self.simulate(params.to_vector()[None, :])
-        return [m.current_a - c[0] for m, (c, _) in zip(self.measurements, sims)]
+        return [np.where(v, m.current_a - c[0], np.nan)
+                for m, v, (c, _) in zip(self.measurements, self.valid, sims)]
 
     def errors(self, params: ValveParameters) -> ErrorFigures:
         """IAE, RMSE and NRMSE of ``params`` on these files."""

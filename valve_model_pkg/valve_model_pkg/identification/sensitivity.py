@@ -32,9 +32,12 @@ import numpy as np
 from ..model.parameters import ValveParameters
 from .problem import GAP, PAPER_SYMBOLS, FitData, ParameterSpace, equivalent_gap_m
 
-__all__ = ['SensitivityReport', 'analyse_sensitivity', 'noise_std', 'equivalent_gap_m']
+__all__ = ['SensitivityReport', 'analyse_sensitivity', 'noise_std', 'equivalent_gap_m',
+           'residual_inflation']
 
 _PINNED_CI95_PCT = 5.0
+#: NRMSE [%] above which the intervals are floored at the NRMSE.
+_MISFIT_NRMSE_PCT = 5.0
 _REL_STEP = 0.01
 # Standard error beyond which a direction counts as not determined at all [%].
 _NULL_STD_PCT = 100.0
@@ -69,6 +72,8 @@ class SensitivityReport:
     noise_std_a: float = math.nan
     notes: list[str] = field(default_factory=list)
     derived: dict[str, object] = field(default_factory=dict)
+    at_bound: list[str] = field(default_factory=list)
+    inflation: float = 1.0
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -81,6 +86,8 @@ class SensitivityReport:
             'weak_directions': self.weak_directions,
             'derived': self.derived,
             'notes': self.notes,
+            'at_search_bound': self.at_bound,
+            'interval_inflation': self.inflation,
         }
 
 
@@ -143,8 +150,33 @@ def _weak_directions(names: list[str], evals: np.ndarray, evecs: np.ndarray
 _GAP_GROUP = ('core_length_m', 'relative_permeability', 'total_air_gap_m')
 
 
-def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParameters
-                        ) -> SensitivityReport:
+def residual_inflation(residuals: list[np.ndarray], sigma: float) -> tuple[float, dict]:
+    """Factor on white-noise standard errors for a structured, correlated residual.
+
+    Two parts, multiplied: ``sqrt(mean r^2) / sigma`` (the residual is bigger than the
+    noise: the model misses something, and the misfit acts as error) and
+    ``sqrt((1 + rho) / (1 - rho))`` with ``rho`` the lag-1 autocorrelation of the residual
+    (an AR(1) residual has that many fewer independent samples: its correlation time in
+    samples). Each part is at least 1; ``rho`` is capped at 0.999.
+    """
+    r = np.concatenate([x[np.isfinite(x)] for x in residuals]) if residuals else np.zeros(0)
+    if r.size < 4 or not math.isfinite(sigma) or sigma <= 0.0:
+        return 1.0, {'size': 1.0, 'correlation': 1.0, 'lag1': None}
+    size = max(1.0, math.sqrt(float(np.mean(r ** 2))) / sigma)
+    rhos = []
+    for x in residuals:
+        x = x[np.isfinite(x)]
+        if x.size > 4 and float(np.var(x)) > 0.0:
+            x = x - x.mean()
+            rhos.append(float(x[:-1] @ x[1:]) / float(x @ x))
+    rho = min(max(float(np.median(rhos)) if rhos else 0.0, 0.0), 0.999)
+    corr = math.sqrt((1.0 + rho) / (1.0 - rho))
+    return size * corr, {'size': size, 'correlation': corr, 'lag1': rho}
+
+
+def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParameters,
+                        *, at_bound: list[str] | tuple[str, ...] = (),
+                        nrmse_pct: float | None = None) -> SensitivityReport:
     """Local sensitivity and confidence analysis at ``params``.
 
     Parameters
@@ -163,7 +195,8 @@ def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParam
         also l_c, mu_r and x_t, reported as not identifiable on their own.
     """
     jac = _jacobian(space, data, params)
-    sig = [noise_std(r) for r in data.residuals(params)]
+    residuals = data.residuals(params)
+    sig = [noise_std(r) for r in residuals]
     sigma = float(np.nanmedian(sig)) if sig else math.nan
     names = list(space.names)
     sens = {n: float(np.sqrt(np.mean(jac[:, j] ** 2)) * 1e3 / 100.0)
@@ -179,6 +212,10 @@ def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParam
     null = std_dir > _NULL_STD_PCT
     keep = ~null
     var = (evecs[:, keep] ** 2) @ (1.0 / evals[keep]) if keep.any() else np.zeros(len(names))
+    # Structured/correlated residual: widen every interval (block of correlated samples
+    # and misfit count as error), see residual_inflation.
+    infl, infl_parts = residual_inflation(residuals, sigma)
+    var = var * infl ** 2
     null_weight = (evecs[:, null] ** 2).sum(axis=1) if null.any() else np.zeros(len(names))
     rel_std = {n: (math.inf if null_weight[j] > 0.25 else 100.0 * math.sqrt(var[j]))
                for j, n in enumerate(names)}
@@ -201,14 +238,27 @@ def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParam
     if null.any():
         notes.append('parameters with weight in a direction the data cannot see are '
                      'reported without an error (not identifiable)')
-    notes.append('confidence intervals are local (linearised) and assume white noise; '
-                 'a structured residual makes them optimistic')
+    notes.append('confidence intervals are local (linearised), widened for the '
+                 'residual\'s size and correlation')
+    notes.append(f'intervals widened by {infl:.3g} for the residual (size '
+                 f'{infl_parts["size"]:.3g} x correlation {infl_parts["correlation"]:.3g}, '
+                 'see residual_inflation)')
     ci95 = {n: 1.96 * v for n, v in rel_std.items()}
-    pinned = [n for n in ci95 if ci95[n] < _PINNED_CI95_PCT]
+    if nrmse_pct is not None and math.isfinite(nrmse_pct) and nrmse_pct > _MISFIT_NRMSE_PCT:
+        # A model that misses by more than 5 % of the range cannot pin anything tighter
+        # than its miss: the intervals are floored at the NRMSE.
+        ci95 = {n: max(v, nrmse_pct) for n, v in ci95.items()}
+        notes.append(f'NRMSE {nrmse_pct:.3g} % > {_MISFIT_NRMSE_PCT:g} %: every interval is '
+                     'at least the NRMSE')
+    for n in at_bound:
+        if n in ci95:
+            notes.append(f'{PAPER_SYMBOLS.get(n, n)} sits at its search bound: a sign of '
+                         'misfit; not reported as pinned down')
+    pinned = [n for n in ci95 if ci95[n] < _PINNED_CI95_PCT and n not in at_bound]
     not_pinned = [n for n in ci95 if n not in pinned]
     return SensitivityReport(
         names=list(rel_std), sensitivity_ma=sens,
         rel_std_pct={k: (v if math.isfinite(v) else None) for k, v in rel_std.items()},
         ci95_pct={k: (v if math.isfinite(v) else None) for k, v in ci95.items()},
         pinned=pinned, not_pinned=not_pinned, weak_directions=weak, noise_std_a=sigma,
-        notes=notes, derived=derived)
+        notes=notes, derived=derived, at_bound=list(at_bound), inflation=infl)

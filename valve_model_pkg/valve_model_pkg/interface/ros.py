@@ -57,6 +57,8 @@ def state_message(sample: ValveSample, stamp, frame_id: str, sequence: int,
     msg.sequence = int(sequence)
     msg.coil_voltage = float(sample.coil_voltage_v)
     msg.coil_current = float(sample.coil_current_a)
+    msg.coil_current_mean = float(sample.coil_current_mean_a)
+    msg.coil_voltage_mean = float(sample.coil_voltage_mean_v)
     msg.spool_position = float(sample.spool_position_m)
     msg.spool_velocity = float(sample.spool_velocity_m_s)
     msg.spool_position_avg = float(sample.position_avg_m)

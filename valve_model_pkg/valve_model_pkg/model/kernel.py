@@ -71,12 +71,13 @@ from .mechanics import (
     MODE_CLOSED, MODE_FREE, MODE_OPEN, MODE_STUCK, SETTLE_SPEED_M_S,
     _acceleration, _active_force, _leave_margin, _pressure_force,
 )
+from .orifice import _mass_flow
 from .parameters import PARAMETER_FIELDS
 
 __all__ = [
     'DEFAULT_H_FREE_S', 'DEFAULT_H_STOP_S', 'N_OUT', 'N_Y', 'N_D',
-    'derive_parameters', 'new_drive_state', 'advance', 'step_batch', 'pwm_batch',
-    'trace_batch',
+    'derive_parameters', 'new_drive_state', 'advance', 'command', 'step_batch',
+    'pwm_batch', 'trace_batch', 'N_S', 'bank_advance', 'bank_sample',
 ]
 
 #: Default RK4 step while the spool moves, s.
@@ -473,6 +474,33 @@ def _period_boundary(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
             _falling_edge(t, d, e)
         d[D_NEXT_FALL] = _INF
     d[D_NEXT_BOUNDARY] = t + d[D_PERIOD]
+
+
+@njit(cache=True)
+def _command(t_cmd: float, d: np.ndarray, e: np.ndarray, duty: float, period: float) -> None:
+    """A main PWM command given at ``t_cmd`` (s): duty 0 switches off at once, others latch.
+
+    The one definition of when a command takes effect (ValveStepper, the CAN emulator and
+    the trace runs call it): a non-zero duty and any frequency wait for the next period
+    start (glitch-free, like a timer's shadow registers); a duty of 0 while a non-zero duty
+    is in force ends the main PWM high phase now (falling edge: chopper off, capacitor
+    pulse) and puts duty 0 in force at once. The period grid keeps running, so a later
+    non-zero command starts at the next period start of the same grid. A zero command due
+    at a period start (within the event tolerance) is left to that period start, so runs
+    that never command 0 within a period are unchanged.
+    """
+    d[D_PEND_DUTY] = duty
+    d[D_PEND_PERIOD] = period
+    if duty == 0.0 and d[D_DUTY] > 0.0 and d[D_NEXT_BOUNDARY] > t_cmd + _EPS_T:
+        d[D_DUTY] = 0.0
+        d[D_NEXT_FALL] = _INF
+        if d[D_MAIN_ON] != 0.0:
+            _falling_edge(d[D_T], d, e)  # at the model time reached (a trace: 3 ps early)
+
+
+def command(d: np.ndarray, e: np.ndarray, duty: float, period_s: float) -> None:
+    """Apply a main PWM command at the current time ``d[D_T]`` (see :func:`_command`)."""
+    _command(float(d[D_T]), d, e, float(duty), float(period_s))
 
 
 @njit(cache=True)
@@ -928,8 +956,7 @@ def _trace_run(raw_r: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.n
         while s < n_seg and seg_t[s] - _TRACE_LEAD_S < t_k:
             _advance(p, e, y, d, seg_t[s] - _TRACE_LEAD_S, h_free, h_stop, no_samples, no_avg)
             d[D_VS] = seg_vs[s]
-            d[D_PEND_DUTY] = seg_duty[s]
-            d[D_PEND_PERIOD] = seg_period[s]
+            _command(seg_t[s], d, e, seg_duty[s], seg_period[s])
             s += 1
         _advance(p, e, y, d, t_k, h_free, h_stop, no_samples, no_avg)
         _record(d[D_T], y, p, d, e, out_r)  # writes row D_SAMPLE_IDX = k
@@ -970,3 +997,86 @@ def trace_batch(raw: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.nd
     kernel = _trace_parallel if parallel else _trace_serial
     kernel(np.ascontiguousarray(raw, np.float64), e, seg_t, seg_vs, seg_duty, seg_period,
            p_sup, p_out, t_samp, float(h_free), float(h_stop), out, stats)
+
+
+# --------------------------------------------------------------------------------------
+# Banks of streaming valves (model.bank.ValveBank): one compiled call advances or samples
+# every valve of a bank. Here for the same reason as the trace batches (numba's cache
+# tracks only the defining file). Each valve runs exactly the single-valve code path
+# (_advance on its own row), so a bank valve is bit-identical to a ValveStepper.
+# --------------------------------------------------------------------------------------
+#: Columns of a bank sample row (:func:`bank_sample`).
+S_T = 0
+S_V = 1
+S_I = 2
+S_X = 3
+S_XDOT = 4
+S_XAVG = 5
+S_FLOW = 6
+S_DUTY = 7
+S_FREQ = 8
+S_PSUP = 9
+S_POUT = 10
+S_DT = 11
+N_S = 12
+
+
+@njit(cache=True, nogil=True)
+def _bank_advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray,
+                  t_end: np.ndarray, h_free: float, h_stop: float) -> None:
+    """Advance row r of (p, e, y, d) to ``t_end[r]`` (rows already there are left alone)."""
+    no_out = np.zeros((0, N_OUT))
+    no_avg = np.zeros(0)
+    for r in range(p.shape[0]):
+        if t_end[r] > d[r, D_T]:
+            _advance(p[r], e[r], y[r], d[r], t_end[r], h_free, h_stop, no_out, no_avg)
+
+
+@njit(cache=True, nogil=True)
+def _bank_sample(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray,
+                 orifice: np.ndarray, atmosphere_pa: float, out: np.ndarray) -> None:
+    """Row r of ``out`` (columns ``S_*``): the state of valve r now, as ValveStepper.sample.
+
+    ``orifice[r]`` = (C_d, C_A, T, R, gamma) of valve r; the flow is eq. (12) from the
+    period-average position, gauge pressures made absolute with ``atmosphere_pa``.
+    """
+    for r in range(p.shape[0]):
+        dr = d[r]
+        t = dr[D_T]
+        phase = int(dr[D_PHASE])
+        out[r, S_T] = t
+        out[r, S_V] = _voltage(t, phase, dr, e[r])
+        out[r, S_I] = _terminal_current(t, y[r], phase, p[r], dr, e[r])
+        out[r, S_X] = y[r, Y_X]
+        out[r, S_XDOT] = y[r, Y_V]
+        x_avg = dr[D_XAVG]
+        out[r, S_XAVG] = x_avg
+        up = dr[D_PSUP] + atmosphere_pa
+        down = dr[D_POUT] + atmosphere_pa
+        sign = 1.0
+        if down > up:
+            up, down, sign = down, up, -1.0
+        o = orifice[r]
+        out[r, S_FLOW] = sign * _mass_flow(x_avg, up, down, o[0], o[1], o[2], o[3], o[4])
+        out[r, S_DUTY] = dr[D_DUTY]
+        out[r, S_FREQ] = 1.0 / dr[D_PERIOD]
+        out[r, S_PSUP] = dr[D_PSUP]
+        out[r, S_POUT] = dr[D_POUT]
+        out[r, S_DT] = y[r, Y_DT]
+
+
+def bank_advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray,
+                 t_end: np.ndarray, h_free: float = DEFAULT_H_FREE_S,
+                 h_stop: float = DEFAULT_H_STOP_S) -> None:
+    """Advance every valve of a bank in place: row r of y, d to ``t_end[r]`` (s).
+
+    ``p`` (n, N_P), ``e`` (n, N_E), ``y`` (n, N_Y), ``d`` (n, N_D), ``t_end`` (n,), all
+    C-contiguous float64.
+    """
+    _bank_advance(p, e, y, d, t_end, float(h_free), float(h_stop))
+
+
+def bank_sample(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray,
+                orifice: np.ndarray, atmosphere_pa: float, out: np.ndarray) -> None:
+    """Fill ``out`` (n, N_S) with the state of every valve (see :func:`_bank_sample`)."""
+    _bank_sample(p, e, y, d, orifice, float(atmosphere_pa), out)

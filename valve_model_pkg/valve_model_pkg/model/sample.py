@@ -7,6 +7,7 @@ turns it into ``valve_msgs/ValveState``. SI units, gauge pressures.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 __all__ = ['ValveSample']
 
@@ -43,6 +44,12 @@ class ValveSample:
     position_measured : bool
         True when the spool position is measured or estimated by hardware (CAN
         telemetry with a position sensor), False when it is modelled.
+    coil_current_mean_a : float
+        Mean coil terminal current over the interval since the previous sample, A: the
+        model's exact integral, or the controller's ADC average over the telemetry period
+        (CAN). NaN when the source does not provide it.
+    coil_voltage_mean_v : float
+        Mean coil terminal voltage over the same interval, V (NaN when not provided).
     """
 
     t_s: float
@@ -58,3 +65,5 @@ class ValveSample:
     output_pressure_pa: float
     coil_temperature_rise_k: float = 0.0
     position_measured: bool = False
+    coil_current_mean_a: float = math.nan
+    coil_voltage_mean_v: float = math.nan

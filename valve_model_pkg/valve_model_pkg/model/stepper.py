@@ -1,16 +1,37 @@
 """Streaming valve model for real-time use (simulator node, CAN emulator).
 
-Command semantics
------------------
-``set_command(duty, pwm_frequency_hz)`` does not act at once: the new duty and frequency
-take effect at the start of the next main PWM period (the next rising-edge slot), so a
-running pulse is never cut short or stretched and each period has one consistent duty -
-the glitch-free update of a hardware PWM timer with shadow registers. The latency is
-therefore at most one PWM period (20 ms at 50 Hz). Periods tick from t = 0 (the first
-starts at t = 0 with the command given at construction, default duty 0).
+Command semantics (the suite's one definition; the CAN emulator and the trace runs use the
+same kernel function, ``kernel._command``)
+------------------------------------------------------------------------------------------
+* **Duty 0 acts at once.** ``set_command(0, f)`` while a non-zero duty is in force ends
+  the running main PWM high phase at the current model time: the chopper stops, the
+  negative-voltage capacitor pulse starts, and the release then follows the physics
+  (current decay, spring). ``sample().duty`` is 0 from that instant. Whatever the PWM
+  frequency, the coil is de-energised at the command's model time (0 s of latency in the
+  model; a real-time caller adds its own sampling delay).
+* **Any other change waits for the next period start.** A non-zero duty, and any
+  frequency (also the one given with duty 0), take effect at the start of the next main
+  PWM period (the next rising-edge slot), so a running pulse is never cut short or
+  stretched and each period has one consistent duty - the glitch-free update of a
+  hardware PWM timer with shadow registers. The latency is at most one PWM period (20 ms at
+  50 Hz). Periods tick from t = 0 (the first starts at t = 0 with the command given at
+  construction, default duty 0); a stop does not move the period grid, so a later non-zero
+  command starts at the next period start of the same grid (maps and identification,
+  which never stop within a period, are unchanged).
 
 ``set_pressures`` acts at once (from the current time on). ``advance_to(t_s)`` integrates
 up to ``t_s``; ``sample()`` reads the state at the current time without advancing.
+
+Interval means
+--------------
+The kernel integrates the coil terminal current and voltage exactly with the state.
+``sample()`` reports, besides the instantaneous values, their means over the interval
+since the previous sampling instant (``coil_current_mean_a``, ``coil_voltage_mean_v``):
+the first ``sample()`` (or :meth:`ValveStepper.interval_means`) at a model time later than
+the previous one closes the interval; further calls at the same time return the same
+means. A caller that samples once per published message (the simulator node, the lockstep
+axis, the emulator's telemetry) thus publishes the exact mean since its previous message.
+An empty interval (t = 0, right after :meth:`reset`) gives the instantaneous values.
 """
 from __future__ import annotations
 
@@ -98,11 +119,17 @@ class ValveStepper:
                                      p_out)
         self._d[_k.D_DUTY] = duty
         self._pending = (duty, freq)
+        # interval means: (t, integral of i, integral of v) at the start of the running
+        # interval, and the means of the interval that ended at the start time
+        self._iv_start = (0.0, 0.0, 0.0)
+        self._iv_last: tuple[float, float] | None = None
 
     def set_command(self, duty: float, pwm_frequency_hz: float) -> None:
         """Command a duty cycle in [0, 1] and main PWM frequency in Hz.
 
-        Takes effect at the next main PWM period start (glitch-free, see module doc).
+        Duty 0 switches the coil off at once (the running high phase ends now); any other
+        duty, and the frequency, take effect at the next main PWM period start
+        (glitch-free, see the module doc).
 
         Raises
         ------
@@ -110,8 +137,7 @@ class ValveStepper:
             Duty outside [0, 1] or non-positive/non-finite frequency.
         """
         _check_command(duty, pwm_frequency_hz)
-        self._d[_k.D_PEND_DUTY] = float(duty)
-        self._d[_k.D_PEND_PERIOD] = 1.0 / float(pwm_frequency_hz)
+        _k.command(self._d, self._e, float(duty), 1.0 / float(pwm_frequency_hz))
         self._pending = (float(duty), float(pwm_frequency_hz))
 
     def set_pressures(self, supply_pa: float, output_pa: float = 0.0) -> None:
@@ -135,8 +161,41 @@ class ValveStepper:
         _k.advance(self._p, self._e, self._y, self._d, float(t_s), self._h[0], self._h[1],
                    self._out, self._avg)
 
+    def interval_means(self) -> tuple[float, float]:
+        """Mean coil current (A) and voltage (V) since the previous sampling instant.
+
+        Exact: the kernel's integrals of the terminal current and voltage (the same as
+        :func:`~valve_model_pkg.model.simulate_trace_batch` with ``'interval_mean'``),
+        divided by the interval. Ends the interval at the current model time (a new one
+        starts); a second call at the same time returns the same means. With no interval
+        yet (t = 0, after :meth:`reset`) the instantaneous values.
+
+        Returns
+        -------
+        tuple of float
+            ``(coil_current_mean_a, coil_voltage_mean_v)``.
+        """
+        d = self._d
+        t = float(d[_k.D_T])
+        t0, qi0, qv0 = self._iv_start
+        if t > t0:
+            width = t - t0
+            self._iv_last = ((float(d[_k.D_QI]) - qi0) / width,
+                             (float(d[_k.D_QV]) - qv0) / width)
+            self._iv_start = (t, float(d[_k.D_QI]), float(d[_k.D_QV]))
+        if self._iv_last is None:
+            phase = int(d[_k.D_PHASE])
+            return (float(_k._terminal_current(t, self._y, phase, self._p, d, self._e)),
+                    float(_k._voltage(t, phase, d, self._e)))
+        return self._iv_last
+
     def sample(self) -> ValveSample:
-        """The valve state at the current model time."""
+        """The valve state at the current model time, with the interval means.
+
+        The means cover the interval since the previous sampling instant and end it (see
+        :meth:`interval_means`); the model state is not advanced.
+        """
+        i_mean, v_mean = self.interval_means()
         d, y = self._d, self._y
         t = float(d[_k.D_T])
         phase = int(d[_k.D_PHASE])
@@ -151,7 +210,8 @@ class ValveStepper:
             spool_position_m=float(y[_k.Y_X]), spool_velocity_m_s=float(y[_k.Y_V]),
             position_avg_m=x_avg, mass_flow_kg_s=flow, duty=float(d[_k.D_DUTY]),
             pwm_frequency_hz=float(1.0 / d[_k.D_PERIOD]), supply_pressure_pa=p_sup,
-            output_pressure_pa=p_out, coil_temperature_rise_k=float(y[_k.Y_DT]))
+            output_pressure_pa=p_out, coil_temperature_rise_k=float(y[_k.Y_DT]),
+            coil_current_mean_a=i_mean, coil_voltage_mean_v=v_mean)
 
 
 def _check_command(duty: float, pwm_frequency_hz: float) -> None:

@@ -36,6 +36,12 @@ Rules (details in docs/maps.md):
 - the map file must exist, be a valid duty map, contain ``pwm_frequency_hz`` and be made
   for the valve parameter set in force (``params_file``), else the node refuses to start
   (exit code 1, naming the file and the reason);
+- with ``lockstep:=true`` (the lockstep simulation, ``valve_lockstep_sim``): each flow
+  command is answered with the output pressure stamped at or after the command's stamp
+  (if the command overtook that pressure, the answer waits for it, at most
+  ``lockstep_pressure_timeout_s`` of wall time, counted), the duty command carries the
+  flow command's stamp (the tick it answers), and nothing is republished on pressure
+  changes, so the answer to a tick is the same in every run;
 - at run time ``pwm_frequency_hz`` (to another of the map's frequencies),
   ``supply_temperature_k`` and ``dead_band_zero_fraction`` can be changed; the other
   parameters need a restart and changing them is refused.

@@ -75,7 +75,7 @@ class LockstepSimulationNode(Node):
     """The valve model(s) and the cylinder, on a simulation clock, in lockstep."""
 
     def __init__(self) -> None:
-        super().__init__('lockstep_simulation')
+        super().__init__('valve_lockstep_sim')
         kind = declare_string(self, 'cylinder', 'single',
                               'single: single-acting cylinder, one valve; double: '
                               'double-acting, one 3/2 valve per chamber (cap/, rod/)')
@@ -327,7 +327,7 @@ class LockstepSimulationNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C or an external shutdown."""
-    run_node(LockstepSimulationNode, 'lockstep_simulation', args)
+    run_node(LockstepSimulationNode, 'valve_lockstep_sim', args)
 
 
 if __name__ == '__main__':

@@ -1,0 +1,69 @@
+"""ValveBank: N valves in one compiled call, each bit-identical to a ValveStepper."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from valve_model_pkg.model import ElectronicsConfig, ParameterError, ValveParameters, ValveStepper
+from valve_model_pkg.model.bank import SAMPLE_COLUMNS, ValveBank
+
+P = ValveParameters()
+
+
+def test_every_valve_matches_its_own_stepper_bit_for_bit() -> None:
+    duties = [0.0, 0.2, 0.4, 0.7, 1.0]
+    freqs = [20.0, 50.0, 100.0, 200.0, 50.0]
+    supplies = [0.0, 2e5, 4e5, 6e5, 4e5]
+    params = [P, P.replace(coil_resistance_ohm=22.0), P, P, P]
+    elec = [ElectronicsConfig(), ElectronicsConfig(), ElectronicsConfig.off(),
+            ElectronicsConfig(), ElectronicsConfig()]
+    bank = ValveBank(params, elec, duty=duties, pwm_frequency_hz=freqs,
+                     supply_pressure_pa=supplies)
+    steppers = [ValveStepper(p, c, duty=d, pwm_frequency_hz=f, supply_pressure_pa=s)
+                for p, c, d, f, s in zip(params, elec, duties, freqs, supplies)]
+    assert len(bank) == 5
+    for k in range(1, 250):
+        t = k * 1e-3
+        if k == 100:  # commands and pressures reach only their valve
+            bank.set_command(1, 0.6, 80.0)
+            steppers[1].set_command(0.6, 80.0)
+            bank.set_pressures(2, 3e5, 1e5)
+            steppers[2].set_pressures(3e5, 1e5)
+        if k == 150:  # duty 0 acts at once (the stepper's semantics)
+            bank.set_command(3, 0.0, 200.0)
+            steppers[3].set_command(0.0, 200.0)
+        bank.advance_to(t)
+        for s in steppers:
+            s.advance_to(t)
+        rows = bank.sample_array()
+        for i, s in enumerate(steppers):
+            assert bank.sample(i) == s.sample()
+            assert tuple(rows[i]) == tuple(getattr(s.sample(), c) for c in SAMPLE_COLUMNS)
+
+
+def test_per_valve_target_times_and_reset() -> None:
+    bank = ValveBank(P, n_valves=3, duty=0.5)
+    bank.advance_to(np.array([0.01, 0.02, 0.0]))
+    assert bank.t_s.tolist() == pytest.approx([0.01, 0.02, 0.0], abs=1e-12)
+    bank.advance_to(0.015)  # valve 1 is already past: left alone
+    assert bank.t_s.tolist() == pytest.approx([0.015, 0.02, 0.015], abs=1e-12)
+    bank.reset(1)
+    assert bank.t_s[1] == 0.0 and bank.t_s[0] > 0.0
+    bank.reset()
+    assert np.all(bank.t_s == 0.0)
+
+
+def test_bad_inputs_are_refused() -> None:
+    with pytest.raises(ParameterError):
+        ValveBank(P, n_valves=2, duty=[0.1, 0.2, 0.3])
+    with pytest.raises(ParameterError):
+        ValveBank(P, n_valves=0)
+    bank = ValveBank(P, n_valves=2)
+    with pytest.raises(ParameterError):
+        bank.set_command(0, 1.5, 50.0)
+    with pytest.raises(ParameterError):
+        bank.set_pressures(1, float('nan'))
+    with pytest.raises(ParameterError):
+        bank.advance_to(float('inf'))
+    with pytest.raises(IndexError):
+        bank.set_command(2, 0.5, 50.0)

@@ -1,0 +1,394 @@
+"""valve_bank_simulator: many valves simulated in real time by one ROS 2 node.
+
+A pneumatic robot or test bench has many valves; one ``valve_simulator`` process per valve
+spends most of its CPU and memory around the model (rclpy, the executor, numba), not in it.
+This node simulates N valves in one process: every tick advances all of them in one
+compiled call (:class:`~valve_model_pkg.model.bank.ValveBank`) and publishes each valve's
+state.
+
+Topics, per name ``NAME`` of the parameter ``valve_names`` (relative to the node's
+namespace, so ``NAME`` plays the role of ``valve_simulator``'s namespace):
+
+- subscribes ``NAME/valve/duty_command`` (valve_msgs/DutyCommand);
+- subscribes ``NAME/valve/supply_pressure``, ``NAME/valve/output_pressure``
+  (sensor_msgs/FluidPressure, absolute Pa); until one arrives the parameters are used;
+- publishes ``NAME/valve/state`` (valve_msgs/ValveState, ``header.frame_id`` = ``NAME``) at
+  ``publish_rate_hz``;
+- publishes ``/diagnostics``: one DiagnosticStatus per valve (hardware_id ``NAME``, the
+  same keys as ``valve_simulator``), once per ``diagnostics_period_s`` and at once on
+  every tick that fell behind.
+
+Message contract, parameters, input checks and the real-time rules (grid of sample
+instants, bounded work per tick, clock going backwards) are those of ``valve_simulator``
+(:mod:`.simulator_node`); ``valve_name``/``params_file`` become ``valve_names``/
+``params_files`` (one file for all valves, or one per valve). A rejected message of one
+valve is counted for that valve only.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rclpy.node import Node
+from rclpy.time import Time
+from sensor_msgs.msg import FluidPressure
+from valve_msgs.msg import DutyCommand, ValveState
+
+from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
+from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS, forward_logging, state_message
+from valve_model_pkg.model import ElectronicsConfig, default_parameters_path, load_parameters
+from valve_model_pkg.model.bank import ValveBank, sample_of
+from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, PRESSURE_QOS,
+                                          STATE_QOS, TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
+                                          TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
+                                          TOPIC_SUPPLY_PRESSURE, DiagnosticLevel,
+                                          StartupRefused, declare_bool, declare_float,
+                                          gauge_from_absolute, key_values, run_node)
+from valve_model_pkg.nodes.inputs import (InputGuard, SequenceTracker, pressure_reason,
+                                          stamp_reason)
+
+#: A valve name is one ROS name token: it becomes the first part of the valve's topics.
+_NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
+
+
+def _declare_strings(node: Node, name: str, default: list[str], description: str
+                     ) -> list[str]:
+    descriptor = ParameterDescriptor(description=description,
+                                     type=ParameterType.PARAMETER_STRING_ARRAY)
+    value = node.declare_parameter(name, list(default), descriptor).value
+    return [str(v) for v in (value or [])]
+
+
+class _Valve:
+    """The per-valve bookkeeping of the node: name, publisher, input counters."""
+
+    def __init__(self, node: Node, index: int, name: str, params_path: str) -> None:
+        self.index = index
+        self.name = name
+        self.params_path = params_path
+        self.inputs = InputGuard(node.get_logger())
+        self.commands = SequenceTracker()
+        self.sequence = 0
+        self.publisher = node.create_publisher(ValveState, f'{name}/{TOPIC_STATE}', STATE_QOS)
+
+
+class ValveBankSimulatorNode(Node):
+    """Real-time simulation of N PWM-driven solenoid valves in one process."""
+
+    def __init__(self) -> None:
+        super().__init__('valve_bank_simulator')
+        names = _declare_strings(
+            self, 'valve_names', ['valve_0', 'valve_1'],
+            'Names of the simulated valves; valve NAME uses the topics NAME/valve/... and '
+            'header.frame_id NAME')
+        files = _declare_strings(
+            self, 'params_files', [''],
+            'Valve parameter sets (YAML): one for every valve, or one per valve name (same '
+            'order); an empty entry = the paper\'s Table 1/2 values shipped in '
+            'config/valve.yaml')
+        self._rate_hz = declare_float(self, 'publish_rate_hz', 1000.0,
+                                      'Rate of each valve/state stream [Hz]', 1.0, 10000.0)
+        duty = declare_float(self, 'duty', 0.0, 'Initial main PWM duty of every valve [1]',
+                             0.0, 1.0)
+        pwm_hz = declare_float(self, 'pwm_frequency_hz', 50.0,
+                               'Initial main PWM frequency of every valve [Hz]',
+                               MIN_PWM_FREQUENCY_HZ, MAX_PWM_FREQUENCY_HZ)
+        supply_pa = declare_float(
+            self, 'supply_pressure_pa', 400_000.0,
+            'Supply pressure, gauge [Pa], used until NAME/valve/supply_pressure is received',
+            0.0, 1.0e6)
+        output_pa = declare_float(
+            self, 'output_pressure_pa', 0.0,
+            'Output port pressure, gauge [Pa], used until NAME/valve/output_pressure is '
+            'received', -ATMOSPHERIC_PRESSURE_PA, 1.0e6)
+        supply_voltage = declare_float(self, 'supply_voltage_v', 24.0,
+                                       'Drive supply voltage [V]', 0.0, 60.0)
+        current_control = declare_bool(
+            self, 'current_control', True,
+            'Internal current-control chopper with PI holding 0.5 A after opening (Sec. 4)')
+        capacitor = declare_bool(
+            self, 'capacitor', True,
+            'Negative release voltage from the capacitor charged during opening (Sec. 4)')
+        self._max_advance_s = declare_float(
+            self, 'max_advance_per_tick_s', 0.05,
+            'Most model time integrated in one tick [s]; bounds the work per callback',
+            1e-4, 1.0)
+        diag_period = declare_float(self, 'diagnostics_period_s', 1.0,
+                                    'Period of the diagnostics summary [s]', 0.05, 60.0)
+        allow_implausible = declare_bool(
+            self, 'allow_implausible', False,
+            'Accept parameter values outside their plausible ranges, with a warning (values '
+            'beyond the numerically safe range are refused anyway)')
+
+        paths = self._parameter_paths(names, files)
+        forward_logging(self, 'valve_model_pkg.model.parameters')
+        loaded: dict[str, object] = {}
+        for path in paths:  # each distinct file once; a bad file is refused naming it
+            if path not in loaded:
+                loaded[path] = load_parameters(path, allow_implausible=allow_implausible)
+        electronics = dataclasses.replace(ElectronicsConfig(), current_control=current_control,
+                                          negative_voltage=capacitor)
+        params = [loaded[p] for p in paths]
+        # Load (or compile) the kernel before the clock starts (see valve_simulator).
+        warm_up = ValveBank(params, electronics, supply_voltage, duty=0.5)
+        warm_up.advance_to(0.045)
+        warm_up.sample_array()
+        self._bank = ValveBank(params, electronics, supply_voltage, duty=duty,
+                               pwm_frequency_hz=pwm_hz, supply_pressure_pa=supply_pa,
+                               output_pressure_pa=output_pa)
+        self._valves = [_Valve(self, k, n, p) for k, (n, p) in enumerate(zip(names, paths))]
+        for v in self._valves:
+            self.create_subscription(DutyCommand, f'{v.name}/{TOPIC_DUTY_COMMAND}',
+                                     lambda msg, v=v: self._on_duty(v, msg), COMMAND_QOS)
+            self.create_subscription(FluidPressure, f'{v.name}/{TOPIC_SUPPLY_PRESSURE}',
+                                     lambda msg, v=v: self._on_pressure(v, msg, 'supply'),
+                                     PRESSURE_QOS)
+            self.create_subscription(FluidPressure, f'{v.name}/{TOPIC_OUTPUT_PRESSURE}',
+                                     lambda msg, v=v: self._on_pressure(v, msg, 'output'),
+                                     PRESSURE_QOS)
+        self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS,
+                                               DIAGNOSTICS_QOS)
+
+        self._period_s = 1.0 / self._rate_hz
+        self._t0: Time | None = None          # ROS time at model time 0
+        self._last_now_ns: int | None = None
+        self._last_tick_wall: float | None = None
+        self._next_sample = 0             # index of the next sample-grid instant
+        self._late_samples = 0
+        self._ticks = 0
+        self._behind_ticks = 0
+        self._skipped_model_s = 0.0
+        self._last_behind_reason = ''
+        self._max_tick_compute_s = 0.0
+        self._window_start_wall = time.monotonic()
+        self._window_ticks = 0
+        self._achieved_rate_hz = 0.0
+
+        self.create_timer(self._period_s, self._on_tick)
+        self.create_timer(diag_period, self._publish_summary)
+        self.get_logger().info(
+            f'simulating {len(names)} valves ({", ".join(names)}) at {self._rate_hz:g} Hz; '
+            f'duty {duty:g} at {pwm_hz:g} Hz, supply {supply_pa:g} Pa gauge, current '
+            f'control {current_control}, capacitor {capacitor}')
+
+    @staticmethod
+    def _parameter_paths(names: list[str], files: list[str]) -> list[str]:
+        """One parameter file per valve; refuses bad names and a misaligned file list."""
+        if not names:
+            raise StartupRefused('valve_names is empty: name at least one valve')
+        for name in names:
+            if not _NAME.match(name):
+                raise StartupRefused(
+                    f'valve_names: {name!r} is not a valid name (a letter, then letters, '
+                    'digits or _)')
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            raise StartupRefused(f'valve_names: {", ".join(dupes)} given more than once')
+        if len(files) not in (0, 1, len(names)):
+            raise StartupRefused(
+                f'params_files has {len(files)} entries for {len(names)} valve_names: give '
+                'none, one for all, or one per valve')
+        default = str(default_parameters_path())
+        if not files:
+            return [default] * len(names)
+        if len(files) == 1:
+            return [files[0] or default] * len(names)
+        return [f or default for f in files]
+
+    # --- inputs ---------------------------------------------------------------------------
+    def _on_duty(self, v: _Valve, msg: DutyCommand) -> None:
+        """A duty command for valve ``v`` (checked as by ``valve_simulator``)."""
+        v.commands.update(msg.header.frame_id, msg.sequence)
+        duty, freq = float(msg.duty), float(msg.pwm_frequency)
+        topic = 'duty_command'
+        keep = '; keeping the last valid command'
+        who = f'{v.name}: '
+        if not math.isfinite(duty) or not math.isfinite(freq):
+            v.inputs.reject(topic, 'not_finite',
+                            f'{who}duty command rejected: duty={duty!r}, pwm_frequency='
+                            f'{freq!r} is not finite' + keep)
+            return
+        if freq != 0.0 and not MIN_PWM_FREQUENCY_HZ <= freq <= MAX_PWM_FREQUENCY_HZ:
+            v.inputs.reject(topic, 'frequency_out_of_range',
+                            f'{who}duty command rejected: pwm_frequency={freq!r} Hz outside '
+                            f'[{MIN_PWM_FREQUENCY_HZ:g}, {MAX_PWM_FREQUENCY_HZ:g}] '
+                            '(0 = keep)' + keep)
+            return
+        reason = stamp_reason(msg.header.stamp)
+        if reason is not None:
+            v.inputs.reject(topic, 'bad_stamp', f'{who}duty command rejected: {reason}' + keep)
+            return
+        if freq == 0.0:  # 0 = keep the frequency in force (DutyCommand.msg)
+            freq = self._bank.sample(v.index).pwm_frequency_hz
+        if not 0.0 <= duty <= 1.0:
+            clamped = min(max(duty, 0.0), 1.0)
+            v.inputs.reject(topic, 'duty_clamped',
+                            f'{who}duty {duty!r} outside [0, 1]; clamped to {clamped:g}')
+            duty = clamped
+        self._bank.set_command(v.index, duty, freq)
+
+    def _on_pressure(self, v: _Valve, msg: FluidPressure, port: str) -> None:
+        reason = pressure_reason(float(msg.fluid_pressure))
+        if reason is None:
+            reason = stamp_reason(msg.header.stamp)
+        if reason is not None:
+            kind = 'not_finite' if 'not finite' in reason else (
+                'bad_stamp' if 'stamp' in reason else 'out_of_range')
+            v.inputs.reject(f'{port}_pressure', kind,
+                            f'{v.name}: {port} pressure rejected: {reason}; keeping the last '
+                            'valid value')
+            return
+        gauge = gauge_from_absolute(float(msg.fluid_pressure))
+        s = self._bank.sample(v.index)
+        supply, output = (gauge, s.output_pressure_pa) if port == 'supply' \
+            else (s.supply_pressure_pa, gauge)
+        # a message must never end the node: a pressure the model refuses is counted
+        try:
+            self._bank.set_pressures(v.index, supply, output)
+        except ValueError as err:
+            v.inputs.reject(f'{port}_pressure', 'model_refused',
+                            f'{v.name}: {port} pressure rejected by the model: {err}; '
+                            'keeping the last valid value')
+
+    # --- real-time loop -------------------------------------------------------------------
+    def _on_tick(self) -> None:
+        """Advance every valve to the clock, publishing each sample-grid instant passed.
+
+        The rules of ``valve_simulator._on_tick``, for all valves at once: one compiled
+        call advances the bank to each grid instant, one reads all states.
+        """
+        wall_start = time.monotonic()
+        now = self.get_clock().now()
+        now_ns = now.nanoseconds
+        if now_ns == 0:  # use_sim_time and no /clock yet
+            return
+        if self._t0 is None or (self._last_now_ns is not None and now_ns < self._last_now_ns):
+            if self._t0 is not None:
+                self.get_logger().warning('clock went backwards; restarting the models')
+                self._bank.reset()
+            self._t0 = now
+            self._next_sample = 0
+        self._last_now_ns = now_ns
+        target_s = (now - self._t0).nanoseconds * 1e-9
+
+        behind_reasons = []
+        if self._last_tick_wall is not None:
+            gap = wall_start - self._last_tick_wall
+            if gap > 2.0 * self._period_s:
+                behind_reasons.append(f'tick came {gap * 1e3:.2f} ms after the previous one '
+                                      f'(period {self._period_s * 1e3:.3g} ms)')
+        self._last_tick_wall = wall_start
+
+        lag = target_s - self._next_sample * self._period_s
+        if lag > self._max_advance_s:
+            skip = int((lag - self._max_advance_s) / self._period_s) + 1
+            skipped = skip * self._period_s
+            self._skipped_model_s += skipped
+            self._t0 = Time(nanoseconds=self._t0.nanoseconds + int(round(skipped * 1e9)),
+                            clock_type=self._t0.clock_type)
+            target_s -= skipped
+            behind_reasons.append(f'model {lag * 1e3:.1f} ms behind the clock; '
+                                  f'{skipped * 1e3:.1f} ms skipped without integration')
+        published = 0
+        while self._next_sample * self._period_s <= target_s + 1e-12:
+            t_sample = self._next_sample * self._period_s
+            self._bank.advance_to(t_sample)
+            stamp = Time(nanoseconds=self._t0.nanoseconds + int(round(t_sample * 1e9)),
+                         clock_type=self._t0.clock_type).to_msg()
+            self._publish_states(stamp)
+            self._next_sample += 1
+            published += 1
+        if published > 1:
+            self._late_samples += published - 1
+
+        compute = time.monotonic() - wall_start
+        self._max_tick_compute_s = max(self._max_tick_compute_s, compute)
+        if compute > self._period_s * max(1, published):
+            behind_reasons.append(f'tick took {compute * 1e3:.2f} ms for {published} '
+                                  'sample(s) of all valves, longer than their period')
+        self._ticks += 1
+        self._window_ticks += published
+        if behind_reasons:
+            self._behind_ticks += 1
+            self._last_behind_reason = '; '.join(behind_reasons)
+            self._publish_diagnostics(DiagnosticLevel.WARN,
+                                      'fell behind: ' + self._last_behind_reason)
+
+    def _publish_states(self, stamp) -> None:
+        # one compiled call for every valve's state; tolist() gives Python floats at once
+        rows = self._bank.sample_array().tolist()
+        source = ValveState.SOURCE_SIMULATOR
+        for v, row in zip(self._valves, rows):
+            msg = state_message(sample_of(row), stamp, v.name, v.sequence, source)
+            v.sequence += 1
+            v.publisher.publish(msg)
+
+    # --- diagnostics ----------------------------------------------------------------------
+    def _publish_summary(self) -> None:
+        wall = time.monotonic()
+        elapsed = wall - self._window_start_wall
+        if elapsed > 0:
+            self._achieved_rate_hz = self._window_ticks / elapsed
+        self._window_start_wall, self._window_ticks = wall, 0
+        self._publish_diagnostics(None, '')
+        self._max_tick_compute_s = 0.0
+
+    def _publish_diagnostics(self, level: int | None, text: str) -> None:
+        """One status per valve; ``level`` None = the periodic summary (level per valve)."""
+        rows = self._bank.sample_array().tolist()
+        statuses = []
+        for v in self._valves:
+            s = sample_of(rows[v.index])
+            if level is None:
+                lvl, msg = self._summary(v)
+            else:
+                lvl, msg = level, text
+            status = DiagnosticStatus(level=lvl, name=f'{self.get_name()}: {v.name} real-time '
+                                      'model', message=msg, hardware_id=v.name)
+            status.values = key_values(
+                ticks=self._ticks, ticks_behind=self._behind_ticks,
+                late_samples=self._late_samples,
+                skipped_model_time_s=self._skipped_model_s,
+                achieved_rate_hz=self._achieved_rate_hz, target_rate_hz=self._rate_hz,
+                samples_published=v.sequence,
+                max_tick_compute_s=self._max_tick_compute_s,
+                rejected_commands=v.inputs.total,
+                last_rejection=v.inputs.last_reason,
+                **v.commands.diagnostic_values('duty_commands'),
+                duty_commands_rejected=v.inputs.count('duty_command'),
+                **v.inputs.diagnostic_values(), model_time_s=s.t_s,
+                duty=s.duty, pwm_frequency_hz=s.pwm_frequency_hz,
+                supply_pressure_pa=s.supply_pressure_pa, params_file=v.params_path,
+                valves_in_process=len(self._valves))
+            statuses.append(status)
+        array = DiagnosticArray()
+        array.header.stamp = self.get_clock().now().to_msg()
+        array.status = statuses
+        self._diag_pub.publish(array)
+
+    def _summary(self, v: _Valve) -> tuple[int, str]:
+        problems = []
+        if self._behind_ticks:
+            problems.append(f'{self._behind_ticks} tick(s) fell behind; last: '
+                            f'{self._last_behind_reason}')
+        if v.commands.lost:
+            problems.append(f'{v.commands.lost} duty command(s) lost (sequence gaps)')
+        if v.inputs.total:
+            problems.append(f'{v.inputs.total} message(s) rejected; last: '
+                            f'{v.inputs.last_reason}')
+        if problems:
+            return DiagnosticLevel.WARN, '; '.join(problems)
+        return DiagnosticLevel.OK, 'running in real time'
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the node until Ctrl-C or an external shutdown."""
+    run_node(ValveBankSimulatorNode, 'valve_bank_simulator', args)
+
+
+if __name__ == '__main__':
+    main()
