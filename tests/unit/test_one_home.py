@@ -15,7 +15,7 @@ import pytest
 
 from suite_paths import REPO_ROOT
 
-from valve_model_pkg.interface import SUITE_TOPICS
+import valve_model_pkg.interface as interface
 
 PACKAGES = ('valve_model_pkg', 'valve_driver_pkg', 'valve_bringup')
 HOME = {
@@ -26,7 +26,13 @@ HOME = {
 # The recorder subscribes to any topic with the QoS its publishers offer (read from the
 # graph): that profile is computed per topic, it is not one of the suite's profiles.
 QOS_ALLOWED = {REPO_ROOT / 'valve_model_pkg' / 'valve_model_pkg' / 'nodes' / 'recorder_node.py'}
-TOPIC_NAMES = {name.lstrip('/') for name in SUITE_TOPICS}
+#: Every topic name the interface defines (SUITE_TOPICS and every TOPIC_* constant), as a
+#: literal would spell it: a relative name with or without the leading slash, an absolute
+#: one ('/clock') only with it ('clock' alone is a word, not a topic).
+_NAMES = set(interface.SUITE_TOPICS) | {
+    getattr(interface, n) for n in dir(interface) if n.startswith('TOPIC_')}
+TOPIC_SPELLINGS = {name for name in _NAMES} | {
+    '/' + name for name in _NAMES if not name.startswith('/')}
 
 
 def _source_files() -> list[Path]:
@@ -55,7 +61,7 @@ def _violations(path: Path) -> list[str]:
     for node in ast.walk(tree):
         if isinstance(node, ast.Constant) and id(node) not in docstrings:
             value = node.value
-            if isinstance(value, str) and value.lstrip('/') in TOPIC_NAMES:
+            if isinstance(value, str) and value in TOPIC_SPELLINGS:
                 found.append(f'{path.name}:{node.lineno}: topic name {value!r}')
             if isinstance(value, (int, float)) and not isinstance(value, bool) \
                     and abs(abs(float(value)) - 101_325.0) < 1.0:

@@ -201,8 +201,10 @@ class _Watcher:
         # the simulation's real-time factor and its lockstep diagnostics.
         from diagnostic_msgs.msg import DiagnosticArray
         from rosgraph_msgs.msg import Clock
-        from rclpy.qos import QoSProfile
-        from valve_model_pkg.interface import TOPIC_POSITION_SETPOINT
+        from valve_model_pkg.interface import (TOPIC_CLOCK, TOPIC_DIAGNOSTICS,
+                                               TOPIC_POSITION_SETPOINT,
+                                               TOPIC_REAL_TIME_FACTOR, TOPIC_RUN_UNTIL)
+        from valve_model_pkg.interface.ros import CLOCK_QOS, DIAGNOSTICS_QOS
         self.clock_ns = -1
         self.setpoint_m = math.nan
         self.rtf = math.nan
@@ -222,14 +224,14 @@ class _Watcher:
             for status in msg.status:
                 if 'lockstep simulation' in status.name:
                     self.sim_values = {kv.key: kv.value for kv in status.values}
-        self.probe.create_subscription(Clock, '/clock', on_clock, QoSProfile(depth=1))
+        self.probe.create_subscription(Clock, TOPIC_CLOCK, on_clock, CLOCK_QOS)
         self.probe.create_subscription(Float64, TOPIC_POSITION_SETPOINT, on_setpoint,
                                        COMMAND_QOS)
-        self.probe.create_subscription(Float64, 'simulation/real_time_factor', on_rtf,
+        self.probe.create_subscription(Float64, TOPIC_REAL_TIME_FACTOR, on_rtf,
                                        COMMAND_QOS)
-        self.probe.create_subscription(DiagnosticArray, '/diagnostics', on_diag,
-                                       QoSProfile(depth=10))
-        self._run_until_pub = self.probe.create_publisher(Float64, 'simulation/run_until',
+        self.probe.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, on_diag,
+                                       DIAGNOSTICS_QOS)
+        self._run_until_pub = self.probe.create_publisher(Float64, TOPIC_RUN_UNTIL,
                                                           COMMAND_QOS)
 
     def run_until(self, t_s: float) -> None:
@@ -284,15 +286,16 @@ def _drive_lockstep(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
                   'real_time_factor_max': cfg.real_time_factor_max or None}
     try:
         sup.say('waiting for the simulation and for every node to subscribe ...')
-        state_topic = '/' + _topic(cfg.valves[0], 'valve/state')
-        needs = [('/cylinder/joint_states', 2),        # controller + recorder
-                 ('/cylinder/position_goal', 2),       # controller + recorder
-                 ('/cylinder/position_setpoint', 2)]   # this watcher + recorder: the
+        from valve_model_pkg import interface as itf
+        state_topic = '/' + _topic(cfg.valves[0], itf.TOPIC_STATE)
+        needs = [('/' + itf.TOPIC_JOINT_STATES, 2),        # controller + recorder
+                 ('/' + itf.TOPIC_POSITION_GOAL, 2),       # controller + recorder
+                 ('/' + itf.TOPIC_POSITION_SETPOINT, 2)]   # this watcher + recorder: the
         # report finds the steps from the recorded setpoints, the first one included
         for ns in cfg.valves:
-            needs += [('/' + _topic(ns, 'valve/flow_command'), 2),   # flow_to_duty + recorder
-                      ('/' + _topic(ns, 'valve/output_pressure'), 2),
-                      ('/' + _topic(ns, 'valve/duty_command'), 2)]   # simulation + recorder
+            needs += [('/' + _topic(ns, itf.TOPIC_FLOW_COMMAND), 2),  # flow_to_duty + recorder
+                      ('/' + _topic(ns, itf.TOPIC_OUTPUT_PRESSURE), 2),
+                      ('/' + _topic(ns, itf.TOPIC_DUTY_COMMAND), 2)]  # simulation + recorder
         needs.append((state_topic, 1))                                # recorder
         deadline = time.monotonic() + 120.0
         while w.clock_ns < 0 or any(w.subscribers(t) < n for t, n in needs):

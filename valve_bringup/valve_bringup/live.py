@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     import foxglove
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile
+    from valve_model_pkg.interface.ros import RELAY_QOS
     from rclpy.signals import SignalHandlerOptions
 
     from valve_model_pkg.recording import (DEFAULT_TOPICS, build_typestore, msgdef_and_hash,
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
 
         def forward(raw: bytes) -> None:
             channel.log(raw)
-        relayed[topic] = node.create_subscription(cls, topic, forward, QoSProfile(depth=100),
+        relayed[topic] = node.create_subscription(cls, topic, forward, RELAY_QOS,
                                                   raw=True)
         node.get_logger().info(f'relaying {topic} ({msgtype})')
 

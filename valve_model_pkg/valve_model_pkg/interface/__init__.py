@@ -16,7 +16,8 @@ __all__ = [
     'ATMOSPHERIC_PRESSURE_PA', 'absolute_from_gauge', 'gauge_from_absolute',
     'TOPIC_STATE', 'TOPIC_DUTY_COMMAND', 'TOPIC_FLOW_COMMAND', 'TOPIC_SUPPLY_PRESSURE',
     'TOPIC_OUTPUT_PRESSURE', 'TOPIC_FLOW_STATUS', 'TOPIC_DIAGNOSTICS',
-    'TOPIC_JOINT_STATES', 'TOPIC_POSITION_SETPOINT', 'TOPIC_POSITION_GOAL', 'SUITE_TOPICS',
+    'TOPIC_JOINT_STATES', 'TOPIC_POSITION_SETPOINT', 'TOPIC_POSITION_GOAL', 'TOPIC_CLOCK',
+    'TOPIC_REAL_TIME_FACTOR', 'TOPIC_RUN_UNTIL', 'SUITE_TOPICS',
     'STATE_QUEUE_DEPTH', 'COMMAND_QUEUE_DEPTH', 'JOINT_STATES_QUEUE_DEPTH',
     'DIAGNOSTICS_QUEUE_DEPTH', 'MIN_PWM_FREQUENCY_HZ', 'MAX_PWM_FREQUENCY_HZ',
 ]
@@ -31,6 +32,9 @@ TOPIC_DIAGNOSTICS = '/diagnostics'               # diagnostic_msgs/DiagnosticArr
 TOPIC_JOINT_STATES = 'cylinder/joint_states'     # sensor_msgs/JointState
 TOPIC_POSITION_SETPOINT = 'cylinder/position_setpoint'  # std_msgs/Float64 [m]
 TOPIC_POSITION_GOAL = 'cylinder/position_goal'  # std_msgs/Float64 [m]
+TOPIC_CLOCK = '/clock'                           # rosgraph_msgs/Clock (simulation time)
+TOPIC_REAL_TIME_FACTOR = 'simulation/real_time_factor'  # std_msgs/Float64 [1]
+TOPIC_RUN_UNTIL = 'simulation/run_until'        # std_msgs/Float64, simulation time [s]
 
 #: Topic name (relative, as the nodes use it) -> message type, for every topic of the suite.
 SUITE_TOPICS: dict[str, str] = {

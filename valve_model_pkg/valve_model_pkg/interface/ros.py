@@ -17,6 +17,7 @@ from valve_model_pkg.interface import (COMMAND_QUEUE_DEPTH, DIAGNOSTICS_QUEUE_DE
 from valve_model_pkg.model.sample import ValveSample
 
 __all__ = ['STATE_QOS', 'COMMAND_QOS', 'PRESSURE_QOS', 'JOINT_STATES_QOS', 'DIAGNOSTICS_QOS',
+           'CLOCK_QOS', 'RELAY_QOS',
            'state_message', 'RosLogHandler', 'forward_logging']
 
 # State at 1 kHz: reliable so that a recorder loses nothing, a deep queue so a slow
@@ -32,6 +33,10 @@ PRESSURE_QOS = COMMAND_QOS
 #: cylinder/joint_states (200 Hz) and /diagnostics: rclpy's default policies, own depths.
 JOINT_STATES_QOS = QoSProfile(depth=JOINT_STATES_QUEUE_DEPTH)
 DIAGNOSTICS_QOS = QoSProfile(depth=DIAGNOSTICS_QUEUE_DEPTH)
+#: /clock: only the newest simulation time matters.
+CLOCK_QOS = QoSProfile(depth=1)
+#: The live view's relay subscriptions (any suite topic, rclpy's default policies).
+RELAY_QOS = QoSProfile(depth=100)
 
 
 def state_message(sample: ValveSample, stamp, frame_id: str, sequence: int,

@@ -1,17 +1,25 @@
 """Steady states of operating points, computed in child processes that can be stopped.
 
 Each operating point (duty, PWM frequency, supply and output pressure) is simulated with
-the model's public streaming API (:class:`~valve_model_pkg.model.ValveStepper`), one PWM
-period at a time from a closed valve at rest, and stopped as soon as its period averages
-meet the periodic-steady-state criterion (:func:`.steady_state.steady_at`). Continuing a
-run period by period means every point costs exactly the periods it needs.
+the model's streaming API, one PWM period at a time from a closed valve at rest, and
+stopped as soon as its period averages meet the periodic-steady-state criterion
+(:func:`.steady_state.steady_at`). Continuing a run period by period means every point
+costs exactly the periods it needs. All points of a request advance together as one
+:class:`~valve_model_pkg.model.bank.ValveBank` (one compiled call per round of one period
+each), so the Python cost per period is paid once per round, not once per point; each
+bank valve gives bit for bit what a ``ValveStepper`` gives (:func:`steady_point`, the
+one-point form, used after a hang).
 
 A compiled (numba) model call cannot be interrupted from its own process, so a model call
 that never returns would hang ``valve_map`` forever. A :class:`PointWorker` therefore runs
-its points in a child process (``python -m valve_model_pkg.maps.worker``, talking over two
-private pipes), which reports every finished point. If no report arrives within a deadline
-(``min_timeout_s`` plus ``slack`` times the longest a point may legitimately take), the
-child is killed and restarted and the point it was on is retried with its duty moved by
+its points in a child process (talking over two private pipes), which reports every
+finished point and every round of the bank. The first child is forked from the parent
+after the parent has loaded the compiled model, so it starts in milliseconds instead of
+importing and loading numba again (about 1 s, more on a loaded machine); a restarted child
+is a fresh ``python -m valve_model_pkg.maps.worker`` process. If no report arrives within a
+deadline (``min_timeout_s`` plus ``slack`` times the longest the round or point may
+legitimately take), the child is killed and restarted, and the unfinished points are run
+one at a time; the point a child hangs on then is retried with its duty moved by
 ``nudge`` (1e-5, far below the map's resolution); after ``max_nudges`` failures the point
 is given up (value NaN). Every such event is recorded in :attr:`PointWorker.incidents`
 (and in the map file's notes). Several workers run side by side, one per core.
@@ -53,6 +61,8 @@ class PointRequest:
     duty: np.ndarray
     pwm_frequency_hz: np.ndarray
     supply_pressure_pa: np.ndarray
+    #: One point at a time (ValveStepper) instead of one bank: after a hang, to find it.
+    sequential: bool = False
 
     def subset(self, idx: list[int], duty: np.ndarray | None = None) -> PointRequest:
         sel = np.asarray(idx, dtype=int)
@@ -95,9 +105,16 @@ def _objects(req: PointRequest):
             SteadyStateCriterion.from_dict(req.criterion))
 
 
-def run_points_in_process(req: PointRequest, report=None) -> list[SteadyState]:
-    """Steady states of all points of ``req`` in this process (``report(i, state)``)."""
+def run_points_in_process(req: PointRequest, report=None, heartbeat=None
+                          ) -> list[SteadyState]:
+    """Steady states of all points of ``req`` in this process (``report(i, state)``).
+
+    As one bank (``heartbeat(n_active, longest_period_s)`` before every round), or one
+    point after the other if ``req.sequential``; the results are the same.
+    """
     params, electronics, crit = _objects(req)
+    if not req.sequential and req.duty.size > 1:
+        return _run_bank(req, params, electronics, crit, report, heartbeat)
     out = []
     for i, (d, f, p) in enumerate(zip(req.duty, req.pwm_frequency_hz,
                                       req.supply_pressure_pa)):
@@ -109,9 +126,64 @@ def run_points_in_process(req: PointRequest, report=None) -> list[SteadyState]:
     return out
 
 
-def _serve(fd_in: int, fd_out: int) -> None:  # pragma: no cover - runs in the child
+def _run_bank(req: PointRequest, params, electronics, crit: SteadyStateCriterion, report,
+              heartbeat) -> list[SteadyState]:
+    """All points as one ValveBank, one period per round; same results as steady_point."""
+    from valve_model_pkg.model.bank import ValveBank
+    n = req.duty.size
+    freq = np.asarray(req.pwm_frequency_hz, dtype=float)
+    bank = ValveBank(params, electronics, req.supply_voltage_v, n_valves=n,
+                     duty=[float(v) for v in req.duty], pwm_frequency_hz=freq.tolist(),
+                     supply_pressure_pa=[float(v) for v in req.supply_pressure_pa],
+                     output_pressure_pa=float(req.output_pressure_pa))
+    period = 1.0 / freq
+    stroke = params.stroke_m
+    a = np.empty((n, crit.max_periods))
+    out: list[SteadyState | None] = [None] * n
+    active = np.arange(n)
+    target = np.zeros(n)
+    first = max(crit.min_periods - 1, crit.window)  # steady_at is None before this period
+    for k in range(crit.max_periods):
+        if heartbeat is not None:
+            heartbeat(active.size, float(np.max(period[active])))
+        # a finished valve keeps target 0 (it is past it): the bank leaves it alone
+        target[active] = (k + 1) * period[active] + _PAST_BOUNDARY_S
+        bank.advance_to(target)
+        a[active, k] = bank.position_avg_m()[active] / stroke
+        if k < first:
+            continue
+        keep = []
+        for i in active.tolist():
+            s = steady_at(a[i], k, crit)
+            if s is None:
+                keep.append(i)
+                continue
+            out[i] = s
+            target[i] = 0.0
+            if report is not None:
+                report(i, s)
+        active = np.asarray(keep, dtype=int)
+        if not active.size:
+            break
+    for i in active.tolist():
+        out[i] = not_converged(a[i])
+        if report is not None:
+            report(i, out[i])
+    return out
+
+
+def _warm_up() -> None:
+    """Load (or compile) the compiled model functions the points use."""
     from valve_model_pkg.model import ElectronicsConfig, ValveStepper, load_parameters
-    ValveStepper(load_parameters(), ElectronicsConfig(), duty=0.5).advance_to(0.03)  # JIT
+    from valve_model_pkg.model.bank import ValveBank
+    ValveStepper(load_parameters(), ElectronicsConfig(), duty=0.5).advance_to(0.03)
+    bank = ValveBank(load_parameters(), ElectronicsConfig(), n_valves=2, duty=0.5)
+    bank.advance_to(np.array([0.03, 0.02]))
+    bank.position_avg_m()
+
+
+def _serve(fd_in: int, fd_out: int) -> None:  # pragma: no cover - runs in the child
+    _warm_up()  # nothing to do in a child forked from a warmed-up parent
     rx = Connection(fd_in, readable=True, writable=False)
     tx = Connection(fd_out, readable=False, writable=True)
     tx.send(('ready',))
@@ -123,8 +195,9 @@ def _serve(fd_in: int, fd_out: int) -> None:  # pragma: no cover - runs in the c
         if req is None:
             return
         try:
-            run_points_in_process(req, lambda i, s: tx.send(('point', i, tuple(
-                dataclasses.astuple(s)))))
+            run_points_in_process(
+                req, lambda i, s: tx.send(('point', i, tuple(dataclasses.astuple(s)))),
+                lambda n, longest: tx.send(('round', n, longest)))
             tx.send(('done',))
         except Exception as err:  # noqa: BLE001 - reported to the parent, which raises
             tx.send(('error', f'{type(err).__name__}: {err}'))

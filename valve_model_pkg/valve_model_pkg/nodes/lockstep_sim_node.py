@@ -34,17 +34,18 @@ from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64
 from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_model_pkg.interface import (ATMOSPHERIC_PRESSURE_PA, MAX_PWM_FREQUENCY_HZ,
-                                       MIN_PWM_FREQUENCY_HZ, TOPIC_DIAGNOSTICS,
+                                       MIN_PWM_FREQUENCY_HZ, TOPIC_CLOCK, TOPIC_DIAGNOSTICS,
                                        TOPIC_DUTY_COMMAND, TOPIC_JOINT_STATES,
-                                       TOPIC_OUTPUT_PRESSURE, TOPIC_STATE)
-from valve_model_pkg.interface.ros import (COMMAND_QOS, DIAGNOSTICS_QOS, JOINT_STATES_QOS,
+                                       TOPIC_OUTPUT_PRESSURE, TOPIC_REAL_TIME_FACTOR,
+                                       TOPIC_RUN_UNTIL, TOPIC_STATE)
+from valve_model_pkg.interface.ros import (CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS,
+                                           JOINT_STATES_QOS,
                                            PRESSURE_QOS, STATE_QOS, state_message)
 from valve_model_pkg.model import ElectronicsConfig, default_parameters_path, load_parameters
 from valve_model_pkg.nodes.common import (DiagnosticLevel, declare_bool, declare_float,
@@ -54,10 +55,6 @@ from valve_model_pkg.pneumatics.axis import CYLINDER_KINDS, SimulatedAxis
 from valve_model_pkg.pneumatics.cylinder import PARAMETER_INFO, CylinderParameters
 from valve_model_pkg.pneumatics.lockstep import LockstepGate, Pacer, RealTimeFactor
 
-#: Topics of the simulation itself (relative).
-TOPIC_RUN_UNTIL = 'simulation/run_until'
-TOPIC_REAL_TIME_FACTOR = 'simulation/real_time_factor'
-TOPIC_CLOCK = '/clock'
 #: Longest a timer callback keeps stepping before the executor gets its turn [s].
 _BUDGET_S = 0.02
 
@@ -143,7 +140,7 @@ class LockstepSimulationNode(Node):
         self._sequence = {n: 0 for n in self._names}
         self._last_resend = 0.0
 
-        self._clock_pub = self.create_publisher(ClockMsg, TOPIC_CLOCK, QoSProfile(depth=1))
+        self._clock_pub = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS)
         self._state_pubs = {n: self.create_publisher(ValveState, valve_topic(n, TOPIC_STATE),
                                                      STATE_QOS) for n in self._names}
         self._pressure_pubs = {n: self.create_publisher(
