@@ -83,3 +83,34 @@ def test_make_demo_runs_records_reports_and_leaves_nothing(tmp_path, backend):
     assert np.all(np.diff(seq) == 1)
     assert {'/valve/duty_command', '/valve/flow_command', '/cylinder/joint_states',
             '/valve/output_pressure'} <= topics
+
+
+def test_make_demo_double_cylinder_moves_both_valves(tmp_path):
+    """`make demo CYLINDER=double`: two valve namespaces, one flow_to_duty each, one
+    controller commanding both; short (CI budget): three goals held 1 s each."""
+    token = f'VALVE_DEMO_TEST_{uuid.uuid4().hex}'
+    env = dict(os.environ, VALVE_TEST_TOKEN=token)
+    env.pop('MAKEFLAGS', None)
+    out = subprocess.run(['make', '-C', str(REPO_ROOT), 'demo', 'CYLINDER=double',
+                          f'DEMO_ARGS=--out {tmp_path} --quick --hold 1 '
+                          '--as-fast-as-possible'],
+                         env=env, capture_output=True, text=True, timeout=600)
+    text = out.stdout + out.stderr
+    assert out.returncode == 0, text[-4000:]
+    assert 'Traceback' not in text, text[-4000:]
+    assert 'flow_to_duty_cap exit 0' in text and 'flow_to_duty_rod exit 0' in text
+    time.sleep(1.0)
+    assert _processes_with(token) == [], 'the demo left processes running'
+    summary = json.loads((tmp_path / 'report' / 'report.json').read_text())
+    assert summary['cylinder'] == 'double'
+    assert summary['lockstep_timeouts'] == 0
+    assert [round(s['setpoint_mm']) for s in summary['steps']] == [20, 60, 40]
+    for step in summary['steps']:
+        assert step['settled'], step
+        assert abs(step['steady_error_mm']) <= 0.5, step
+    bags = list(tmp_path.glob('bag_sim_*'))
+    with AnyReader(bags) as reader:
+        topics = {c.topic for c in reader.connections}
+    for ns in ('cap', 'rod'):
+        assert {f'/{ns}/valve/state', f'/{ns}/valve/flow_command',
+                f'/{ns}/valve/duty_command', f'/{ns}/valve/output_pressure'} <= topics

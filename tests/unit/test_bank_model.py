@@ -67,3 +67,27 @@ def test_bad_inputs_are_refused() -> None:
         bank.advance_to(float('inf'))
     with pytest.raises(IndexError):
         bank.set_command(2, 0.5, 50.0)
+
+
+def test_whole_matrix_validation_never_accepts_what_the_row_check_refuses() -> None:
+    """simulate_*_batch check a parameter matrix at once (simulation._rows_valid)."""
+    from valve_model_pkg.model import PARAMETER_FIELDS
+    from valve_model_pkg.model.simulation import _rows_valid
+    rng = np.random.default_rng(3)
+    base = P.to_vector()
+    agree = {True: 0, False: 0}
+    for trial in range(400):
+        row = base.copy()
+        for k in rng.choice(len(PARAMETER_FIELDS), size=rng.integers(1, 4), replace=False):
+            with np.errstate(invalid='ignore'):  # 0 x inf: a NaN is one of the cases
+                row[k] *= rng.choice([-1.0, 0.0, 1e-9, 0.5, 1.5, 1e9, np.nan, np.inf])
+        try:
+            ValveParameters.from_vector(row)
+            valid = True
+        except ParameterError:
+            valid = False
+        fast = _rows_valid(np.vstack([base, row]))
+        assert not fast or valid, (trial, dict(zip(PARAMETER_FIELDS, row)))
+        assert fast == valid, (trial, dict(zip(PARAMETER_FIELDS, row)))
+        agree[valid] += 1
+    assert agree[True] > 20 and agree[False] > 20

@@ -34,12 +34,16 @@ class RecordingStepper(ValveStepper):
 
     def __init__(self) -> None:
         self.commands: list[tuple[float, float]] = []
+        self.voltage_after: dict[float, float] = {}   # model time -> coil voltage after it
         self.samples: list = []
         super().__init__(PARAMS, ElectronicsConfig())
 
     def set_command(self, duty: float, pwm_frequency_hz: float) -> None:
         self.commands.append((self.t_s, float(duty)))
         super().set_command(duty, pwm_frequency_hz)
+        # the coil voltage right after the command, at the same model time (the
+        # telemetry samples may skip instants when the real-time loop stalls)
+        self.voltage_after[self.t_s] = super().sample().coil_voltage_v
 
     def sample(self):
         s = super().sample()
@@ -57,7 +61,9 @@ class RecordingStepper(ValveStepper):
         raise AssertionError(f'no stop in {self.commands[-5:]}')
 
     def off_after(self, t_stop: float) -> float:
-        """Model time from ``t_stop`` to the first sample with coil voltage <= 0."""
+        """Model time from ``t_stop`` to the coil voltage <= 0 (0: at the command)."""
+        if self.voltage_after.get(t_stop, 1.0) <= 0.0:
+            return 0.0
         for s in self.samples:
             if s.t_s >= t_stop and s.coil_voltage_v <= 0.0:
                 return s.t_s - t_stop
@@ -110,6 +116,7 @@ def test_driver_watchdog_closes_at_once_at_0_1_hz() -> None:
         wait_for(lambda: rig.emu.model_time_s > t_stop + 0.05, what='model time')
         off = rig.stepper.off_after(t_stop)
         assert off <= DEENERGISE_BOUND_S, off
+        assert all(s.coil_voltage_v <= 0.0 for s in rig.stepper.samples if s.t_s > t_stop)
         # the watchdog's frame came after its timeout (+ refresh and scheduling slack)
         assert 0.2 <= t_stop - t_open <= 0.2 + 0.5
         last = rig.stepper.samples[-1]

@@ -52,7 +52,7 @@ class DemoConfig:
     rate_hz: float = 1000.0
     effect_args: tuple[str, ...] = ()
     goals: tuple[tuple[float, float], ...] = GOALS
-    clock: str = 'lockstep'            # lockstep | wall (the CAN backend: always wall)
+    clock: str = 'lockstep'            # lockstep | wall
     real_time_factor_max: float = 1.0  # lockstep pace cap; 0 = as fast as possible
     cylinder: str = 'single'           # single | double (lockstep only)
     live: bool = False                 # Foxglove WebSocket view on 127.0.0.1
@@ -61,7 +61,7 @@ class DemoConfig:
     @property
     def lockstep(self) -> bool:
         """Whether this run's simulation is in lockstep on simulation time."""
-        return self.clock == 'lockstep' and self.backend == 'sim'
+        return self.clock == 'lockstep'
 
     @property
     def valves(self) -> tuple[str, ...]:
@@ -114,10 +114,26 @@ def suite_processes(cfg: DemoConfig, bag: Path) -> list[ProcessSpec]:
             recorder,
         ]
     sim_time = ['-p', 'use_sim_time:=true', '-p', 'lockstep:=true']
-    procs = [ProcessSpec('valve_lockstep_sim', [
+    procs = []
+    external = []
+    if cfg.backend == 'can':
+        # The valve runs in the controller emulator, stepped on the simulation clock
+        # (valve_driver_pkg.emulator.lockstep); the driver stamps with simulation time.
+        from valve_bringup.backend import can_backend_processes
+        procs += can_backend_processes(
+            rate_hz=cfg.rate_hz,
+            emulator_args=('--clock', 'sim', '--step-s', f'{1.0 / cfg.rate_hz:g}',
+                           *cfg.effect_args),
+            # The simulation stands still while the demo holds it and waits for the
+            # controller on a busy computer: telemetry silence on the wall clock is then
+            # no loss (the lockstep timeouts report a real one), so the driver's silence
+            # limit is the lockstep timeout's, not 0.1 s.
+            driver_args=('-p', 'use_sim_time:=true', '-p', 'telemetry_timeout_min_s:=5.0'))
+        external = ['-p', 'valve_source:=external']
+    procs.append(ProcessSpec('valve_lockstep_sim', [
         'valve_lockstep_sim', '--ros-args', '-p', 'start_paused:=true',
         '-p', f'real_time_factor_max:={float(cfg.real_time_factor_max)}',
-        '-p', f'step_s:={1.0 / cfg.rate_hz}', '-p', f'cylinder:={cfg.cylinder}'])]
+        '-p', f'step_s:={1.0 / cfg.rate_hz}', '-p', f'cylinder:={cfg.cylinder}', *external]))
     for ns in cfg.valves:
         remap = ['-r', f'__ns:=/{ns}'] if ns else []
         procs.append(ProcessSpec(f'flow_to_duty{"_" + ns if ns else ""}', [
@@ -296,7 +312,13 @@ def _drive_lockstep(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
             needs += [('/' + _topic(ns, itf.TOPIC_FLOW_COMMAND), 2),  # flow_to_duty + recorder
                       ('/' + _topic(ns, itf.TOPIC_OUTPUT_PRESSURE), 2),
                       ('/' + _topic(ns, itf.TOPIC_DUTY_COMMAND), 2)]  # simulation + recorder
-        needs.append((state_topic, 1))                                # recorder
+        if cfg.backend == 'can':
+            # the valve is the emulator's, on /clock: the simulation reads its state (and
+            # the recorder); the driver and the emulator's clock bridge take duty commands
+            needs += [(state_topic, 2), ('/' + itf.TOPIC_DUTY_COMMAND, 4),
+                      (itf.TOPIC_CLOCK, 5)]  # emulator, driver, controller, f2d, demo
+        else:
+            needs.append((state_topic, 1))                            # recorder
         deadline = time.monotonic() + 120.0
         while w.clock_ns < 0 or any(w.subscribers(t) < n for t, n in needs):
             w.spin_for(0.1, sup)
@@ -393,7 +415,7 @@ def run_directory(cfg: DemoConfig, out_given: bool) -> Path:
     if out_given:
         return cfg.out
     label = cfg.backend + ('_double' if cfg.cylinder == 'double' else '') + \
-        ('' if cfg.lockstep or cfg.backend == 'can' else '_wall')
+        ('' if cfg.lockstep else '_wall')
     base = cfg.out / f'{label}_{time.strftime("%Y%m%d-%H%M%S")}'
     run_dir, n = base, 1
     while run_dir.exists():  # two runs in one second: never overwrite
@@ -419,7 +441,11 @@ def run(cfg: DemoConfig, out_given: bool = True) -> int:
                 f'{"simulation (lockstep)" if cfg.lockstep else "wall"}, ROS_DOMAIN_ID='
                 f'{os.environ.get("ROS_DOMAIN_ID", "0")}, discovery '
                 f'{os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"]}, output {run_dir}')
-        if cfg.backend == 'can':
+        if cfg.backend == 'can' and cfg.lockstep:
+            sup.say('CAN backend on simulation time: the controller emulator\'s valve model '
+                    'advances on /clock (valve_controller_emulator --clock sim), the driver '
+                    'runs with use_sim_time, the cylinder is in valve_lockstep_sim')
+        elif cfg.backend == 'can':
             sup.say('the CAN backend runs on wall-clock time: the controller emulator stands '
                     'in for firmware that runs in real time (see the report)')
         try:
@@ -443,7 +469,13 @@ def run(cfg: DemoConfig, out_given: bool = True) -> int:
         from valve_model_pkg.cli.report import write_report
         info.update(backend=cfg.backend, cylinder=cfg.cylinder,
                     exit_codes={n: c for n, c in codes.items()})
-        if cfg.backend == 'can':
+        if cfg.backend == 'can' and cfg.lockstep:
+            info['clock_note'] = (
+                'simulation time: the controller emulator advances its valve model on the '
+                'simulation clock, one telemetry frame per 1 ms step, and waits at each '
+                'control tick for that tick\'s command on the bus; valve/state comes '
+                'through the CAN driver (use_sim_time) at one message per simulated step')
+        elif cfg.backend == 'can':
             info['clock_note'] = (
                 'wall clock: the controller emulator runs the valve model in real time, as '
                 'the firmware it stands in for does, and the CAN driver stamps telemetry '
@@ -453,7 +485,7 @@ def run(cfg: DemoConfig, out_given: bool = True) -> int:
         report = write_report(bag, run_dir / 'report',
                               title=f'valve suite demo ({cfg.backend} backend, '
                               f'{cfg.cylinder} cylinder, {info.get("clock", "wall")} clock)',
-                              run_info=info)
+                              run_info=info, valve=cfg.valves[0])
         print(f'[{"demo":>18}] bag: {bag}')
         print(f'[{"demo":>18}] report: {report} (and report.json)')
         print(report.read_text())
@@ -493,14 +525,8 @@ def main(argv: list[str] | None = None) -> int:
     effect_args = tuple(a for name in args.effect for a in ('--effect', name))
     if effect_args and args.backend != 'can':
         parser.error('--effect needs --backend can (the emulator carries the effect)')
-    if args.cylinder == 'double':
-        # The plumbing (valve namespaces cap/ and rod/, one flow_to_duty each, the
-        # simulation's per-valve topics) is in place; the double-acting plant model and the
-        # controller's two-valve law are not yet (issue 14, item 4).
-        print('valve_demo: error: --cylinder double: the double-acting example is not '
-              'available yet', file=sys.stderr)
-        return 2
     if args.cylinder == 'double' and (args.backend != 'sim' or args.clock != 'lockstep'):
+        # the CAN backend has one controller (emulator) on its bus: one valve
         parser.error('--cylinder double needs the lockstep simulation (--backend sim '
                      '--clock lockstep)')
     if args.hold is not None and not 0.1 <= args.hold <= 600.0:

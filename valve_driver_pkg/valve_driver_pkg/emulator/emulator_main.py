@@ -109,6 +109,19 @@ def build_parser() -> argparse.ArgumentParser:
                         help='schedule a fault (repeatable); names: '
                              + ', '.join(sorted(FAULT_NAMES)))
     faults.add_argument('--seed', type=int, default=None, help='seed of the fault draws')
+    clock = p.add_argument_group('clock')
+    clock.add_argument('--clock', choices=('wall', 'sim'), default='wall',
+                       help='wall: the model runs in real time (default, as firmware); sim: '
+                            'it advances on the simulation clock (/clock of '
+                            'valve_lockstep_sim, in lockstep; emulator/lockstep.py)')
+    clock.add_argument('--step-s', type=float, default=0.001,
+                       help='(sim) simulation step [s]')
+    clock.add_argument('--control-period-s', type=float, default=0.005,
+                       help='(sim) control tick: the model waits for each tick\'s command')
+    clock.add_argument('--lockstep-timeout-s', type=float, default=2.0,
+                       help='(sim) wall time to wait for a tick\'s command [s]')
+    clock.add_argument('--valve-namespace', default='',
+                       help='(sim) namespace of the valve\'s duty_command topic')
     p.add_argument('--duration-s', type=float, default=0.0,
                    help='stop after this long (0 = until SIGINT/SIGTERM)')
     p.add_argument('--log-level', default='info', choices=('debug', 'info', 'warning', 'error'))
@@ -240,7 +253,13 @@ def main(argv: list[str] | None = None) -> int:
               f'node {args.node_id}', flush=True)
         for timer in timers:
             timer.start()
-        emulator.run(stop, duration_s=args.duration_s)
+        if args.clock == 'sim':
+            from valve_driver_pkg.emulator.lockstep import run_on_simulation_clock
+            emulator.stats.update(run_on_simulation_clock(
+                emulator, stop, step_s=args.step_s, control_period_s=args.control_period_s,
+                timeout_s=args.lockstep_timeout_s, valve_namespace=args.valve_namespace))
+        else:
+            emulator.run(stop, duration_s=args.duration_s)
         for timer in timers:
             timer.cancel()
         logger.info('stopped: %s', emulator.stats)

@@ -199,17 +199,21 @@ def _current_line(ts: np.ndarray, state) -> tuple:
 
 
 def write_report(bag: Path, out: Path, title: str = 'valve suite run',
-                 run_info: dict | None = None) -> Path:
+                 run_info: dict | None = None, valve: str = '') -> Path:
     """Write ``out/report.md``, ``out/report.json`` and the plots from ``bag``.
 
     ``run_info`` (from the demo: clock, real-time factor, lockstep timeouts, backend ...)
-    goes into both. Returns the report path.
+    goes into both. ``valve`` is the namespace of the valve whose topics are plotted
+    ('' = none; the double cylinder's ``cap``). Returns the report path.
     """
+    def vtopic(name: str) -> str:
+        return f'/{valve}/{name}' if valve else '/' + name
     data = load_bag(bag)
     out.mkdir(parents=True, exist_ok=True)
-    state = data.get('/' + TOPIC_STATE)
+    state = data.get(vtopic(TOPIC_STATE))
     if state is None or len(state) == 0:
-        raise ValueError(f'{bag}: no /{TOPIC_STATE} messages; is it a bag of the suite?')
+        raise ValueError(f'{bag}: no {vtopic(TOPIC_STATE)} messages; is it a bag of the '
+                         'suite?')
     origin = int(state.stamp_ns[0])
     ts = _times(state, origin)
     lines = [f'# {title}', '', f'Bag: `{bag}`', '']
@@ -271,13 +275,13 @@ def write_report(bag: Path, out: Path, title: str = 'valve suite run',
                              f'{s.steady_error_m * 1e3:+.2f} |')
             lines.append('')
         plots.append(('position [mm]', pos_lines))
-    pressure = data.get('/' + TOPIC_OUTPUT_PRESSURE)
+    pressure = data.get(vtopic(TOPIC_OUTPUT_PRESSURE))
     if pressure is not None and len(pressure):
         plots.append(('chamber pressure\n[bar gauge]', [
             (_times(pressure, origin),
              (pressure['fluid_pressure'] - ATMOSPHERIC_PRESSURE_PA) / 1e5, 'chamber', '-')]))
     flow_lines = []
-    flow_cmd = data.get('/' + TOPIC_FLOW_COMMAND)
+    flow_cmd = data.get(vtopic(TOPIC_FLOW_COMMAND))
     if flow_cmd is not None and len(flow_cmd):
         flow_lines.append((_times(flow_cmd, origin), flow_cmd['mass_flow'] * 1e3,
                            'commanded', '-'))
@@ -287,7 +291,7 @@ def write_report(bag: Path, out: Path, title: str = 'valve suite run',
     plots.append(('mass flow [g/s]', flow_lines))
     duty_lines = [(*_with_gaps(ts, state['duty'] * 100.0, seq), 'in force (valve/state)',
                    '-')]
-    duty_cmd = data.get('/' + TOPIC_DUTY_COMMAND)
+    duty_cmd = data.get(vtopic(TOPIC_DUTY_COMMAND))
     if duty_cmd is not None and len(duty_cmd):
         duty_lines.insert(0, (_times(duty_cmd, origin), duty_cmd['duty'] * 100.0,
                               'commanded', '.'))

@@ -122,12 +122,14 @@ class GenerationStats:
 class MapSimulator:
     """Steady x_avg / x_max of operating points, on the model's public streaming API.
 
-    The only place maps/ runs the model. Each point is simulated period by period
-    (:func:`~valve_model_pkg.maps.worker.steady_point`) until it meets the periodic-steady-
-    state criterion. With ``isolate=True`` (the default) the points are spread over
-    ``workers`` child processes (:class:`~valve_model_pkg.maps.worker.PointWorker`, one per
-    core by default) that are restarted if a model call never returns; otherwise they run
-    in this process, one after the other.
+    The only place maps/ runs the model. Each point is simulated period by period until it
+    meets the periodic-steady-state criterion, the points of a request together as one
+    bank of valves (:func:`~valve_model_pkg.maps.worker.run_points_in_process`; the same
+    results as :func:`~valve_model_pkg.maps.worker.steady_point` one by one). With
+    ``isolate=True`` (the default) the points are spread over ``workers`` child processes
+    (:class:`~valve_model_pkg.maps.worker.PointWorker`, one per core by default, forked
+    from this process) that are restarted if a model call never returns; otherwise they run
+    in this process.
 
     Use as a context manager (or call :meth:`close`) to stop the workers.
 
@@ -378,10 +380,14 @@ def _generate(sim: MapSimulator, grid: MapGrid, refine_edges: bool, edge_toleran
     total = grid.n_points
     done = 0
     t0 = time.perf_counter()
+    # every grid point in one request: the workers share out the whole grid at once
+    # (no wait for the slowest point of each curve) and run their points as one bank
+    all_states = sim.steady(np.tile(duty, n_f * n_p), np.repeat(freqs, n_p * n_d),
+                            np.tile(np.repeat(press, n_d), n_f), grid.output_pressure_pa)
     for i, f in enumerate(freqs):
         for j, p in enumerate(press):
-            states = sim.steady(duty, np.full(n_d, f), np.full(n_d, p),
-                                grid.output_pressure_pa)
+            start = (i * n_p + j) * n_d
+            states = all_states[start:start + n_d]
             for k, s in enumerate(states):
                 x[i, j, k] = min(max(s.value, 0.0), 1.0) if not math.isnan(s.value) \
                     else math.nan

@@ -30,6 +30,7 @@ import dataclasses
 import logging
 import math
 import os
+import signal
 import subprocess
 import sys
 from dataclasses import dataclass, field
@@ -210,10 +211,11 @@ class PointWorker:
     Parameters
     ----------
     min_timeout_s : float
-        Smallest wait for the next point [s].
+        Smallest wait for the next point or round [s].
     slack : float
-        The wait is ``min_timeout_s`` + ``slack`` x (``max_periods`` periods of the point at
-        a slow 20 s of model time per second).
+        The wait is ``min_timeout_s`` + ``slack`` x (what the round or point simulates at a
+        slow 20 s of model time per second: one period of every unfinished point of a
+        bank, or ``max_periods`` periods of a single point).
     nudge : float
         Duty offset for a point the model did not return for.
     max_nudges : int
@@ -225,7 +227,10 @@ class PointWorker:
     nudge: float = 1e-5
     max_nudges: int = 3
     incidents: list[str] = field(default_factory=list)
+    #: Fork the first child from this (warmed-up) process where the OS can.
+    fork: bool = True
     _proc: Any = None
+    _forked_once: bool = False
     _tx: Any = None
     _rx: Any = None
     # (duty, frequency, supply pressure) of points that hung -> duty used instead
@@ -238,6 +243,29 @@ class PointWorker:
             return
         req_r, req_w = os.pipe()
         res_r, res_w = os.pipe()
+        if self.fork and not self._forked_once and hasattr(os, 'fork'):
+            # The first child: a fork of this process with the model already loaded
+            # (_warm_up), so it needs no import and no numba cache load. A restart (after
+            # a hang, in a parent that may run threads by then) is a fresh interpreter.
+            self._forked_once = True
+            _warm_up()
+            pid = os.fork()
+            if pid == 0:  # pragma: no cover - the child
+                code = 0
+                try:
+                    os.close(req_w)
+                    os.close(res_r)
+                    _serve(req_r, res_w)
+                except BaseException:  # noqa: BLE001 - the parent sees the pipe close
+                    code = 1
+                finally:
+                    os._exit(code)
+            os.close(req_r)
+            os.close(res_w)
+            self._proc = _ForkedChild(pid)
+            self._tx = Connection(req_w, readable=False, writable=True)
+            self._rx = Connection(res_r, readable=True, writable=False)
+            return
         env = dict(os.environ)
         env['NUMBA_NUM_THREADS'] = '1'        # one worker per core instead
         # the child imports this very package (source tree or install)
@@ -307,6 +335,9 @@ class PointWorker:
         attempts: dict[int, int] = {}
         pending = list(range(n))
         max_periods = int(req.criterion.get('max_periods', 400))
+        if n > 1 and not req.sequential:
+            pending = self._steady_bank(req, results)
+        req = dataclasses.replace(req, sequential=True)
         while pending:
             keys = [(float(req.duty[i]), float(req.pwm_frequency_hz[i]),
                      float(req.supply_pressure_pa[i])) for i in pending]
@@ -334,6 +365,8 @@ class PointWorker:
                 if msg[0] == 'point':
                     done = int(msg[1])
                     results[pending[done]] = SteadyState(*msg[2])
+                elif msg[0] == 'round':
+                    continue
                 elif msg[0] == 'done':
                     finished = True
                     break
@@ -362,9 +395,76 @@ class PointWorker:
                 pending = pending[done + 1:]
         return [s if s is not None else SteadyState(False, 0, 0, math.nan) for s in results]
 
+    def _steady_bank(self, req: PointRequest, results: list) -> list[int]:
+        """All points as one bank in the child; returns those left by a hang (else [])."""
+        if self._proc is None or self._proc.poll() is not None:
+            self.start()
+            self.wait_ready()
+        self._tx.send(req)
+        freq = np.asarray(req.pwm_frequency_hz, dtype=float)
+        # until the first round report: one period of every point
+        wait = self.min_timeout_s + self.slack * float(np.sum(1.0 / freq)) / _SLOW_RATE
+        while True:
+            if not self._rx.poll(wait):
+                break
+            try:
+                msg = self._rx.recv()
+            except EOFError:
+                code = self._proc.poll() if self._proc is not None else None
+                self._kill()
+                raise RuntimeError(f'the map worker process died (exit code {code})') \
+                    from None
+            if msg[0] == 'point':
+                results[int(msg[1])] = SteadyState(*msg[2])
+            elif msg[0] == 'round':
+                # the next round simulates one period of each of msg[1] points
+                wait = self.min_timeout_s + self.slack * msg[1] * msg[2] / _SLOW_RATE
+            elif msg[0] == 'done':
+                return []
+            else:
+                raise RuntimeError(f'model failed in the map worker: {msg[1]}')
+        # no report within the deadline: the bank is stuck on one of its unfinished
+        # points; run them one at a time to find it (and nudge it)
+        self._kill()
+        left = [i for i, r in enumerate(results) if r is None]
+        self._note(f'model did not return within {wait:.0f} s for a bank of {len(left)} '
+                   'unfinished point(s); running them one at a time')
+        return left
+
     def _note(self, text: str) -> None:
         _LOG.warning('%s', text)
         self.incidents.append(text)
+
+
+class _ForkedChild:
+    """The ``poll``/``wait``/``kill`` of :class:`subprocess.Popen` for a forked child."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+        self.returncode: int | None = None
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid == self.pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        import time
+        end = None if timeout is None else time.monotonic() + timeout
+        while self.poll() is None:
+            if end is not None and time.monotonic() > end:
+                raise subprocess.TimeoutExpired(f'forked map worker {self.pid}', timeout)
+            time.sleep(0.005)
+        return self.returncode
+
+    def kill(self) -> None:
+        if self.poll() is None:
+            try:
+                os.kill(self.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
 
 
 if __name__ == '__main__':  # pragma: no cover - the child process

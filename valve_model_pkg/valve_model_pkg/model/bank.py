@@ -34,8 +34,7 @@ SAMPLE_COLUMNS: tuple[str, ...] = (
     'position_avg_m', 'mass_flow_kg_s', 'duty', 'pwm_frequency_hz', 'supply_pressure_pa',
     'output_pressure_pa', 'coil_temperature_rise_k', 'coil_current_mean_a',
     'coil_voltage_mean_v')
-_I_MEAN = _k.N_S      # the two interval-mean columns follow the kernel's S_* columns
-_V_MEAN = _k.N_S + 1
+
 
 
 def _per_valve(value, n: int, name: str) -> list:
@@ -116,15 +115,12 @@ class ValveBank:
               p.gas_constant_j_per_kg_k, p.heat_capacity_ratio) for p in self._params],
             dtype=np.float64)
         self._y = np.zeros((n, _k.N_Y))
-        self._d = np.zeros((n, _k.N_D))
+        self._d = np.empty((n, _k.N_D))  # every row from new_drive_state (reset)
         self._t_end = np.zeros(n)
-        self._rows = np.zeros((n, _k.N_S + 2))
-        # interval means (as ValveStepper.interval_means): per valve (t, integral of i,
-        # integral of v) at the start of the running interval, the last means, and whether
-        # an interval has ended yet
-        self._iv_start = np.zeros((n, 3))
-        self._iv_last = np.zeros((n, 2))
-        self._iv_done = np.zeros(n, dtype=bool)
+        self._rows = np.zeros((n, _k.N_S))
+        # interval means (as ValveStepper.interval_means): per valve the start of the
+        # running interval, the last means and whether one has ended (kernel IV_* columns)
+        self._iv = np.zeros((n, _k.N_IV))
         self.reset()
 
     def __len__(self) -> int:
@@ -152,8 +148,7 @@ class ValveBank:
             self._y[k] = 0.0
             self._d[k] = _k.new_drive_state(vs, duty, 1.0 / freq, 0.0, p_sup, p_out)
             self._d[k, _k.D_DUTY] = duty
-            self._iv_start[k] = 0.0
-            self._iv_done[k] = False
+            self._iv[k] = 0.0
 
     def _index(self, index: int) -> int:
         k = int(index)
@@ -218,22 +213,9 @@ class ValveBank:
         has not advanced keeps its means; before its first interval ends, the
         instantaneous values.
         """
-        rows = self._rows
         _k.bank_sample(self._p, self._e, self._y, self._d, self._orifice,
-                       ATMOSPHERIC_PRESSURE_PA, rows)
-        d, start = self._d, self._iv_start
-        t = d[:, _k.D_T]
-        ends = t > start[:, 0]
-        if ends.any():
-            now = np.stack((t, d[:, _k.D_QI], d[:, _k.D_QV]), axis=1)[ends]
-            width = now[:, 0] - start[ends, 0]
-            self._iv_last[ends, 0] = (now[:, 1] - start[ends, 1]) / width
-            self._iv_last[ends, 1] = (now[:, 2] - start[ends, 2]) / width
-            start[ends] = now
-            self._iv_done |= ends
-        rows[:, _I_MEAN] = np.where(self._iv_done, self._iv_last[:, 0], rows[:, _k.S_I])
-        rows[:, _V_MEAN] = np.where(self._iv_done, self._iv_last[:, 1], rows[:, _k.S_V])
-        return rows
+                       ATMOSPHERIC_PRESSURE_PA, self._iv, self._rows)
+        return self._rows
 
     def position_avg_m(self) -> np.ndarray:
         """Average position over each valve's last complete main PWM period, m (a copy)."""
@@ -246,4 +228,4 @@ class ValveBank:
 
 def sample_of(row: Sequence[float]) -> ValveSample:
     """The :class:`ValveSample` of one row of :meth:`ValveBank.sample_array` (floats)."""
-    return ValveSample(*row[:_k.N_S], False, row[_I_MEAN], row[_V_MEAN])
+    return ValveSample(*row[:_k.S_I_MEAN], False, row[_k.S_I_MEAN], row[_k.S_V_MEAN])

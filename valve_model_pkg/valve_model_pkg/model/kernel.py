@@ -1018,7 +1018,18 @@ S_FREQ = 8
 S_PSUP = 9
 S_POUT = 10
 S_DT = 11
-N_S = 12
+S_I_MEAN = 12   # mean terminal current over the interval since the previous sample, A
+S_V_MEAN = 13   # mean terminal voltage over that interval, V
+N_S = 14
+# Interval state per valve (columns of ``iv``): start time, integrals of i and v at the
+# start, the last means, and whether an interval has ended yet (1.0).
+IV_T0 = 0
+IV_QI0 = 1
+IV_QV0 = 2
+IV_I = 3
+IV_V = 4
+IV_DONE = 5
+N_IV = 6
 
 
 @njit(cache=True, nogil=True)
@@ -1034,11 +1045,14 @@ def _bank_advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray,
 
 @njit(cache=True, nogil=True)
 def _bank_sample(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray,
-                 orifice: np.ndarray, atmosphere_pa: float, out: np.ndarray) -> None:
+                 orifice: np.ndarray, atmosphere_pa: float, iv: np.ndarray,
+                 out: np.ndarray) -> None:
     """Row r of ``out`` (columns ``S_*``): the state of valve r now, as ValveStepper.sample.
 
     ``orifice[r]`` = (C_d, C_A, T, R, gamma) of valve r; the flow is eq. (12) from the
-    period-average position, gauge pressures made absolute with ``atmosphere_pa``.
+    period-average position, gauge pressures made absolute with ``atmosphere_pa``. The
+    interval means end valve r's interval ``iv[r]`` (``IV_*``) if its time has advanced
+    (ValveStepper.interval_means); before its first interval ends, the instantaneous values.
     """
     for r in range(p.shape[0]):
         dr = d[r]
@@ -1063,6 +1077,21 @@ def _bank_sample(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray,
         out[r, S_PSUP] = dr[D_PSUP]
         out[r, S_POUT] = dr[D_POUT]
         out[r, S_DT] = y[r, Y_DT]
+        w = iv[r]
+        if t > w[IV_T0]:
+            width = t - w[IV_T0]
+            w[IV_I] = (dr[D_QI] - w[IV_QI0]) / width
+            w[IV_V] = (dr[D_QV] - w[IV_QV0]) / width
+            w[IV_T0] = t
+            w[IV_QI0] = dr[D_QI]
+            w[IV_QV0] = dr[D_QV]
+            w[IV_DONE] = 1.0
+        if w[IV_DONE] != 0.0:
+            out[r, S_I_MEAN] = w[IV_I]
+            out[r, S_V_MEAN] = w[IV_V]
+        else:
+            out[r, S_I_MEAN] = out[r, S_I]
+            out[r, S_V_MEAN] = out[r, S_V]
 
 
 def bank_advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray,
@@ -1077,6 +1106,7 @@ def bank_advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray,
 
 
 def bank_sample(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray,
-                orifice: np.ndarray, atmosphere_pa: float, out: np.ndarray) -> None:
+                orifice: np.ndarray, atmosphere_pa: float, iv: np.ndarray,
+                out: np.ndarray) -> None:
     """Fill ``out`` (n, N_S) with the state of every valve (see :func:`_bank_sample`)."""
-    _bank_sample(p, e, y, d, orifice, float(atmosphere_pa), out)
+    _bank_sample(p, e, y, d, orifice, float(atmosphere_pa), iv, out)

@@ -16,6 +16,7 @@ from .averaging import hold_period_means, moving_average
 from .electronics import ElectronicsConfig
 from .mechanics import MODE_CLOSED, MODE_OPEN
 from .orifice import orifice_mass_flow
+from . import parameters as _param
 from .parameters import PARAMETER_FIELDS, ParameterError, ValveParameters
 
 __all__ = [
@@ -361,7 +362,8 @@ def _param_matrix(params: ValveParameters | Sequence[ValveParameters] | np.ndarr
         if mat.shape[1] != len(PARAMETER_FIELDS):
             raise ParameterError(f'parameter matrix must have {len(PARAMETER_FIELDS)} '
                                  f'columns (PARAMETER_FIELDS), got shape {mat.shape}')
-        if validate:
+        if validate and not _rows_valid(mat):
+            # some row fails: the row-by-row check names the first one and its field
             for n, row in enumerate(mat):
                 try:
                     ValveParameters.from_vector(row)
@@ -369,6 +371,31 @@ def _param_matrix(params: ValveParameters | Sequence[ValveParameters] | np.ndarr
                     raise ParameterError(f'parameter row {n}: {err}') from err
         return np.ascontiguousarray(mat)
     return np.array([p.to_vector() for p in params], dtype=np.float64)
+
+
+def _rows_valid(mat: np.ndarray) -> bool:
+    """True if every row passes ``ValveParameters.from_vector`` (whole-matrix test).
+
+    The rules of ``parameters._validate``, column by column: about 1 ms for 1000 rows
+    instead of about 20 ms (loaded machine: 130 ms) row by row, which was a tenth of a
+    1000-run batch. It may only ever be stricter than the row-wise check (a False falls
+    back to it); tests/unit/test_bank_model.py compares the two on random matrices.
+    """
+    col = {name: mat[:, k] for k, name in enumerate(PARAMETER_FIELDS)}
+    with np.errstate(invalid='ignore'):
+        ok = np.all(np.isfinite(mat))
+        for name in _param._POSITIVE:
+            ok = ok and bool(np.all(col[name] > 0.0))
+        for name in _param._NON_NEGATIVE:
+            ok = ok and bool(np.all(col[name] >= 0.0))
+        ok = ok and bool(np.all(col['stroke_m'] < col['total_air_gap_m']))
+        ok = ok and bool(np.all(col['discharge_coefficient'] <= 1.0))
+        ok = ok and bool(np.all(col['heat_capacity_ratio'] > 1.0))
+        for name in PARAMETER_FIELDS:
+            lo, hi = _param._safe_range(name)
+            ok = ok and bool(np.all((lo <= col[name]) & (col[name] <= hi)))
+        ok = ok and bool(np.all(col['restitution_coefficient'] < 1.0))
+    return ok
 
 
 def _broadcast(n: int, **arrays: float | np.ndarray) -> dict[str, np.ndarray]:

@@ -21,6 +21,14 @@ Topics (valve topics per valve namespace: none for the single cylinder, ``cap/``
 - subscribes ``valve/duty_command`` (the answer of each tick) and
   ``simulation/run_until`` (std_msgs/Float64 [s]: hold the simulation at that time).
 
+With ``valve_source:=external`` the valve runs elsewhere (the CAN backend: the controller
+emulator on the simulation clock, ``valve_controller_emulator --clock sim``, read through
+the CAN driver): every step the node publishes ``/clock`` = the end of the step, waits for
+one ``valve/state`` (the valve advanced to that time), and integrates the cylinder over
+the step with its spool position; it publishes no ``valve/state`` itself. A step whose
+valve state does not come within ``lockstep_timeout_s`` is a lockstep timeout too (the
+last opening is held).
+
 A duty command that is not finite or has an impossible frequency is rejected and counted
 (the last valid command stays); a duty outside [0, 1] is clamped and counted.
 """
@@ -95,6 +103,18 @@ class LockstepSimulationNode(Node):
         rtf_max = declare_float(self, 'real_time_factor_max', 1.0,
                                 'Most simulation seconds per wall second; 0 = as fast as '
                                 'possible', 0.0, 1000.0)
+        source = declare_string(self, 'valve_source', 'model',
+                                'model: the valve model(s) run here; external: valve/state '
+                                'comes from another process stepped on /clock (the CAN '
+                                'driver + emulator with --clock sim)')
+        if source not in ('model', 'external'):
+            raise ValueError(f'parameter \'valve_source\' = {source!r}: expected model or '
+                             'external')
+        self._external = source == 'external'
+        self._step_pending = False
+        self._step_requested_s = 0.0
+        self._openings: dict[str, float] = {}
+        self._last_openings: dict[str, float] = {}
         self._start_paused = declare_bool(self, 'start_paused', False,
                                           'Hold at t = 0 until simulation/run_until arrives')
         supply_pa = declare_float(self, 'supply_pressure_pa', 400_000.0,
@@ -141,8 +161,13 @@ class LockstepSimulationNode(Node):
         self._last_resend = 0.0
 
         self._clock_pub = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS)
-        self._state_pubs = {n: self.create_publisher(ValveState, valve_topic(n, TOPIC_STATE),
-                                                     STATE_QOS) for n in self._names}
+        self._state_pubs = {} if self._external else {
+            n: self.create_publisher(ValveState, valve_topic(n, TOPIC_STATE), STATE_QOS)
+            for n in self._names}
+        if self._external:
+            for n in self._names:
+                self.create_subscription(ValveState, valve_topic(n, TOPIC_STATE),
+                                         lambda msg, n=n: self._on_state(n, msg), STATE_QOS)
         self._pressure_pubs = {n: self.create_publisher(
             FluidPressure, valve_topic(n, TOPIC_OUTPUT_PRESSURE), PRESSURE_QOS)
             for n in self._names}
@@ -216,6 +241,22 @@ class LockstepSimulationNode(Node):
         start = time.monotonic()
         while True:
             wall = time.monotonic()
+            if self._step_pending:
+                if wall - self._step_requested_s > self._gate.timeout_s:
+                    self._gate.timeouts += 1
+                    self._gate.last_timeout = (
+                        f'no valve/state for t = {(self._axis.t_ns + self._step_ns) * 1e-9:.3f}'
+                        f' s within {self._gate.timeout_s:g} s')
+                    self.get_logger().warning(f'lockstep timeout: {self._gate.last_timeout}; '
+                                              'holding the last opening',
+                                              throttle_duration_sec=1.0)
+                    self._finish_step()
+                    continue
+                if wall - self._last_resend > 0.25 and wall - self._step_requested_s > 0.25:
+                    self._last_resend = wall
+                    self._clock_pub.publish(ClockMsg(clock=_stamp(self._axis.t_ns
+                                                                  + self._step_ns)))
+                return
             if self._gate.waiting:
                 if self._gate.check_timeout(wall):
                     self.get_logger().warning(
@@ -241,11 +282,43 @@ class LockstepSimulationNode(Node):
                 return
             self._step()
 
+    def _on_state(self, name: str, msg: ValveState) -> None:
+        """External valve: its state at the end of the requested step."""
+        if not math.isfinite(msg.spool_position):
+            self._inputs.reject(valve_topic(name, 'state'), 'not_finite',
+                                f'valve/state spool_position {msg.spool_position!r} rejected')
+            return
+        if not self._step_pending or name in self._openings:
+            return  # not asked for (e.g. the t = 0 state before the run)
+        self._openings[name] = max(0.0, float(msg.spool_position))
+        if all(n in self._openings for n in self._names):
+            self._finish_step()
+            self._advance()
+
+    def _finish_step(self) -> None:
+        """External valve: integrate the cylinder over the requested step."""
+        openings = {n: self._openings.get(n, self._last_openings.get(n, 0.0))
+                    for n in self._names}
+        self._last_openings = openings
+        self._openings = {}
+        self._step_pending = False
+        self._axis.step_with_openings(openings)
+        self._after_step(publish_states=False)
+
     def _step(self) -> None:
+        if self._external:
+            # Ask the valve to advance to the end of the step (protocol: emulator/lockstep)
+            self._step_pending = True
+            self._step_requested_s = time.monotonic()
+            self._clock_pub.publish(ClockMsg(clock=_stamp(self._axis.t_ns + self._step_ns)))
+            return
         self._axis.step()
+        self._after_step(publish_states=True)
+
+    def _after_step(self, publish_states: bool) -> None:
         t_ns = self._axis.t_ns
         stamp = _stamp(t_ns)
-        for n in self._names:
+        for n in self._names if publish_states else ():
             msg = state_message(self._axis.sample(n), stamp, n or 'valve', self._sequence[n],
                                 ValveState.SOURCE_SIMULATOR)
             self._sequence[n] += 1

@@ -23,6 +23,12 @@ chamber pressure taken from the joint state's effort (net pressure force); witho
 effort, or with ``structure:=pid``, PID on position with a bleed feed-forward. Its output
 is mass flow; flow_to_duty turns it into PWM duty.
 
+With ``cylinder:=double`` (the double-acting example, one 3/2 valve per chamber) it runs the
+two-valve law (``DoublePositionController``): it reads both chamber pressures from the
+joint state (joints ``cap_chamber`` and ``rod_chamber``, gauge pressure [Pa] as position)
+and publishes ``cap/valve/flow_command`` and ``rod/valve/flow_command``, one per valve,
+each to its own ``flow_to_duty``.
+
 With ``lockstep:=true`` (the lockstep simulation, ``valve_lockstep_sim``) there is no timer:
 every joint state of a new tick is answered at once with a flow command stamped with the
 joint state's stamp, and a goal is acknowledged at once on ``cylinder/position_setpoint``.
@@ -45,7 +51,8 @@ from valve_model_pkg.nodes.common import (COMMAND_QOS, TOPIC_FLOW_COMMAND, Diagn
                                           declare_bool, declare_float, declare_string,
                                           key_values, run_node)
 from valve_model_pkg.nodes.inputs import InputGuard
-from valve_model_pkg.pneumatics.controller import ControllerGains, PositionController
+from valve_model_pkg.pneumatics.controller import (ControllerGains, DoublePositionController,
+                                                   PositionController)
 from valve_model_pkg.pneumatics.cylinder import PARAMETER_INFO, CylinderParameters
 
 #: Fastest plausible piston speed [m/s]; pneumatic cylinders run below about 10 m/s.
@@ -94,14 +101,29 @@ class PositionControllerNode(Node):
         plant = {name: declare_float(self, f'plant.{name}', getattr(defaults, name), text,
                                      low, high)
                  for name, (text, low, high) in PARAMETER_INFO.items()}
-        self._controller = PositionController(gains, CylinderParameters(**plant))
+        kind = declare_string(
+            self, 'cylinder', 'single',
+            'single: one valve, valve/flow_command; double: double-acting cylinder, one 3/2 '
+            'valve per chamber, cap/valve/flow_command and rod/valve/flow_command')
+        if kind not in ('single', 'double'):
+            raise ValueError(f'parameter \'cylinder\' = {kind!r}: expected single or double')
+        self._double = kind == 'double'
+        supply = declare_float(self, 'supply_pressure_pa', 400_000.0,
+                               'Supply pressure, gauge [Pa] (double: the pressure split)',
+                               0.0, 1.0e6)
+        if self._double:
+            # the two-valve law has its own default gains (stiffer: both chambers push)
+            self._controller = DoublePositionController(
+                None, CylinderParameters(**plant), supply_pressure_pa=supply)
+        else:
+            self._controller = PositionController(gains, CylinderParameters(**plant))
+        self._chambers: dict[str, float] = {}   # double: absolute chamber pressures [Pa]
         self._rate_hz = declare_float(self, 'rate_hz', 200.0, 'Control rate [Hz]', 1.0, 2000.0)
         self._lockstep = declare_bool(
             self, 'lockstep', False,
             'Simulation in lockstep: answer every joint state of a new tick at once with a '
             'flow command stamped with that tick (no timer); see valve_lockstep_sim')
         self._last_tick_ns = -1
-        self._last_flow: FlowCommand | None = None
         self._setpoint_m = declare_float(self, 'initial_setpoint_m', 0.0,
                                          'Setpoint until a goal arrives [m]', 0.0, 2.0)
         self._stroke_m = plant['stroke_m']
@@ -113,7 +135,11 @@ class PositionControllerNode(Node):
                                     'Period of the diagnostics summary [s]', 0.05, 60.0)
         self._inputs = InputGuard(self.get_logger())
         self._sequence = 0  # of the next flow command
-        self._flow_pub = self.create_publisher(FlowCommand, TOPIC_FLOW_COMMAND, COMMAND_QOS)
+        names = DoublePositionController.names if self._double else ('',)
+        self._flow_pubs = {n: self.create_publisher(
+            FlowCommand, f'{n}/{TOPIC_FLOW_COMMAND}' if n else TOPIC_FLOW_COMMAND, COMMAND_QOS)
+            for n in names}
+        self._last_flows: dict[str, FlowCommand] = {}
         self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS,
                                                DIAGNOSTICS_QOS)
         self._setpoint_pub = self.create_publisher(Float64, TOPIC_POSITION_SETPOINT, COMMAND_QOS)
@@ -167,17 +193,25 @@ class PositionControllerNode(Node):
         # pressure the cascade's pressure loop needs; without it the flow PID runs.
         self._pressure_pa = ATMOSPHERIC_PRESSURE_PA + effort / self._area_m2 \
             if math.isfinite(effort) else None
+        if self._double:
+            names = list(msg.name)
+            for n in DoublePositionController.names:
+                j = names.index(f'{n}_chamber') if f'{n}_chamber' in names else -1
+                value = float(msg.position[j]) if 0 <= j < len(msg.position) else math.nan
+                if math.isfinite(value):
+                    self._chambers[n] = ATMOSPHERIC_PRESSURE_PA + value
         if self._lockstep:
             stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             if stamp_ns > self._last_tick_ns:
                 self._last_tick_ns = stamp_ns
                 self._on_tick(msg.header.stamp)
-            elif stamp_ns == self._last_tick_ns and self._last_flow is not None:
+            elif stamp_ns == self._last_tick_ns and self._last_flows:
                 # The simulation sent the tick again: our answer was lost (e.g. published
                 # before discovery matched). Send the same answer again; the control law
                 # runs once per tick, so its state does not depend on resends.
-                self._last_flow.sequence = self._sequence
-                self._flow_pub.publish(self._last_flow)
+                for n, flow in self._last_flows.items():
+                    flow.sequence = self._sequence
+                    self._flow_pubs[n].publish(flow)
                 self._sequence += 1
 
     def _on_tick(self, stamp: object | None = None) -> None:
@@ -185,16 +219,25 @@ class PositionControllerNode(Node):
         self._setpoint_pub.publish(setpoint)
         if self._position_m is None:
             return  # no feedback yet: command nothing rather than guess
-        flow = self._controller.update(self._setpoint_m, self._position_m,
-                                       self._velocity_m_s, 1.0 / self._rate_hz,
-                                       self._pressure_pa)
-        msg = FlowCommand()
-        msg.header.stamp = stamp if stamp is not None else self.get_clock().now().to_msg()
-        msg.header.frame_id = self.get_fully_qualified_name()
-        msg.sequence = self._sequence
-        msg.mass_flow = flow
-        self._flow_pub.publish(msg)
-        self._last_flow = msg
+        if self._double:
+            if len(self._chambers) < 2:
+                return  # no chamber pressures yet: command nothing rather than guess
+            flows = self._controller.update(self._setpoint_m, self._position_m,
+                                            self._velocity_m_s, 1.0 / self._rate_hz,
+                                            self._chambers['cap'], self._chambers['rod'])
+        else:
+            flows = {'': self._controller.update(self._setpoint_m, self._position_m,
+                                                 self._velocity_m_s, 1.0 / self._rate_hz,
+                                                 self._pressure_pa)}
+        stamp = stamp if stamp is not None else self.get_clock().now().to_msg()
+        for n, flow in flows.items():
+            msg = FlowCommand()
+            msg.header.stamp = stamp
+            msg.header.frame_id = self.get_fully_qualified_name()
+            msg.sequence = self._sequence
+            msg.mass_flow = flow
+            self._flow_pubs[n].publish(msg)
+            self._last_flows[n] = msg
         self._sequence += 1
 
     def _publish_diagnostics(self) -> None:

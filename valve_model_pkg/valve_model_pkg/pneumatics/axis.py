@@ -115,6 +115,20 @@ class SimulatedAxis:
         """The valve's state at the end of the last step."""
         return self._samples[name]
 
+    def step_with_openings(self, openings_m: dict[str, float]) -> None:
+        """Advance the cylinder by one step with valve openings from elsewhere [m].
+
+        For a valve that runs in another process (the CAN backend's controller emulator on
+        the simulation clock): the openings are the valves' at the end of the step, as in
+        :meth:`step`; this axis's own valve models are not advanced.
+        """
+        dt = self.step_ns * 1e-9
+        if self.kind == 'single':
+            self.cylinder.step_with_valve(dt, openings_m[''], self.supply_pressure_pa)
+        else:
+            self.cylinder.step_with_valves(dt, openings_m, self.supply_pressure_pa)
+        self.steps += 1
+
     def step(self) -> None:
         """Advance valves and cylinder by one step."""
         t_end = (self.steps + 1) * self.step_ns * 1e-9

@@ -163,3 +163,118 @@ class PositionController:
         approach = volume / (par.polytropic_exponent * rt) * (p_ref - p) \
             / g.pressure_time_constant_s
         return holding + approach, error
+
+
+class DoublePositionController:
+    """The cascade for the double-acting cylinder: one controller, two 3/2 valves.
+
+    The position loop is the single cylinder's (force reference with the model-based
+    feed-forward of spring and load, PID in newtons); the force is split into two chamber
+    pressure references around a mean gauge pressure ``g_0`` (half the supply)::
+
+        g_r = g_0 - F_ref / (2 A_r),   g_c = g_0 A_r / A_c + F_ref / (2 A_c)
+        so that A_c g_c - A_r g_r = F_ref                                  (D5)
+
+    (clamped to [0, supply]; when one is clamped the other takes the whole force), which
+    keeps both chambers pressurised, so the axis is stiff in both directions. Each
+    chamber's pressure loop asks for the net flow that moves it to its reference with the
+    time constant tau_p, with its volume change (D4); :func:`three_way_fill_flow` turns
+    that net flow into the supply-seat flow the chamber's ``flow_to_duty`` maps to a duty.
+
+    Parameters
+    ----------
+    gains : ControllerGains | None
+        The cascade's gains (``structure`` is ignored: the two-valve law is a cascade).
+    plant : CylinderParameters | None
+        The cylinder's parameters (as the plant's).
+    valve : ValveParameters | None
+        The 3/2 valves' parameters (for the fill-flow inverse); default: the paper's.
+    rod_diameter_m : float
+        Piston rod diameter [m].
+    supply_pressure_pa : float
+        Supply pressure, gauge [Pa].
+    """
+
+    names = ('cap', 'rod')
+
+    def __init__(self, gains: ControllerGains | None = None,
+                 plant: CylinderParameters | None = None, valve=None,
+                 rod_diameter_m: float | None = None,
+                 supply_pressure_pa: float = 4e5) -> None:
+        from valve_model_pkg.model import load_parameters
+        from valve_model_pkg.pneumatics.double_cylinder import (DEFAULT_ROD_DIAMETER_M,
+                                                                chamber_areas_m2)
+        self.gains = gains or ControllerGains(stiffness_n_per_m=6000.0,
+                                              integral_n_per_m_s=40000.0,
+                                              damping_n_s_per_m=300.0,
+                                              pressure_time_constant_s=0.04)
+        self.plant = plant or CylinderParameters()
+        self.valve = valve or load_parameters()
+        self.rod_diameter_m = rod_diameter_m or DEFAULT_ROD_DIAMETER_M
+        self.cap_area_m2, self.rod_area_m2 = chamber_areas_m2(self.plant, self.rod_diameter_m)
+        self.supply_pressure_pa = float(supply_pressure_pa)
+        self.integral_m_s = 0.0
+        self.last_pressure_references_pa: dict[str, float] = {}
+
+    def reset(self) -> None:
+        """Forget the integral."""
+        self.integral_m_s = 0.0
+
+    def pressure_references_pa(self, force_n: float) -> tuple[float, float]:
+        """(g_c, g_r): gauge chamber pressures that give the net force ``force_n`` (D5)."""
+        ac, ar, ps = self.cap_area_m2, self.rod_area_m2, self.supply_pressure_pa
+        g0 = 0.5 * ps
+        gr = g0 - force_n / (2.0 * ar)
+        gc = g0 * ar / ac + force_n / (2.0 * ac)
+        if gr < 0.0 or gc > ps:      # pushing hard: rod side vents, cap side takes it
+            gr = min(max(gr, 0.0), ps)
+            gc = (force_n + ar * gr) / ac
+        if gc < 0.0 or gr > ps:      # pulling hard: cap side vents, rod side takes it
+            gc = min(max(gc, 0.0), ps)
+            gr = (ac * gc - force_n) / ar
+        return min(max(gc, 0.0), ps), min(max(gr, 0.0), ps)
+
+    def update(self, setpoint_m: float, position_m: float, velocity_m_s: float, dt_s: float,
+               cap_pressure_pa: float, rod_pressure_pa: float) -> dict[str, float]:
+        """One control step; returns the supply-flow command of each valve [kg/s].
+
+        Pressures are absolute [Pa].
+        """
+        for name, value in (('setpoint_m', setpoint_m), ('position_m', position_m),
+                            ('velocity_m_s', velocity_m_s), ('dt_s', dt_s),
+                            ('cap_pressure_pa', cap_pressure_pa),
+                            ('rod_pressure_pa', rod_pressure_pa)):
+            if not math.isfinite(value):
+                raise ValueError(f'{name} = {value!r} is not finite')
+        from valve_model_pkg.pneumatics.double_cylinder import three_way_fill_flow
+        g, par = self.gains, self.plant
+        error = setpoint_m - position_m
+        hold = par.spring_stiffness_n_per_m * setpoint_m + par.spring_preload_n \
+            + par.load_force_n if g.feedforward else 0.0
+        force = hold + g.stiffness_n_per_m * error + g.integral_n_per_m_s * self.integral_m_s \
+            - g.damping_n_s_per_m * velocity_m_s
+        gc, gr = self.pressure_references_pa(force)
+        refs = {'cap': gc + ATMOSPHERIC_PRESSURE_PA, 'rod': gr + ATMOSPHERIC_PRESSURE_PA}
+        self.last_pressure_references_pa = refs
+        rt = par.gas_constant_j_per_kg_k * par.temperature_k
+        y = min(max(position_m, 0.0), par.stroke_m)
+        chambers = {'cap': (cap_pressure_pa, self.cap_area_m2,
+                            par.dead_volume_m3 + self.cap_area_m2 * y, velocity_m_s),
+                    'rod': (rod_pressure_pa, self.rod_area_m2,
+                            par.dead_volume_m3 + self.rod_area_m2 * (par.stroke_m - y),
+                            -velocity_m_s)}
+        supply_abs = self.supply_pressure_pa + ATMOSPHERIC_PRESSURE_PA
+        out = {}
+        saturated = False
+        for name, (p, area, volume, growth) in chambers.items():
+            p = max(p, 1.0)
+            net = area * p * growth / rt + volume / (par.polytropic_exponent * rt) \
+                * (refs[name] - p) / g.pressure_time_constant_s                   # (D4)
+            fill = three_way_fill_flow(net, supply_abs, p, self.valve)
+            command = min(max(fill, 0.0), g.max_mass_flow_kg_s)
+            saturated |= command != fill
+            out[name] = command
+        # Integrate only near the setpoint and while no valve is saturated (no wind-up).
+        if abs(error) <= g.integral_zone_m and not saturated:
+            self.integral_m_s += error * dt_s
+        return out

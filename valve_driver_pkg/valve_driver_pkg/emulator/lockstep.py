@@ -1,0 +1,196 @@
+"""The controller emulator on the simulation clock: ``valve_controller_emulator --clock sim``.
+
+With the CAN backend in lockstep (``valve_demo --backend can``, the default clock), the
+valve model runs in the emulator, the cylinder in ``valve_lockstep_sim`` with
+``valve_source:=can``, and the emulator's model advances on the simulation clock instead
+of the wall clock:
+
+1. ``valve_lockstep_sim`` publishes ``/clock`` = t, the end of the next valve step.
+2. This bridge advances the emulator's model to t (:meth:`ControllerEmulator.step`, every
+   frame due up to t, exactly as in real time: telemetry and its mean, period, status)
+   and so sends one ``ValveTelemetry`` per valve step.
+3. The CAN driver (``use_sim_time``) publishes it as ``valve/state``, stamped with the
+   simulation clock; the simulation integrates the cylinder over the step with that
+   opening, and at a control tick T publishes the pressure and joint state and waits for
+   ``valve/duty_command`` stamped T, as with its own valve.
+4. Before the model advances past a control tick T, the bridge waits until the command
+   the emulator received over CAN is the duty command stamped T (the bridge sees that
+   command on ROS too, only to know which duty the tick needs; the valve takes it from
+   the bus as it would on hardware). The driver's CAN frame and the simulation's next
+   ``/clock`` race; this wait makes the run the same whichever comes first.
+
+A tick whose command does not arrive within ``timeout_s`` of wall time is a *lockstep
+timeout*: the model goes on with the command in force, the bridge logs it and counts it
+(``stats['lockstep_timeouts']``). The emulator has no overruns in this mode: model time
+never runs ahead of what it has computed (``max_burst`` 0: every telemetry instant is sent).
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import can
+
+from valve_driver_pkg.protocol.codec import COMMAND
+
+__all__ = ['run_on_simulation_clock', 'LockstepGateState']
+
+logger = logging.getLogger('valve_controller_emulator')
+
+#: A CAN duty equals a ROS duty when they differ by at most the frame's resolution [1].
+_DUTY_RESOLUTION = 1.5e-4
+
+
+class LockstepGateState:
+    """What the bridge knows: the target time, the tick commands, the command on the bus.
+
+    ROS-free, so the rule "advance past tick T only with tick T's command in force" is
+    tested alone.
+    """
+
+    def __init__(self, control_period_ns: int, timeout_s: float = 2.0) -> None:
+        self.control_ns = int(control_period_ns)
+        self.timeout_s = float(timeout_s)
+        self.target_ns = 0
+        self.tick_duty: dict[int, float] = {}   # duty command stamp [ns] -> duty
+        self.bus_duty: float | None = None       # the last ValveCommand duty (Enable=0: 0)
+        self.waiting_since: float | None = None
+        self.timeouts = 0
+        self.last_timeout = ''
+
+    def tick_of(self, model_ns: int) -> int:
+        """The control tick whose command governs the step that starts at ``model_ns``."""
+        return model_ns // self.control_ns * self.control_ns
+
+    def may_step(self, model_ns: int, wall_s: float) -> bool:
+        """Whether the model may advance one step from ``model_ns`` now."""
+        tick = self.tick_of(model_ns)
+        if tick == 0:
+            return True  # the simulation does not wait at t = 0 either: duty 0 until 5 ms
+        duty = self.tick_duty.get(tick)
+        if duty is not None and self.bus_duty is not None \
+                and abs(duty - self.bus_duty) <= _DUTY_RESOLUTION:
+            self.waiting_since = None
+            return True
+        if self.waiting_since is None:
+            self.waiting_since = wall_s
+            return False
+        if wall_s - self.waiting_since > self.timeout_s:
+            self.timeouts += 1
+            self.last_timeout = (f'no duty command for tick t = {tick * 1e-9:.3f} s reached '
+                                 f'the emulator within {self.timeout_s:g} s')
+            self.tick_duty[tick] = self.bus_duty if self.bus_duty is not None else 0.0
+            self.waiting_since = None
+            return True
+        return False
+
+    def forget_before(self, tick_ns: int) -> None:
+        """Drop the commands of ticks before ``tick_ns`` (bounded memory)."""
+        for stamp in [s for s in self.tick_duty if s < tick_ns]:
+            del self.tick_duty[stamp]
+
+
+def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 0.001,
+                            control_period_s: float = 0.005, timeout_s: float = 2.0,
+                            valve_namespace: str = '') -> dict:
+    """Run ``emulator`` on the simulation clock until ``stop`` is set; returns counters.
+
+    Two threads: the bus thread hands every received frame to the emulator (and notes the
+    duty of each ``ValveCommand``), the ROS thread takes ``/clock`` and the duty commands;
+    whichever changes what the gate knows tries to advance the model.
+    """
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rosgraph_msgs.msg import Clock
+    from valve_msgs.msg import DutyCommand
+
+    from valve_model_pkg.interface import TOPIC_CLOCK, TOPIC_DUTY_COMMAND
+    from valve_model_pkg.interface.ros import CLOCK_QOS, COMMAND_QOS
+
+    step_ns = int(round(step_s * 1e9))
+    gate = LockstepGateState(int(round(control_period_s * 1e9)), timeout_s)
+    lock = threading.RLock()
+    model_ns = [0]
+
+    def advance() -> None:
+        with lock:
+            while model_ns[0] < gate.target_ns:
+                if not gate.may_step(model_ns[0], time.monotonic()):
+                    return
+                if gate.timeouts and gate.waiting_since is None and gate.last_timeout:
+                    logger.warning('lockstep timeout: %s; going on with the command in '
+                                   'force', gate.last_timeout)
+                    gate.last_timeout = ''
+                model_ns[0] += step_ns
+                emulator.step(model_ns[0] * 1e-9, 0)
+                gate.forget_before(gate.tick_of(model_ns[0]))
+
+    codec = emulator.codec
+
+    def bus_loop() -> None:
+        while not stop.is_set():
+            try:
+                msg = emulator.bus.recv(0.05)
+            except can.CanError as err:
+                logger.error('emulator: bus receive failed (%s); stopping', err)
+                stop.set()
+                return
+            if msg is None:
+                with lock:
+                    advance()  # a timed-out wait is decided here too
+                continue
+            found = codec.classify(msg.arbitration_id)
+            emulator.handle(msg)
+            if found is not None and found[0] == COMMAND:
+                try:
+                    signals = codec.decode(msg).signals
+                except Exception:   # the emulator counted the bad frame; not a command
+                    continue
+                with lock:
+                    gate.bus_duty = float(signals['Duty']) if signals['Enable'] else 0.0
+                    advance()
+
+    from rclpy.signals import SignalHandlerOptions
+    # The program's own SIGINT/SIGTERM handlers set ``stop``; rclpy must not replace them.
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    node = rclpy.create_node('valve_emulator_clock')
+    duty_topic = f'{valve_namespace}/{TOPIC_DUTY_COMMAND}' if valve_namespace \
+        else TOPIC_DUTY_COMMAND
+
+    def on_clock(msg: Clock) -> None:
+        t = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+        with lock:
+            if t > gate.target_ns:
+                gate.target_ns = t
+            advance()
+
+    def on_duty(msg: DutyCommand) -> None:
+        t = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        with lock:
+            if t % gate.control_ns == 0 and t >= gate.tick_of(model_ns[0]):
+                gate.tick_duty[t] = min(max(float(msg.duty), 0.0), 1.0)
+            advance()
+
+    node.create_subscription(Clock, TOPIC_CLOCK, on_clock, CLOCK_QOS)
+    node.create_subscription(DutyCommand, duty_topic, on_duty, COMMAND_QOS)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    with lock:
+        emulator.step(0.0, 0)   # the t = 0 frames now, before the simulation runs
+    bus_thread = threading.Thread(target=bus_loop, name='emulator_bus', daemon=True)
+    bus_thread.start()
+    logger.info('on the simulation clock: step %g ms, control tick %g ms, lockstep timeout '
+                '%g s', step_s * 1e3, control_period_s * 1e3, timeout_s)
+    try:
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        stop.set()
+        bus_thread.join(timeout=1.0)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return {'simulation_time_s': model_ns[0] * 1e-9, 'lockstep_timeouts': gate.timeouts}
