@@ -118,7 +118,7 @@ def test_driver_watchdog_closes_at_once_at_0_1_hz() -> None:
         assert off <= DEENERGISE_BOUND_S, off
         assert all(s.coil_voltage_v <= 0.0 for s in rig.stepper.samples if s.t_s > t_stop)
         # the watchdog's frame came after its timeout (+ refresh and scheduling slack)
-        assert 0.2 <= t_stop - t_open <= 0.2 + 0.5
+        assert 0.2 <= t_stop - t_open <= 0.2 + 1.5
         last = rig.stepper.samples[-1]
         assert last.spool_position_m == 0.0 and last.duty == 0.0
     finally:

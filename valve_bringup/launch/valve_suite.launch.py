@@ -13,9 +13,21 @@ Arguments:
     bag_dir        where valve_recorder writes its bags
     can_interface, can_channel    python-can bus of the CAN backend (default: the loopback
                    hub the emulator serves; socketcan/can0 for hardware)
+    clock          wall | lockstep   wall (default; hardware): every node on wall-clock
+                   time, as before. lockstep: as `make demo` -- valve_lockstep_sim owns
+                   /clock, steps valve model(s) and cylinder and waits for each control
+                   tick's duty command; flow_to_duty and position_controller run with
+                   use_sim_time and lockstep:=true. With backend:=can the emulator runs
+                   with --clock sim on the loopback hub, the driver with use_sim_time, and
+                   the simulation with valve_source:=external (one valve).
+    cylinder       single | double   (lockstep) the double-acting example: valves cap/, rod/
+    real_time_factor_max   (lockstep) pace cap; 0 = as fast as possible (default 1)
+
+    ros2 launch valve_bringup valve_suite.launch.py clock:=lockstep cylinder:=double
 """
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription
+from launch.actions import (DeclareLaunchArgument, ExecuteProcess, IncludeLaunchDescription,
+                            OpaqueFunction)
 from launch.conditions import IfCondition, LaunchConfigurationEquals
 from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
@@ -42,11 +54,19 @@ def generate_launch_description() -> LaunchDescription:
                               description='python-can interface of the CAN backend'),
         DeclareLaunchArgument('can_channel', default_value='127.0.0.1:29536',
                               description='python-can channel of the CAN backend'),
+        DeclareLaunchArgument('clock', default_value='wall', choices=['wall', 'lockstep'],
+                              description='wall-clock nodes, or simulation time in lockstep '
+                              '(as make demo)'),
+        DeclareLaunchArgument('cylinder', default_value='single', choices=['single', 'double'],
+                              description='(lockstep) single- or double-acting cylinder'),
+        DeclareLaunchArgument('real_time_factor_max', default_value='1.0',
+                              description='(lockstep) pace cap; 0 = as fast as possible'),
     ]
+    wall = LaunchConfigurationEquals('clock', 'wall')
 
     simulator = Node(
         package='valve_model_pkg', executable='valve_simulator', name='valve_simulator',
-        output='screen', condition=LaunchConfigurationEquals('backend', 'sim'),
+        output='screen', condition=_both(LaunchConfigurationEquals('backend', 'sim'), wall),
         parameters=[{'params_file': params_file}])
     can_backend = IncludeLaunchDescription(
         PythonLaunchDescriptionSource(PathJoinSubstitution(
@@ -54,20 +74,65 @@ def generate_launch_description() -> LaunchDescription:
         launch_arguments={'params_file': params_file,
                           'interface': LaunchConfiguration('can_interface'),
                           'channel': LaunchConfiguration('can_channel')}.items(),
-        condition=LaunchConfigurationEquals('backend', 'can'))
+        condition=_both(LaunchConfigurationEquals('backend', 'can'), wall))
     flow_to_duty = Node(
         package='valve_model_pkg', executable='flow_to_duty', name='flow_to_duty',
-        output='screen', parameters=[{'map_file': LaunchConfiguration('map_file')}])
+        output='screen', parameters=[{'map_file': LaunchConfiguration('map_file')}],
+        condition=wall)
     cylinder = Node(
         package='valve_model_pkg', executable='pneumatic_cylinder', name='pneumatic_cylinder',
-        output='screen', condition=IfCondition(LaunchConfiguration('pneumatics')))
+        output='screen', condition=_both(IfCondition(LaunchConfiguration('pneumatics')), wall))
     controller = Node(
         package='valve_model_pkg', executable='position_controller',
         name='position_controller', output='screen',
-        condition=IfCondition(LaunchConfiguration('pneumatics')))
+        condition=_both(IfCondition(LaunchConfiguration('pneumatics')), wall))
     recorder = Node(
         package='valve_model_pkg', executable='valve_recorder', name='valve_recorder',
         output='screen', condition=IfCondition(LaunchConfiguration('record')),
         parameters=[{'output_dir': LaunchConfiguration('bag_dir')}])
+    lockstep = OpaqueFunction(function=_lockstep_nodes,
+                              condition=LaunchConfigurationEquals('clock', 'lockstep'))
     return LaunchDescription(args + [simulator, can_backend, flow_to_duty, cylinder,
-                                     controller, recorder])
+                                     controller, recorder, lockstep])
+
+
+def _both(a, b):
+    """A condition that holds when both ``a`` and ``b`` hold."""
+    from launch import Condition
+    return Condition(predicate=lambda context: a.evaluate(context) and b.evaluate(context))
+
+
+def _lockstep_nodes(context):
+    """The processes of ``clock:=lockstep``, as valve_bringup.demo.suite_processes."""
+    def arg(name: str) -> str:
+        return LaunchConfiguration(name).perform(context)
+    kind, backend = arg('cylinder'), arg('backend')
+    if kind == 'double' and backend == 'can':
+        raise RuntimeError('cylinder:=double needs backend:=sim (one valve on the CAN bus)')
+    sim_time = {'use_sim_time': True, 'lockstep': True}
+    actions = []
+    sim_params = {'start_paused': False, 'cylinder': kind,
+                  'real_time_factor_max': float(arg('real_time_factor_max')),
+                  'params_file': arg('params_file')}
+    if backend == 'can':
+        channel = arg('can_channel')
+        actions.append(ExecuteProcess(cmd=[
+            'valve_controller_emulator', '--interface', arg('can_interface'), '--channel',
+            channel, '--clock', 'sim'], output='screen', name='valve_controller_emulator'))
+        actions.append(Node(
+            package='valve_driver_pkg', executable='valve_can_driver',
+            name='valve_can_driver', output='screen',
+            parameters=[{'interface': arg('can_interface'), 'channel': channel,
+                         'autostart': True, 'use_sim_time': True,
+                         'telemetry_timeout_min_s': 5.0}]))
+        sim_params['valve_source'] = 'external'
+    actions.append(Node(package='valve_model_pkg', executable='valve_lockstep_sim',
+                        name='valve_lockstep_sim', output='screen', parameters=[sim_params]))
+    for ns in (('cap', 'rod') if kind == 'double' else ('',)):
+        actions.append(Node(package='valve_model_pkg', executable='flow_to_duty',
+                            name='flow_to_duty', namespace=ns or None, output='screen',
+                            parameters=[{'map_file': arg('map_file'), **sim_time}]))
+    actions.append(Node(package='valve_model_pkg', executable='position_controller',
+                        name='position_controller', output='screen',
+                        parameters=[{'cylinder': kind, **sim_time}]))
+    return actions

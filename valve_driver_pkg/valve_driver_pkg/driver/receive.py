@@ -40,7 +40,8 @@ from valve_driver_pkg.driver.health import TelemetryHealth
 from valve_driver_pkg.driver.transmit import TransmitScheduler
 from valve_driver_pkg.errors import FrameRejected
 from valve_driver_pkg.protocol.codec import (COMMAND, PERIOD, PRESSURE, STATUS, TELEMETRY,
-                                             TELEMETRY_MEAN, CounterCheck, CounterTracker, RejectReason,
+                                             TELEMETRY_MEAN, CounterCheck, CounterTracker,
+                                             RejectReason,
                                              ValveCodec)
 from valve_model_pkg.model.averaging import PeriodAverager
 from valve_model_pkg.model.sample import ValveSample

@@ -51,7 +51,8 @@ from valve_driver_pkg.emulator.fault_handling import FaultHandling
 from valve_driver_pkg.emulator.faults import FaultInjector
 from valve_driver_pkg.errors import FrameRejected, ProtocolEncodeError
 from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, PERIOD, PRESSURE, STATUS,
-                                             TELEMETRY, TELEMETRY_MEAN, CounterCheck, CounterTracker,
+                                             TELEMETRY, TELEMETRY_MEAN, CounterCheck,
+                                             CounterTracker,
                                              EmulatorFault, ValveCodec)
 
 __all__ = ['StepperLike', 'EmulatorConfig', 'ControllerEmulator', 'ControllerState',

@@ -39,7 +39,8 @@ from valve_driver_pkg.errors import DbcError, FrameRejected, ProtocolEncodeError
 
 __all__ = [
     'COMMAND', 'TELEMETRY', 'TELEMETRY_MEAN', 'PERIOD', 'PRESSURE', 'STATUS', 'CONTROL',
-    'MESSAGE_NAMES', 'TEST_MESSAGE_NAMES', 'EXTENDED_MESSAGE_NAMES', 'MAX_NODE_ID', 'FRAME_LENGTH', 'RejectReason', 'EmulatorFault',
+    'MESSAGE_NAMES', 'TEST_MESSAGE_NAMES', 'EXTENDED_MESSAGE_NAMES', 'MAX_NODE_ID',
+    'FRAME_LENGTH', 'RejectReason', 'EmulatorFault',
     'DecodedFrame', 'ValveCodec', 'CounterCheck', 'CounterTracker', 'crc8', 'frame_checksum',
     'default_dbc_path', 'fault_injection_dbc_path',
 ]

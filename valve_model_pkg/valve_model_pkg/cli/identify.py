@@ -4,10 +4,11 @@ Usage::
 
     valve_identify --fit FILE... [--validate FILE...] [--params YAML] -o DIR
 
-FILE is a ``step`` or ``pwm`` record of the measured-data format (a ``pwm`` record with its
-``coil_voltage`` column) or a rosbag2 bag directory recorded from the suite
-(``/valve/state``); ``operation`` records are refused for now. The supply pressure comes
-from each file's metadata. Progress goes to stderr; DIR receives report.json, report.md
+FILE is a ``step``, ``pwm`` or ``operation`` record of the measured-data format or a
+rosbag2 bag directory recorded from the suite (``/valve/state``). ``pwm`` and ``operation``
+records and PWM bags run the model's drive electronics from the commands and compare like
+with like (interval means); one such record without ``--validate`` has its last 30 % held
+out for validation (docs/identification.md). The supply pressure comes from each file. Progress goes to stderr; DIR receives report.json, report.md
 with PNG plots and params.yaml (loadable by valve_simulate / valve_map). Exit status: 0 on
 success, 2 on refused input (one line naming file, line and reason), 1 on a failure
 inside.

@@ -175,6 +175,8 @@ class Convergence:
         return dict(self.__dict__)
 
 
+#: A parameter at a search bound whose 95 % interval is below this [%] is a misfit sign.
+MISFIT_CI95_PCT = 50.0
 #: The baseline counts as converged when a local polish (fresh simplices around the best
 #: point) lowers the cost by less than this fraction of the noise's mean absolute error.
 CONVERGENCE_FRACTION = 0.02
@@ -183,9 +185,14 @@ CONVERGENCE_RELATIVE = 1e-3
 
 
 def polish(space: ParameterSpace, data: FitData, u: np.ndarray, cost: float,
-           noise_a: float, say: Callable[[str], None], rounds: int = 3
-           ) -> tuple[np.ndarray, Convergence]:
-    """Polish the baseline until a fresh local search no longer pays (see Convergence)."""
+           noise_a: float, say: Callable[[str], None], rounds: int = 3,
+           others: np.ndarray | None = None) -> tuple[np.ndarray, Convergence]:
+    """Polish the baseline until a fresh local search no longer pays (see Convergence).
+
+    The first round also runs independent simplices from ``others`` (other start points:
+    the measured values, the global stage's other good points), in lock step: a lower cost
+    reached from elsewhere means the search had stopped in a local minimum.
+    """
     fun = unit_objective(space, data)
     noise_mae = noise_a * math.sqrt(2.0 / math.pi) if math.isfinite(noise_a) else 0.0
     tol = max(CONVERGENCE_FRACTION * noise_mae, CONVERGENCE_RELATIVE * cost)
@@ -194,10 +201,13 @@ def polish(space: ParameterSpace, data: FitData, u: np.ndarray, cost: float,
     converged = False
     gain = math.inf
     for r in range(rounds):
-        st = SearchSettings(global_samples=0, starts=1, max_iterations=300,
-                            initial_step=0.04 / (r + 1), restarts=2, stall_iterations=60,
+        starts = best_u[None, :]
+        if r == 0 and others is not None and len(others):
+            starts = np.vstack([best_u[None, :], np.atleast_2d(others)])
+        st = SearchSettings(global_samples=0, starts=starts.shape[0], max_iterations=300,
+                            initial_step=0.1 / (r + 1), restarts=2, stall_iterations=60,
                             tolerance=1e-6, seed=r + 1)
-        res = direct_search(fun, best_u, st, label=f'baseline polish {r + 1}')
+        res = direct_search(fun, starts, st, label=f'baseline polish {r + 1}')
         gain = best_c - res.cost
         costs.append(float(res.cost))
         if res.cost < best_c:
@@ -207,7 +217,8 @@ def polish(space: ParameterSpace, data: FitData, u: np.ndarray, cost: float,
         if gain <= tol:
             converged = True
             break
-    statement = (f'baseline converged: a local polish from the optimum lowered the cost '
+    statement = (f'baseline converged: local polishes from the optimum and from '
+                 f'{0 if others is None else len(others)} other start points lowered the cost '
                  f'(mean absolute error) from {cost:.4g} A to {best_c:.4g} A; the last polish '
                  f'gained {max(gain, 0.0):.2g} A, within '
                  f'{tol:.2g} A = max({100 * CONVERGENCE_FRACTION:g} % of the noise MAE '
@@ -336,7 +347,10 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
             if again.cost < c_best:
                 u_best, c_best = again.u, again.cost
     noise0 = float(np.nanmedian([noise_std(r) for r in fit.residuals(space.params(u_best))]))
-    u_best, conv = polish(space, fit, u_best, c_best, noise0, say)
+    others = [space.to_unit(start)]
+    if res.starts_u is not None:
+        others += [x for x in res.starts_u if np.max(np.abs(x - u_best)) > 0.05][:3]
+    u_best, conv = polish(space, fit, u_best, c_best, noise0, say, others=np.array(others))
     say(conv.statement)
     if fit.through_electronics:
         drive = fit_drive(fit, space.params(u_best))
@@ -356,6 +370,15 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
     if drive is not None:
         drive = fit_drive(fit, baseline_params, effort=0,
                           inflation=baseline.sensitivity.inflation)
+    # A bound reached along a direction the data do not see (b on a step: the damping
+    # force is ~1 % of the others) is no misfit; one the data care about is.
+    ci = baseline.sensitivity.ci95_pct
+    misfit = [n for n in at_bound if ci.get(n) is not None and ci[n] < MISFIT_CI95_PCT]
+    if at_bound:
+        notes.append('at a search bound: ' + ', '.join(at_bound) + (
+            '; the data determine ' + ', '.join(misfit) + ' (95 % CI below '
+            f'{MISFIT_CI95_PCT:g} %): a sign of misfit' if misfit else
+            '; the data hardly see them (wide intervals): not read as misfit'))
     timings['baseline_analysis'] = time.perf_counter() - t0
     diag = None
     augmented = baseline
@@ -386,7 +409,7 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
         workers = max(1, min(settings.max_refits, os.cpu_count() or 1))
         with ThreadPoolExecutor(max_workers=workers) as pool:
             list(pool.map(run, candidates[:settings.max_refits]))
-        diag = select(candidates, fit, val, baseline_params, baseline_at_bound=at_bound,
+        diag = select(candidates, fit, val, baseline_params, baseline_at_bound=misfit,
                       space=space)
         if diag.effect != 'none':
             second_effect(diag, space, fit, val, settings.refit, say)

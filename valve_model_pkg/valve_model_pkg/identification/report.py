@@ -86,6 +86,10 @@ def report_dict(ident: Identification) -> dict[str, object]:
             'numbers': d.numbers,
             'residual_dominant_phase': ident.baseline.residual_fit.dominant_phase,
             'candidates': [c.to_json() for c in d.candidates],
+            'kept_effects': d.kept_effects,
+            'indistinguishable_from': d.indistinguishable,
+            'second_effect': d.second,
+            'remaining_structure': d.remaining,
         }
     return _clean({
         'baseline': _stage_dict(ident.baseline),
@@ -100,6 +104,10 @@ def report_dict(ident: Identification) -> dict[str, object]:
             'validation': [{'file': m.source, 'summary': m.summary(), 'notes': list(m.notes)}
                            for m in ident.val_files],
         },
+        'baseline_convergence': ident.convergence.to_json() if ident.convergence else None,
+        'drive_electronics': ident.drive.to_json() if ident.drive else None,
+        'baseline_at_search_bound': ident.at_bound,
+        'data_notes': ident.notes,
         'timings_s': ident.timings_s,
         'simulations': ident.simulations,
         'units': {'iae': 'A s', 'rmse': 'A', 'nrmse_pct': '% of measured current range',
@@ -176,6 +184,43 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
         lines += [f'**Diagnosis: `{d["effect"]}`** (confidence {d["confidence"]}).', '']
         lines += [f'- {e}' for e in d['evidence']]
         lines += ['', f'Rule: {d["numbers"]["rule"]}.', '']
+    conv = rep.get('baseline_convergence')
+    if conv:
+        lines += [f'**Baseline convergence.** {conv["statement"]}.', '']
+    if rep.get('baseline_at_search_bound'):
+        lines += ['**Baseline parameters at a search bound (a sign of misfit; not pinned '
+                  'down, and the diagnosis does not read this misfit as an effect):** '
+                  + ', '.join(rep['baseline_at_search_bound']) + '.', '']
+    if d is not None and d.get('remaining_structure'):
+        rs = d['remaining_structure']
+        lines += [f'**Structure left after {" + ".join(d["kept_effects"])}** ({rs["on"]} '
+                  f'data): {1e3 * rs["structured_rms_a"]:.2f} mA RMS beyond '
+                  f'{1e3 * rs["noise_std_a"]:.2f} mA noise ({rs["structured_over_noise"]:.2f} '
+                  f'x noise, {"white" if rs["white"] else "not white"}, mostly '
+                  f'{rs["dominant_phase"]}).', '']
+    if d is not None and d.get('second_effect'):
+        se = d['second_effect']
+        lines += [f'**Second effect** tried on top: `{se["effect"]}`, dBIC fit '
+                  f'{_fmt(se["delta_bic_fit"], 1, 4)}, validation '
+                  f'{_fmt(se["delta_bic_validation"], 1, 4)}: '
+                  f'{"also paid for its parameters; kept" if se["kept"] else "did not pay"}.',
+                  '']
+    for n in rep.get('data_notes') or []:
+        lines += [f'- {n}']
+    drv = rep.get('drive_electronics')
+    if drv:
+        lines += ['## Drive electronics (identified within bounds)', '',
+                  '| constant | nominal | identified | bounds | 95 % CI | pinned down |',
+                  '|---|---|---|---|---|---|']
+        for k, v in drv['values'].items():
+            ci = drv['ci95_pct'].get(k)
+            lo, hi = drv['bounds'][k]
+            state = ('at bound (misfit)' if k in drv['at_search_bound'] else
+                     'yes' if k in drv['pinned_down'] else
+                     'not carried by the data' if not drv['carried_by_the_data'][k] else 'no')
+            lines.append(f'| {k} | {_fmt(drv["nominal"][k])} | {_fmt(v)} | {_fmt(lo)}..'
+                         f'{_fmt(hi)} | {"-" if ci is None else f"+-{ci:.2g} %"} | {state} |')
+        lines += [f'- {n}' for n in drv['notes']] + ['']
     lines += ['## Errors before and after', '',
               '| model | data | IAE [A s] | RMSE [mA] | NRMSE [%] |', '|---|---|---|---|---|']
     for label, s in (('baseline', b), ('augmented', a)):

@@ -36,7 +36,6 @@ SAMPLE_COLUMNS: tuple[str, ...] = (
     'coil_voltage_mean_v')
 
 
-
 def _per_valve(value, n: int, name: str) -> list:
     """A scalar (or one object) for every valve, or a sequence of exactly n values."""
     if isinstance(value, (list, tuple, np.ndarray)):

@@ -14,7 +14,8 @@ Both are piecewise constant (zero-order hold): value ``k`` applies from ``t_s[k]
 valve closed at rest, the coil de-energised and the capacitor empty). A PWM command is
 latched at the next main PWM period start, as :class:`~valve_model_pkg.model.ValveStepper`
 and the real valve do (the first period starts at t = 0 with the first command); a
-command given exactly at a period start takes effect at that period start. A supply
+command given exactly at a period start takes effect at that period start. A duty of 0
+given within a period switches the coil off at once (docs/safety.md, "Close semantics"). A supply
 voltage change acts at once.
 
 Samples are either the instantaneous state at each sample time (``'instant'``) or the

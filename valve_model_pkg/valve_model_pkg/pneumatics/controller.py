@@ -67,7 +67,10 @@ class ControllerGains:
     integral_n_per_m_s: float = 20000.0
     damping_n_s_per_m: float = 250.0
     pressure_time_constant_s: float = 0.08
-    integral_zone_m: float = 0.001
+    # Wider than the friction band F_c / K_y (5 N / 3000 N/m = 1.7 mm): a piston that sticks
+    # in that band outside the zone would never get the integral and stay ~2 mm off (seen
+    # with the CAN backend's valve); inside 3 mm the integral removes it.
+    integral_zone_m: float = 0.003
 
     def __post_init__(self) -> None:
         for name in ('kp_kg_s_per_m', 'ki_kg_s_per_m_s', 'kd_kg_per_m', 'max_mass_flow_kg_s',
