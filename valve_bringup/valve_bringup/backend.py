@@ -68,4 +68,7 @@ def can_backend_commands(rate_hz: float = 1000.0, *, port: int | None = None,
 def can_backend_processes(rate_hz: float = 1000.0, **kwargs: object) -> list[ProcessSpec]:
     """:func:`can_backend_commands` as supervisor specs, emulator first (it hosts the bus)."""
     commands = can_backend_commands(rate_hz, **kwargs)
-    return [ProcessSpec(name, argv) for name, argv in commands.items()]
+    # The emulator hosts the loopback bus: it stops after the driver, so the driver never
+    # sees its bus vanish while it shuts down.
+    return [ProcessSpec(name, argv, stop_last=name == 'valve_controller_emulator')
+            for name, argv in commands.items()]

@@ -7,8 +7,10 @@ package is not in the ROS 2 wheels; users with a full ROS install have
 - the simulation: by default ``valve_lockstep_sim`` -- valve model(s) and cylinder in one
   process on simulation time, in lockstep with the controller (``--clock lockstep``); with
   ``--clock wall`` the wall-clock pair ``valve_simulator`` + ``pneumatic_cylinder``; with
-  ``--backend can`` the CAN driver with the controller emulator + ``pneumatic_cylinder``
-  (wall clock: the emulator stands in for firmware that runs in real time);
+  ``--backend can`` the CAN driver (``use_sim_time``) with the controller emulator, whose
+  valve model advances on the simulation clock (``--clock sim``), and the cylinder in
+  ``valve_lockstep_sim`` (``valve_source:=external``); ``--backend can --clock wall`` the
+  earlier wall-clock loop (emulator in real time, as firmware, + ``pneumatic_cylinder``);
 - ``flow_to_duty`` (one per valve), ``position_controller``, all with ``use_sim_time``
   in lockstep;
 - ``valve_recorder`` writing every topic of the suite to ``RUN/bag_*`` (rosbag2, MCAP);
@@ -498,9 +500,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--backend', choices=('sim', 'can'), default='sim',
                         help='valve/state from the simulator or the CAN driver + emulator')
     parser.add_argument('--clock', choices=('lockstep', 'wall'), default='lockstep',
-                        help='(sim backend) lockstep: simulation time, one process for '
-                        'valve and cylinder, the simulation waits for the controller '
-                        '(default); wall: separate simulator and plant on wall-clock time')
+                        help='lockstep: simulation time, the simulation waits for the '
+                        'controller (default; with --backend can the emulator\'s valve '
+                        'advances on /clock); wall: separate processes on wall-clock time')
     parser.add_argument('--as-fast-as-possible', action='store_true',
                         help='(lockstep) do not cap the real-time factor at 1')
     parser.add_argument('--cylinder', choices=('single', 'double'), default='single',

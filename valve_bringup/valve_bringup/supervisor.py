@@ -47,11 +47,15 @@ class ProcessSpec:
         Program and arguments.
     env
         Extra environment variables (merged over the supervisor's environment).
+    stop_last
+        Stopped only after every other child has ended (e.g. the CAN emulator, which hosts
+        the bus the driver is connected to: the driver then stops without a bus error).
     """
 
     name: str
     argv: Sequence[str]
     env: Mapping[str, str] = field(default_factory=dict)
+    stop_last: bool = False
 
 
 def _die_with_parent() -> None:  # runs in the child between fork and exec
@@ -141,8 +145,16 @@ class Supervisor:
         Idempotent. Returns each child's exit code.
         """
         self._stopping = True
+        for last in (False, True):
+            self._stop_wave(last)
+        for thread in self._threads:
+            thread.join(timeout=1.0)
+        return {spec.name: proc.returncode for spec, proc in self._children}
+
+    def _stop_wave(self, last: bool) -> None:
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
-            alive = [(s, p) for s, p in reversed(self._children) if p.poll() is None]
+            alive = [(s, p) for s, p in reversed(self._children)
+                     if p.poll() is None and s.stop_last == last]
             if not alive:
                 break
             for spec, proc in alive:
@@ -156,6 +168,3 @@ class Supervisor:
                     proc.wait(timeout=max(0.0, deadline - time.monotonic()))
                 except subprocess.TimeoutExpired:
                     _log.warning('%s did not stop on %s', spec.name, signal.Signals(sig).name)
-        for thread in self._threads:
-            thread.join(timeout=1.0)
-        return {spec.name: proc.returncode for spec, proc in self._children}

@@ -8,10 +8,10 @@ FILE is a ``step``, ``pwm`` or ``operation`` record of the measured-data format 
 rosbag2 bag directory recorded from the suite (``/valve/state``). ``pwm`` and ``operation``
 records and PWM bags run the model's drive electronics from the commands and compare like
 with like (interval means); one such record without ``--validate`` has its last 30 % held
-out for validation (docs/identification.md). The supply pressure comes from each file. Progress goes to stderr; DIR receives report.json, report.md
-with PNG plots and params.yaml (loadable by valve_simulate / valve_map). Exit status: 0 on
-success, 2 on refused input (one line naming file, line and reason), 1 on a failure
-inside.
+out for validation (docs/identification.md). The supply pressure comes from each file.
+Progress goes to stderr; DIR receives report.json, report.md with PNG plots and
+params.yaml (loadable by valve_simulate / valve_map). Exit status: 0 on success, 2 on
+refused input (one line naming file, line and reason), 1 on a failure inside.
 """
 from __future__ import annotations
 

@@ -245,7 +245,25 @@ def _dbic(base_mae: dict[str, float], aug_mae: dict[str, float], counts: dict[st
         b, a = base_mae[name] + f, aug_mae[name] + f
         if b > 0 and a > 0:
             d += 2.0 * n * math.log(a / b)
-    return d + p * math.log(max(total, 2))
+    return d + p * math.log(max(total, 2.0))
+
+
+def _effective_counts(data: FitData, params: ValveParameters) -> dict[str, float]:
+    """Samples of each file divided by the baseline residual's correlation time
+    ``(1 + rho) / (1 - rho)`` (rho: lag-1 autocorrelation, capped at 0.999): a smooth,
+    correlated residual (a noise-free record, a structured misfit) has few independent
+    samples, and the BIC must not count every one of them as evidence."""
+    out = {}
+    for m, v, r in zip(data.measurements, data.valid, data.residuals(params)):
+        x = r[np.isfinite(r)]
+        rho = 0.0
+        if x.size > 4:
+            x = x - x.mean()
+            den = float(x @ x)
+            rho = float(x[:-1] @ x[1:]) / den if den > 0 else 0.999
+        rho = min(max(rho, 0.0), 0.999)
+        out[m.name] = int(v.sum()) * (1.0 - rho) / (1.0 + rho)
+    return out
 
 
 def _floors(data: FitData) -> dict[str, float]:
@@ -298,11 +316,10 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
     floors_fit = _floors(fit)
     floors_val = _floors(val) if val is not None else {}
     at_bound = list(baseline_at_bound or [])
-    counts_fit = {m.name: int(v.sum()) for m, v in zip(fit.measurements, fit.valid)}
+    counts_fit = _effective_counts(fit, baseline)
     base_fit = fit.errors(baseline)
     base_val = val.errors(baseline) if val is not None else None
-    counts_val = ({m.name: int(v.sum()) for m, v in zip(val.measurements, val.valid)}
-                  if val is not None else {})
+    counts_val = _effective_counts(val, baseline) if val is not None else {}
     judge = val if val is not None else fit
     noise = _noise_per_file(judge, baseline)
     struct_base = _structured_energy(judge, baseline, noise)
@@ -479,14 +496,14 @@ def second_effect(diag: Diagnosis, space: ParameterSpace, fit: FitData, val: Fit
     other = others[0]
     ext = effect_space(space, diag.effect)
     p2, _, _ = refit_effect(ext, fit.serial(), diag.params, other.effect, settings)
-    counts_fit = {m.name: int(v.sum()) for m, v in zip(fit.measurements, fit.valid)}
+    counts_fit = _effective_counts(fit, diag.params)
     one_fit, two_fit = fit.errors(diag.params), fit.errors(p2)
     p = len(other.fields)
     dfit = _dbic(one_fit.mae_per_file, two_fit.mae_per_file, counts_fit, p, _floors(fit))
     dval = math.nan
     gain_val = math.nan
     if val is not None:
-        counts_val = {m.name: int(v.sum()) for m, v in zip(val.measurements, val.valid)}
+        counts_val = _effective_counts(val, diag.params)
         one_val, two_val = val.errors(diag.params), val.errors(p2)
         dval = _dbic(one_val.mae_per_file, two_val.mae_per_file, counts_val, p, _floors(val))
         gain_val = 1.0 - sum(two_val.mae_per_file.values()) / sum(

@@ -1,0 +1,30 @@
+"""The CAN emulator on the simulation clock (valve_driver_pkg.emulator.lockstep): the model
+advances past a control tick only with that tick's duty command in force on the bus, and a
+command that never comes is a counted timeout, not a hang."""
+from __future__ import annotations
+
+from valve_driver_pkg.emulator.lockstep import LockstepGateState
+
+
+def test_steps_past_a_tick_only_with_its_command_on_the_bus() -> None:
+    gate = LockstepGateState(control_period_ns=5_000_000, timeout_s=2.0)
+    assert gate.may_step(0, 0.0)                 # t = 0: duty 0 until the first tick
+    assert gate.may_step(4_000_000, 0.0)
+    assert not gate.may_step(5_000_000, 0.0)     # tick 5 ms: no command known yet
+    gate.tick_duty[5_000_000] = 0.25
+    assert not gate.may_step(5_000_000, 0.1)     # known on ROS, not yet on the bus
+    gate.bus_duty = 0.2500                        # the CAN frame (resolution 1e-4)
+    assert gate.may_step(5_000_000, 0.2)
+    assert gate.may_step(9_000_000, 0.2)
+    gate.forget_before(10_000_000)
+    assert gate.tick_duty == {}
+    assert gate.timeouts == 0
+
+
+def test_a_missing_command_times_out_and_is_counted() -> None:
+    gate = LockstepGateState(control_period_ns=5_000_000, timeout_s=1.0)
+    gate.bus_duty = 0.1
+    assert not gate.may_step(10_000_000, 5.0)
+    assert not gate.may_step(10_000_000, 5.9)
+    assert gate.may_step(10_000_000, 6.2)
+    assert gate.timeouts == 1 and 't = 0.010 s' in gate.last_timeout
