@@ -17,7 +17,7 @@ from suite_paths import REPO_ROOT
 
 PACKAGES = ('valve_model_pkg', 'valve_driver_pkg', 'valve_bringup')
 NODES = {'valve_simulator', 'flow_to_duty', 'pneumatic_cylinder', 'position_controller',
-         'valve_recorder', 'valve_can_driver', 'valve_lockstep_sim'}
+         'valve_recorder', 'valve_can_driver', 'valve_lockstep_sim', 'valve_bank_simulator'}
 
 
 def console_scripts() -> list[str]:

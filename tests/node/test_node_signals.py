@@ -22,7 +22,7 @@ pytestmark = pytest.mark.node
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 NODES = ('valve_simulator', 'flow_to_duty', 'pneumatic_cylinder', 'position_controller',
          'valve_recorder', 'valve_can_driver', 'valve_controller_emulator',
-         'valve_lockstep_sim')
+         'valve_lockstep_sim', 'valve_bank_simulator')
 
 
 def _hub_up(port: int) -> bool:

@@ -768,7 +768,11 @@ def drive_from_in_force(t: np.ndarray, duty: np.ndarray, freq: np.ndarray, suppl
     notes : list of str
     """
     notes: list[str] = []
+    # A non-zero command is latched at a period start; a duty of 0 acts at once (close
+    # semantics), so only changes to a non-zero duty place the period grid.
     change = np.flatnonzero((np.diff(duty) != 0) | (np.diff(freq) != 0)) + 1
+    offs = change[duty[change] == 0.0]
+    change = change[duty[change] > 0.0]
     f_first = freq[0]
     first_f_change = np.flatnonzero(np.diff(freq) != 0)
     end_first = first_f_change[0] + 1 if first_f_change.size else t.size
@@ -795,8 +799,25 @@ def drive_from_in_force(t: np.ndarray, duty: np.ndarray, freq: np.ndarray, suppl
         fl.append(float(freq[k]))
         s += 1.0 / freq[k]
     from dataclasses import replace
-    return replace(_commands_from_periods(starts, dl, fl, supply_v),
-                   phase_range_s=prange), notes
+    drive = _commands_from_periods(starts, dl, fl, supply_v)
+    if offs.size:
+        # immediate switch-offs, in the middle of the interval in which they were seen
+        t_off = 0.5 * (t[offs - 1] + t[offs])
+        ts = np.concatenate((drive.t_s, t_off))
+        order = np.argsort(ts, kind='stable')
+        f_at = np.interp(t_off, t, freq)
+        drive = replace(
+            drive, t_s=ts[order],
+            duty=np.concatenate((drive.duty, np.zeros(offs.size)))[order],
+            pwm_frequency_hz=np.concatenate((drive.pwm_frequency_hz, f_at))[order],
+            supply_voltage_v=np.full(ts.size, float(supply_v)))
+        k = np.searchsorted(drive.period_starts_s, t_off, side='right') - 1
+        high = drive.high_until_s.copy()
+        ok = k >= 0
+        high[k[ok]] = np.minimum(high[k[ok]], t_off[ok])
+        drive = replace(drive, high_until_s=high)
+        notes.append(f'{offs.size} switch-offs (duty 0 acts at once) placed mid-interval')
+    return replace(drive, phase_range_s=prange), notes
 
 
 def drive_from_main_pwm(t: np.ndarray, v: np.ndarray, supply_v: float,

@@ -5,7 +5,8 @@ Public API (see docs/architecture.md, "Model core API"):
 - :class:`ValveParameters`, :func:`load_parameters`, :func:`default_parameters_path`,
   :data:`EFFECTS` (optional physical effects with neutral values and bounds)
 - :class:`ElectronicsConfig` (boost, PI current chopper, negative-voltage capacitor)
-- :class:`ValveStepper`, :class:`ValveSample` (streaming, real time)
+- :class:`ValveStepper`, :class:`ValveSample` (streaming, real time);
+  :class:`ValveBank` (N valves advanced together in one compiled call)
 - :func:`simulate_step`, :func:`simulate_pwm`, :class:`SimulationResult`,
   :func:`step_metrics` (offline traces)
 - :func:`simulate_step_batch`, :func:`simulate_pwm_batch` (parallel batches)
@@ -21,6 +22,7 @@ Everything else (``kernel``, names starting with ``_``) is internal: code outsid
 package uses only the names above (a test checks it).
 """
 from .averaging import PeriodAverager, last_period_mean, moving_average, period_averages
+from .bank import ValveBank
 from .electronics import ElectronicsConfig
 from .magnetics import inductance, magnetic_force
 from .kernel import DEFAULT_H_FREE_S, DEFAULT_H_STOP_S
@@ -57,6 +59,7 @@ __all__ = [
     'StepBatchResult',
     'StepMetrics',
     'TraceBatchResult',
+    'ValveBank',
     'ValveParameters',
     'ValveSample',
     'ValveStepper',
