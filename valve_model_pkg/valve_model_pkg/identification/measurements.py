@@ -107,6 +107,9 @@ class DriveInput:
     period_freq_hz: np.ndarray | None = None
     #: Shifts of the period grid [s] the record allows (its changes bound the phase).
     phase_range_s: tuple[float, float] = (0.0, 0.0)
+    #: Immediate switch-offs (duty 0 acts at once) [s] and the frequency then [Hz].
+    off_times_s: np.ndarray | None = None
+    off_freq_hz: np.ndarray | None = None
 
     def shifted(self, delta_s: float) -> 'DriveInput':
         """The same commands on a period grid moved by ``delta_s`` [s]."""
@@ -115,6 +118,8 @@ class DriveInput:
         out = _commands_from_periods(list(starts[keep]), list(self.period_duty[keep]),
                                      list(self.period_freq_hz[keep]),
                                      float(self.supply_voltage_v[0]))
+        if self.off_times_s is not None and self.off_times_s.size:
+            out = _with_offs(out, self.off_times_s, self.off_freq_hz)
         lo, hi = self.phase_range_s
         from dataclasses import replace
         return replace(out, phase_range_s=(lo - delta_s, hi - delta_s))
@@ -803,21 +808,26 @@ def drive_from_in_force(t: np.ndarray, duty: np.ndarray, freq: np.ndarray, suppl
     if offs.size:
         # immediate switch-offs, in the middle of the interval in which they were seen
         t_off = 0.5 * (t[offs - 1] + t[offs])
-        ts = np.concatenate((drive.t_s, t_off))
-        order = np.argsort(ts, kind='stable')
-        f_at = np.interp(t_off, t, freq)
-        drive = replace(
-            drive, t_s=ts[order],
-            duty=np.concatenate((drive.duty, np.zeros(offs.size)))[order],
-            pwm_frequency_hz=np.concatenate((drive.pwm_frequency_hz, f_at))[order],
-            supply_voltage_v=np.full(ts.size, float(supply_v)))
-        k = np.searchsorted(drive.period_starts_s, t_off, side='right') - 1
-        high = drive.high_until_s.copy()
-        ok = k >= 0
-        high[k[ok]] = np.minimum(high[k[ok]], t_off[ok])
-        drive = replace(drive, high_until_s=high)
+        drive = _with_offs(drive, t_off, np.interp(t_off, t, freq))
         notes.append(f'{offs.size} switch-offs (duty 0 acts at once) placed mid-interval')
     return replace(drive, phase_range_s=prange), notes
+
+
+def _with_offs(drive: DriveInput, t_off: np.ndarray, f_at: np.ndarray) -> DriveInput:
+    """``drive`` with immediate duty-0 commands at ``t_off`` merged in."""
+    from dataclasses import replace
+    ts = np.concatenate((drive.t_s, t_off))
+    order = np.argsort(ts, kind='stable')
+    out = replace(
+        drive, t_s=ts[order], duty=np.concatenate((drive.duty, np.zeros(t_off.size)))[order],
+        pwm_frequency_hz=np.concatenate((drive.pwm_frequency_hz, f_at))[order],
+        supply_voltage_v=np.full(ts.size, float(drive.supply_voltage_v[0])),
+        off_times_s=t_off, off_freq_hz=f_at)
+    k = np.searchsorted(out.period_starts_s, t_off, side='right') - 1
+    high = out.high_until_s.copy()
+    ok = k >= 0
+    high[k[ok]] = np.minimum(high[k[ok]], t_off[ok])
+    return replace(out, high_until_s=high)
 
 
 def drive_from_main_pwm(t: np.ndarray, v: np.ndarray, supply_v: float,

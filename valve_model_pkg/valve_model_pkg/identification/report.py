@@ -188,8 +188,9 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
     if conv:
         lines += [f'**Baseline convergence.** {conv["statement"]}.', '']
     if rep.get('baseline_at_search_bound'):
-        lines += ['**Baseline parameters at a search bound (a sign of misfit; not pinned '
-                  'down, and the diagnosis does not read this misfit as an effect):** '
+        lines += ['**Baseline parameters at a search bound (never reported pinned down; '
+                  'where the data determine them, a sign of misfit that the diagnosis does '
+                  'not read as an effect):** '
                   + ', '.join(rep['baseline_at_search_bound']) + '.', '']
     if d is not None and d.get('remaining_structure'):
         rs = d['remaining_structure']
@@ -207,6 +208,8 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
                   '']
     for n in rep.get('data_notes') or []:
         lines += [f'- {n}']
+    if rep.get('data_notes'):
+        lines.append('')
     drv = rep.get('drive_electronics')
     if drv:
         lines += ['## Drive electronics (identified within bounds)', '',
