@@ -130,7 +130,7 @@ def suite_processes(cfg: DemoConfig, bag: Path) -> list[ProcessSpec]:
             # controller on a busy computer: telemetry silence on the wall clock is then
             # no loss (the lockstep timeouts report a real one), so the driver's silence
             # limit is the lockstep timeout's, not 0.1 s.
-            driver_args=('-p', 'use_sim_time:=true', '-p', 'telemetry_timeout_min_s:=5.0'))
+            driver_args=('-p', 'use_sim_time:=true', '-p', 'telemetry_timeout_min_s:=10.0'))
         external = ['-p', 'valve_source:=external']
     procs.append(ProcessSpec('valve_lockstep_sim', [
         'valve_lockstep_sim', '--ros-args', '-p', 'start_paused:=true',

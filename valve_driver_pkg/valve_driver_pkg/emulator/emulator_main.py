@@ -118,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help='(sim) simulation step [s]')
     clock.add_argument('--control-period-s', type=float, default=0.005,
                        help='(sim) control tick: the model waits for each tick\'s command')
-    clock.add_argument('--lockstep-timeout-s', type=float, default=2.0,
+    clock.add_argument('--lockstep-timeout-s', type=float, default=10.0,
                        help='(sim) wall time to wait for a tick\'s command [s]')
     clock.add_argument('--valve-namespace', default='',
                        help='(sim) namespace of the valve\'s duty_command topic')

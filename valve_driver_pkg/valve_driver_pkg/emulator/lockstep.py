@@ -49,7 +49,7 @@ class LockstepGateState:
     tested alone.
     """
 
-    def __init__(self, control_period_ns: int, timeout_s: float = 2.0) -> None:
+    def __init__(self, control_period_ns: int, timeout_s: float = 10.0) -> None:
         self.control_ns = int(control_period_ns)
         self.timeout_s = float(timeout_s)
         self.target_ns = 0
@@ -92,7 +92,7 @@ class LockstepGateState:
 
 
 def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 0.001,
-                            control_period_s: float = 0.005, timeout_s: float = 2.0,
+                            control_period_s: float = 0.005, timeout_s: float = 10.0,
                             valve_namespace: str = '') -> dict:
     """Run ``emulator`` on the simulation clock until ``stop`` is set; returns counters.
 

@@ -97,7 +97,7 @@ class LockstepSimulationNode(Node):
         self._lockstep = declare_bool(self, 'lockstep', True,
                                       'Wait at every control tick for each valve\'s duty '
                                       'command stamped with that tick')
-        timeout = declare_float(self, 'lockstep_timeout_s', 2.0,
+        timeout = declare_float(self, 'lockstep_timeout_s', 10.0,
                                 'Wall time to wait for a tick\'s duty commands before going '
                                 'on without them (counted and reported) [s]', 0.01, 60.0)
         rtf_max = declare_float(self, 'real_time_factor_max', 1.0,
