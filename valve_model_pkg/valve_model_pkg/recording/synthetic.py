@@ -46,7 +46,8 @@ def valve_state_cdr(store: Typestore, n: int, *, start_ns: int = 1_700_000_000_0
         on = phase < 0.6
         msg = cls(header=header_cls(stamp=_stamp(store, t), frame_id=frame_id),
                   sequence=first_sequence + i, coil_voltage=24.0 if on else -12.0 * (phase < 0.65),
-                  coil_current=0.5 * on, spool_position=0.33e-3 * on,
+                  coil_current=0.5 * on, coil_current_mean=0.5 * on,
+                  coil_voltage_mean=24.0 if on else 0.0, spool_position=0.33e-3 * on,
                   spool_velocity=0.0, spool_position_avg=0.2e-3, mass_flow=1.0e-3 * on,
                   duty=0.6, pwm_frequency=50.0, supply_pressure=4.0e5, output_pressure=0.0,
                   source=0, position_measured=False)
