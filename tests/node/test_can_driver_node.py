@@ -401,6 +401,10 @@ def test_stale_and_lost_duty_commands_are_counted(start_node, ros) -> None:
     start_node(*commands['valve_can_driver'])
     client = ros.add(Client())
     ros.wait_for(lambda: client.level('commands') == 0, 30.0, 'driver active')
+    # A message published before the driver's subscription has matched is not delivered
+    # (volatile durability): wait for the match, not for time.
+    ros.wait_for(lambda: client.duty_pub.get_subscription_count() >= 1, 30.0,
+                 'the driver subscribed to the duty commands')
     old = DutyCommand()
     stamp = client.get_clock().now().nanoseconds - 500_000_000      # issued 0.5 s ago
     old.header.stamp.sec, old.header.stamp.nanosec = divmod(stamp, 10**9)
