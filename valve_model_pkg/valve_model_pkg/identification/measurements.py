@@ -549,8 +549,12 @@ def _bag_records_to_measurement(spath: str, topic: str, valve: str | None,
     _check_time_axis(spath, t, None)
     freq_all, duty_all = arr[:, 9], arr[:, 10]
     if np.any(freq_all > 0.0) and np.any(duty_all > 0.0):
-        return _bag_operation(spath, topic, frames[0] if valve is None else valve, t, arr,
-                              notes)
+        if not _bench_steps(duty_all, arr[:, 3]):
+            return _bag_operation(spath, topic, frames[0] if valve is None else valve, t,
+                                  arr, notes)
+        notes.append('duty steps between 0 and 1 with an unchopped coil voltage (a bench '
+                     'with the drive electronics bypassed): fitted as a bare coil driven by '
+                     'coil_voltage')
     voltage, current = arr[:, 3], arr[:, 4]
     bad_v = np.flatnonzero(~np.isfinite(voltage))
     if bad_v.size:
@@ -593,6 +597,20 @@ def _bag_records_to_measurement(spath: str, topic: str, valve: str | None,
         supply_pressure_pa=supply, output_pressure_pa=float(np.median(arr[:, 8])),
         experiment=metadata['experiment'], position_m=position, metadata=metadata,
         notes=tuple(notes), n_missing_values=n_missing, n_gaps=n_gaps)
+
+
+def _bench_steps(duty: np.ndarray, coil_voltage_v: np.ndarray) -> bool:
+    """True for a bench record: duty only 0 or 1 and the coil voltage never chopped.
+
+    With the drive electronics on, the chopper holds the current with a 20 kHz voltage
+    that a 1 kHz sample catches low most of the time once the valve is open; a bench with
+    the electronics bypassed applies the supply for as long as the duty is 1.
+    """
+    if not np.all((duty == 0.0) | (duty == 1.0)):
+        return False
+    on = coil_voltage_v[duty == 1.0]
+    on = on[np.isfinite(on)]
+    return bool(on.size) and bool(np.all(on >= 0.5 * np.max(on))) and float(np.max(on)) > 0.0
 
 
 def _bag_operation(spath: str, topic: str, frame: str, t: np.ndarray, arr: np.ndarray,
