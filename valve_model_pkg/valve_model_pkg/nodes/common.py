@@ -301,6 +301,10 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
             node = make_node()
         except startup_errors as err:
             refuse_start(name, err)
+        # The ROS-free cores log through `logging`; their records go to this node's
+        # logger and /rosout (docs/architecture.md).
+        from valve_model_pkg.interface.ros import forward_logging
+        forward_logging(node, 'valve_model_pkg', 'valve_driver_pkg')
         spin_until_stopped(node, stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
