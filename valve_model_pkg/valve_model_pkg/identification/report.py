@@ -194,10 +194,15 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
                   + ', '.join(rep['baseline_at_search_bound']) + '.', '']
     if d is not None and d.get('remaining_structure'):
         rs = d['remaining_structure']
+
+        def _num(value, scale: float = 1.0) -> str:
+            # a figure the residual analysis could not give is said, not formatted
+            return 'n/a' if value is None else f'{scale * value:.2f}'
         lines += [f'**Structure left after {" + ".join(d["kept_effects"])}** ({rs["on"]} '
-                  f'data): {1e3 * rs["structured_rms_a"]:.2f} mA RMS beyond '
-                  f'{1e3 * rs["noise_std_a"]:.2f} mA noise ({rs["structured_over_noise"]:.2f} '
-                  f'x noise, {"white" if rs["white"] else "not white"}, mostly '
+                  f'data): {_num(rs["structured_rms_a"], 1e3)} mA RMS beyond '
+                  f'{_num(rs["noise_std_a"], 1e3)} mA noise '
+                  f'({_num(rs["structured_over_noise"])} x noise, '
+                  f'{"white" if rs["white"] else "not white"}, mostly '
                   f'{rs["dominant_phase"]}).', '']
     if d is not None and d.get('second_effect'):
         se = d['second_effect']
