@@ -41,3 +41,20 @@ def unit_tests_of(package: str) -> list[Path]:
         others = set().union(*(_claimed(p) for p in _CLAIMED))
         return sorted(set(UNIT_DIR.glob('test_*.py')) - others)
     return sorted(_claimed(package))
+
+
+def run_unit_tests_of(package: str) -> tuple[int, str]:
+    """Run ``package``'s unit tests in a pytest of their own from the repository root.
+
+    Returns the exit status and the tail of pytest's output (its summary is the useful
+    part of a failure). Each package's ``test/test_repository_tests.py`` calls this, so
+    ``colcon test`` and ``make test`` read the same ``pytest.ini`` and ``conftest.py``.
+    """
+    import subprocess
+    import sys
+    files = [str(p.relative_to(REPO_ROOT)) for p in unit_tests_of(package)]
+    if not files:
+        return 1, f'no unit tests listed for {package} in {__file__}'
+    out = subprocess.run([sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider',
+                          *files], cwd=REPO_ROOT, capture_output=True, text=True)
+    return out.returncode, out.stdout[-6000:] + out.stderr[-2000:]
