@@ -125,3 +125,20 @@ def test_frequency_not_in_map_is_an_error(tmp_path: Path, capsys) -> None:
                           pwm_frequency_hz=75.0, flow_fraction=DUTIES)
     assert flow_check_main([str(path)]) == 2  # refused input
     assert '75 Hz is not in the map' in capsys.readouterr().err
+
+
+def test_out_file_ending_in_json_keeps_the_comparison_meaning(tmp_path: Path,
+                                                              stepper_flows) -> None:
+    """``-o x.json`` writes the comparison only, as before ``-o DIR`` identified C_d*C_A."""
+    path = write_flow_map(tmp_path / 'bench.csv', DUTIES, supply_pressure_pa=4e5,
+                          pwm_frequency_hz=50.0, mass_flow_kg_s=stepper_flows)
+    assert flow_check_main([str(path), '-o', str(tmp_path / 'cmp.json')]) == 0
+    data = json.loads((tmp_path / 'cmp.json').read_text())
+    assert len(data['points']) == DUTIES.size and data['rms_error'] < 0.01
+    assert not (tmp_path / 'params.yaml').exists()
+    # a directory: the identification, with the model's own flows giving the prior back
+    assert flow_check_main([str(path), '-o', str(tmp_path / 'cal')]) == 0
+    ident = json.loads((tmp_path / 'cal' / 'flow_identified.json').read_text())
+    assert ident['ratio_to_prior'] == pytest.approx(1.0, abs=0.01)
+    assert {'comparison.json', 'map.json', 'params.yaml'} <= {
+        p.name for p in (tmp_path / 'cal').iterdir()}

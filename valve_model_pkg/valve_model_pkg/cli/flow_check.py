@@ -7,10 +7,28 @@ or ``flow_fraction``; metadata ``pwm_frequency_hz``, ``supply_pressure_pa`` and 
 pressures) and prints the error per duty and overall. Optionally draws Fig. 10 and writes
 the comparison as JSON.
 
+With ``-o/--out DIR`` (a directory) and a ``mass_flow`` file it also identifies the orifice
+constant (:mod:`valve_model_pkg.maps.flow_identification`): only C_d*C_A is identifiable
+from flow; C_d is kept from the parameter set and C_A scaled. It writes
+
+- ``DIR/flow_identified.json``: C_d, C_A, their product with its 95 % interval, the dead
+  band and saturation of the map against the measured curve, the flow error before and
+  after in % of the full flow;
+- ``DIR/params.yaml``: the start parameter set (``--params``, else the map's own) with the
+  identified C_A, loadable by ``valve_map``, ``valve_simulator`` and ``flow_to_duty``;
+- ``DIR/map.json``: the map with the identified C_A and its curves unchanged (x_avg(d)
+  does not depend on C_d or C_A), so ``flow_to_duty`` restarts at once with
+  ``map_file:=DIR/map.json params_file:=DIR/params.yaml``; a map rebuilt with
+  ``valve_map --params DIR/params.yaml`` gives the same curves;
+- ``DIR/comparison.json``: the comparison with the map (what ``--json`` writes).
+
+``-o FILE.json`` (a path ending in ``.json``) keeps the old meaning: the comparison only.
+
 Examples::
 
     valve_flow_check bench7_flow.csv
-    valve_flow_check bench7_flow.csv --map my_map.json --plot fig10.png -o out.json
+    valve_flow_check bench7_flow.csv --map my_map.json --plot fig10.png --json out.json
+    valve_flow_check bench7_flow.csv --params valve.yaml --out calibrated/
     valve_flow_check bench7_flow.csv --max-rms-percent 3     # exit 1 if worse
 
 Exit codes: 0 done (and within ``--max-rms-percent``), 2 refused input (the file, the map,
@@ -33,8 +51,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('flow_map', help='measured flow_map CSV file')
     p.add_argument('--map', default='', help='duty map file (default: the shipped one)')
     p.add_argument('--params', default='',
-                   help='valve parameter YAML the map must match (default: the map\'s own '
-                        'parameter set is used without a check)')
+                   help='valve parameter YAML the map must match, and the set --out DIR '
+                        'starts from (default: the map\'s own parameter set, no check)')
     p.add_argument('--allow-implausible', action='store_true',
                    help='accept --params values outside their plausible ranges with a '
                         'warning')
@@ -43,8 +61,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('--supply-pressure-bar', type=float, default=None,
                    help='supply pressure [bar gauge] if the file does not state it')
     p.add_argument('-o', '--out', default=None,
-                   help='write the comparison to this JSON file')
-    p.add_argument('--json', dest='out', help=argparse.SUPPRESS)  # the old spelling
+                   help='output directory: flow_identified.json, params.yaml, '
+                        'comparison.json (a path ending in .json: the comparison only)')
+    p.add_argument('--json', default=None, help='write the comparison to this JSON file')
     p.add_argument('--plot', default=None, help='write Fig. 10 to this PNG')
     p.add_argument('--max-rms-percent', type=float, default=None,
                    help='exit with code 1 if the rms error exceeds this [%% of full flow]')
@@ -56,19 +75,28 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     from valve_model_pkg.maps import MapError, load_map
     from valve_model_pkg.maps.flow_check import compare_flow_map, read_flow_map
+    from valve_model_pkg.maps.flow_identification import identify_from_flow_map
+    from valve_model_pkg.model import ValveParameters
+    out_dir = args.out if args.out and not args.out.lower().endswith('.json') else None
+    json_file = args.json or (args.out if out_dir is None else None)
+    ident = None
     try:
         dmap = load_map(args.map or None)
+        start = None
         if args.params:
             from valve_model_pkg.model import load_parameters
-            dmap.check_parameters(load_parameters(args.params,
-                                                  allow_implausible=args.allow_implausible),
-                                  args.map or 'shipped map',
-                                  args.params)
+            start = load_parameters(args.params, allow_implausible=args.allow_implausible)
+            dmap.check_parameters(start, args.map or 'shipped map', args.params)
         measured = read_flow_map(
             args.flow_map, pwm_frequency_hz=args.pwm_frequency,
             supply_pressure_pa=None if args.supply_pressure_bar is None
             else args.supply_pressure_bar * 1e5)
         result = compare_flow_map(dmap, measured)
+        if out_dir is not None:
+            # FlowIdentificationError (a ValueError): a flow_fraction file, too few open
+            # points or an implausible C_A -- the input cannot give the constant
+            ident = identify_from_flow_map(
+                dmap, measured, start or ValveParameters.from_dict(dmap.parameters))
     except KeyError as err:  # the file's frequency is not in the map: refused input
         print(f'valve_flow_check: error: {args.flow_map}: {err.args[0]}', file=sys.stderr)
         return 2
@@ -78,7 +106,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f'valve_flow_check: error: {err}', file=sys.stderr)
         return 2
     try:
-        _write_outputs(args, dmap, measured, result)
+        _write_outputs(args, dmap, measured, result, json_file)
+        if ident is not None:
+            _write_identification(Path(out_dir), dmap, ident, measured, result, args)
     except OSError as err:
         print(f'valve_flow_check: error: {err}', file=sys.stderr)
         return 1
@@ -89,8 +119,36 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _write_outputs(args: argparse.Namespace, dmap, measured, result) -> None:  # noqa: ANN001
-    """Print the table; write the JSON (``-o``) and the figure (``--plot``)."""
+def _write_identification(out: Path, dmap, ident, measured, result,  # noqa: ANN001
+                          args: argparse.Namespace) -> None:
+    """DIR/flow_identified.json, DIR/params.yaml, DIR/map.json and DIR/comparison.json."""
+    from valve_model_pkg.maps.flow_identification import recalibrated_map, write_parameters
+    out.mkdir(parents=True, exist_ok=True)
+    data = {'flow_map': measured.path, 'map': args.map or 'shipped',
+            'params_in': args.params or 'map parameters', **ident.as_dict()}
+    (out / 'flow_identified.json').write_text(json.dumps(data, indent=1) + '\n',
+                                              encoding='utf-8')
+    e = ident.estimate
+    header = (f'Valve parameters with the orifice constant identified by valve_flow_check\n'
+              f'from {measured.path}: C_d*C_A = {e.product_m:.6g} m^2/m '
+              f'({e.confidence:.0%} interval {e.interval_m[0]:.6g} .. {e.interval_m[1]:.6g}),\n'
+              f'C_d kept at {e.discharge_coefficient:g}, C_A = product / C_d '
+              '(only the product is identifiable from flow).\n'
+              f'Start set: {args.params or "the map parameters"}. Loadable with '
+              'valve_model_pkg.model.load_parameters (valve_map, valve_simulator, '
+              'flow_to_duty).')
+    write_parameters(ident.params, out / 'params.yaml', header)
+    recalibrated_map(dmap, ident.params, measured.path).save(out / 'map.json')
+    (out / 'comparison.json').write_text(json.dumps(result.as_dict(), indent=1) + '\n',
+                                         encoding='utf-8')
+    print(ident.summary())
+    print(f'wrote {out / "flow_identified.json"}, {out / "params.yaml"}, '
+          f'{out / "map.json"}, {out / "comparison.json"}')
+
+
+def _write_outputs(args: argparse.Namespace, dmap, measured, result,  # noqa: ANN001
+                   json_file: str | None) -> None:
+    """Print the table; write the JSON (``--json``) and the figure (``--plot``)."""
     import numpy as np
 
     from valve_model_pkg.maps.flow_check import map_flow_fraction
@@ -98,10 +156,10 @@ def _write_outputs(args: argparse.Namespace, dmap, measured, result) -> None:  #
           f'supply {measured.supply_pressure_pa / 1e5:g} bar, output '
           f'{measured.output_pressure_pa / 1e5:g} bar (gauge)')
     print(result.table())
-    if args.out:
-        Path(args.out).write_text(json.dumps(result.as_dict(), indent=1) + '\n',
-                                  encoding='utf-8')
-        print(f'wrote {args.out}')
+    if json_file:
+        Path(json_file).write_text(json.dumps(result.as_dict(), indent=1) + '\n',
+                                   encoding='utf-8')
+        print(f'wrote {json_file}')
     if args.plot:
         from valve_model_pkg.maps.plots import plot_flow_comparison
         fine = np.linspace(0.0, 1.0, 401)

@@ -8,7 +8,10 @@ pressure ratio only), so the *flow percentage* (flow over the flow at 100 % duty
 the map's x_avg / x_max divided by its value at 100 % duty (1 whenever the valve opens at
 all). This module reads a measured ``flow_map`` file of the measured-data format
 (read by :mod:`valve_model_pkg.dataformat`) and compares it with the map, point by point
-and overall.
+and overall. The flow percentage does not depend on the orifice constant; a ``mass_flow``
+file also gives the absolute scale, from which
+:func:`valve_model_pkg.maps.flow_identification.identify_from_flow_map` identifies
+C_d C_A (``valve_flow_check --out DIR``).
 
 A ``flow_map`` file (the measured-data format, ``shared/measured-data-format.md`` of the
 steering repository)::
