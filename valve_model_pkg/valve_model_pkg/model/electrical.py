@@ -15,12 +15,36 @@ saturation the equation is the paper's eq. (7) exactly:
 
 ``coil_heating`` raises R = R_0 (1 + alpha dT) with copper alpha = 0.00393 1/K, and dT
 obeys tau_th d(dT)/dt = R_th P - dT with the copper loss P = R i^2.
+
+Emulator form ``eddy_ladder`` (``EMULATOR_EFFECTS``; not an identification candidate,
+written independently of the eddy resistor above). Eddy currents in a solid core delay
+part of the flux (diffusion); a one-rung Foster ladder models it with two time
+constants. The magnetising inductance is split into a fast part a L(x), a = 1/(1 + r),
+carrying i_m, in series with a slow part b L(x), b = r/(1 + r), carrying i_b and shunted
+by the eddy path R_b (which carries i_m - i_b)::
+
+    V --[ R(T) ]--+--[ L_leak ]--[ a L(x) ]--+--[ b L(x) ]--+
+                  |                          +--[  R_b   ]--+
+                  +------------[ R_e = 1/G_e ]--------------+
+
+    v_br = (V - R i_m) / (1 + R G_e),     e_b = R_b (i_m - i_b),
+    (L_leak + a dlambda/di(i_m)) di_m/dt = v_br - e_b - a dlambda/dx(i_m) x_dot,
+    b dlambda/di(i_b) di_b/dt = e_b - b dlambda/dx(i_b) x_dot,
+    F = a F_law(i_m) + b F_law(i_b)     (co-energy of both parts).
+
+Its impedance at rest, s a L + s b L R_b / (R_b + s b L), has no resistive path at high
+frequency (the candidate's s L R_e / (R_e + s L) tends to R_e): a voltage step makes the
+current start at slope V / (a L) with no jump, then follow two time constants. The
+candidate is the limit of a fully shunted inductance (a = 0), which the ladder excludes
+(r finite). r = 0 means off (i_b stays 0).
 """
 from __future__ import annotations
 
 from numba import njit
 
-from .magnetics import _coefficients, _flux_partials, _inductance, _inductance_slope
+from .magnetics import (
+    _coefficients, _flux_partials, _inductance, _inductance_slope, _law_partials,
+)
 from .parameters import ValveParameters
 
 __all__ = ['COPPER_ALPHA_PER_K', 'coil_resistance', 'current_derivative']
@@ -45,6 +69,31 @@ def _current_derivative(v: float, i_m: float, x_dot: float, ind: float, slope: f
     # eq. (7) generalised: the motional EMF dl_dx * x_dot is eq. (6)'s i dL/dt
     di = (v_branch - dl_dx * x_dot) / (l_leak + dl_di)
     return di, i_m + g_e * v_branch
+
+
+@njit(cache=True)
+def _ladder_derivatives(v: float, i_m: float, i_b: float, x_dot: float, ind: float,
+                        slope: float, r: float, g_e: float, l_leak: float, beta: float,
+                        lam_s: float, ratio: float, r_b: float
+                        ) -> tuple[float, float, float]:
+    """(di_m/dt, di_b/dt, terminal current) with the emulator forms (module docstring).
+
+    ``ratio`` = r of ``eddy_ladder`` (0: no slow part, i_b ignored), ``r_b`` its shunt
+    resistance (ohm), ``lam_s`` the ``saturation_tanh`` flux linkage (0: the candidate's
+    law with ``beta``), the rest as :func:`_current_derivative`.
+    """
+    v_branch = (v - r * i_m) / (1.0 + r * g_e)
+    a = 1.0 / (1.0 + ratio)
+    dl_di, dl_dx = _law_partials(i_m, ind, slope, beta, lam_s)
+    if ratio == 0.0:
+        di = (v_branch - dl_dx * x_dot) / (l_leak + dl_di)
+        return di, 0.0, i_m + g_e * v_branch
+    b = ratio * a
+    e_b = r_b * (i_m - i_b)
+    di = (v_branch - e_b - a * dl_dx * x_dot) / (l_leak + a * dl_di)
+    db_di, db_dx = _law_partials(i_b, ind, slope, beta, lam_s)
+    dib = (e_b - b * db_dx * x_dot) / (b * db_di)
+    return di, dib, i_m + g_e * v_branch
 
 
 @njit(cache=True)

@@ -56,6 +56,14 @@ the continuous state ``[i_m, x, x_dot, dT, q]`` (q = integral of x, for period a
 the integrals of the terminal current and voltage, for interval means, are integrated
 with it but kept in ``d[D_QI]``, ``d[D_QV]``; no integral feeds back into the dynamics),
 ``d`` the discrete drive/mode state (``D_*``).
+
+Emulator effect forms (``parameters.EMULATOR_EFFECTS``: ``saturation_tanh``,
+``eddy_ladder``; equations in magnetics.py and electrical.py, docs/effects.md) are written
+independently of the identification's candidates, so a valve emulated with them is not
+the candidate's own equation. Their slow ladder current i_b is integrated with y like
+the integrals (the 8th component of the step tuple) and kept in ``d[D_IB]``. With both
+off (``p[P_EMU] == 0``) every function takes the code path it took before they existed,
+so outputs are bit-identical (tests/unit/test_emulator_effect_forms.py).
 """
 from __future__ import annotations
 
@@ -65,8 +73,10 @@ import numpy as np
 from numba import njit, prange
 
 from . import electronics as _el
-from .electrical import _current_derivative, _resistance, _temperature_derivative
-from .magnetics import MU_0, _force, _inductance, _inductance_slope
+from .electrical import (
+    _current_derivative, _ladder_derivatives, _resistance, _temperature_derivative,
+)
+from .magnetics import MU_0, _force, _inductance, _inductance_slope, _law_force
 from .mechanics import (
     MODE_CLOSED, MODE_FREE, MODE_OPEN, MODE_STUCK, SETTLE_SPEED_M_S,
     _acceleration, _active_force, _leave_margin, _pressure_force,
@@ -108,6 +118,9 @@ _R_RTH = _F['thermal_resistance_k_per_w']
 _R_TAUTH = _F['thermal_time_constant_s']
 _R_LLEAK = _F['leakage_inductance_h']
 _R_E = _F['restitution_coefficient']
+_R_LAMS = _F['saturation_tanh_flux_linkage_wb']
+_R_LADR = _F['eddy_ladder_inductance_ratio']
+_R_LADRB = _F['eddy_ladder_resistance_ohm']
 N_RAW = len(PARAMETER_FIELDS)
 
 # Derived parameter vector.
@@ -131,7 +144,11 @@ P_RTH = 16
 P_TAUTH = 17
 P_LLEAK = 18
 P_E = 19
-N_P = 20
+P_LAMS = 20    # emulator form saturation_tanh: lambda_s, Wb (0 = off)
+P_LADR = 21    # emulator form eddy_ladder: r = L_slow / L_fast (0 = off)
+P_LADRB = 22   # eddy_ladder: R_b, ohm
+P_EMU = 23     # 1.0 if an emulator form is on (selects the extended code path)
+N_P = 24
 
 # Continuous state.
 Y_I = 0
@@ -190,7 +207,10 @@ D_N_FORCED = 37  # steps forced by the no-progress guard (0 unless the kernel ha
 # here, so y keeps its N_Y = 5 layout; they do not feed back into the dynamics.
 D_QI = 38
 D_QV = 39
-N_D = 40
+# Slow ladder current i_b of the eddy_ladder emulator form, A (0 when off). Integrated by
+# RK4 with y as the 8th component of the step tuple, kept here like D_QI.
+D_IB = 40
+N_D = 41
 
 # Output channels of recorded samples.
 O_V = 0
@@ -242,6 +262,10 @@ def _derive(raw: np.ndarray) -> np.ndarray:
     p[P_TAUTH] = raw[_R_TAUTH]
     p[P_LLEAK] = raw[_R_LLEAK]
     p[P_E] = raw[_R_E]
+    p[P_LAMS] = raw[_R_LAMS]
+    p[P_LADR] = raw[_R_LADR]
+    p[P_LADRB] = raw[_R_LADRB]
+    p[P_EMU] = 1.0 if (raw[_R_LAMS] != 0.0 or raw[_R_LADR] != 0.0) else 0.0
     return p
 
 
@@ -271,10 +295,12 @@ def _voltage(t: float, phase: int, d: np.ndarray, e: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def _rhs(t: float, i_m: float, x: float, v: float, d_temp: float, mode: int, phase: int,
-         f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray
-         ) -> tuple[float, float, float, float, float, float, float]:
-    """Derivatives of (i_m, x, x_dot, dT, q, q_i, q_v): eqs. (7), (11) and the integrals."""
+def _rhs(t: float, i_m: float, x: float, v: float, d_temp: float, i_b: float, mode: int,
+         phase: int, f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray
+         ) -> tuple[float, float, float, float, float, float, float, float]:
+    """Derivatives of (i_m, x, x_dot, dT, q, q_i, q_v, i_b): eqs. (7), (11), integrals."""
+    if p[P_EMU] != 0.0:
+        return _rhs_emulated(t, i_m, x, v, d_temp, i_b, mode, phase, f_prs, p, d, e)
     ind = _inductance(x, p[P_KL], p[P_L0], p[P_B2])
     slope = _inductance_slope(ind, p[P_KL], p[P_B2])
     r = _resistance(p[P_R], d_temp)
@@ -289,23 +315,65 @@ def _rhs(t: float, i_m: float, x: float, v: float, d_temp: float, mode: int, pha
     if moving:
         f_a = _active_force(_force(i_m, slope, p[P_BETA]), p[P_K], x, p[P_DELTA], f_prs)
         dv = _acceleration(f_a, v, p[P_B], p[P_FC], p[P_M])  # eq. (11)
-        return di, v, dv, ddt, x, i_t, volt
-    return di, 0.0, 0.0, ddt, x, i_t, volt
+        return di, v, dv, ddt, x, i_t, volt, 0.0
+    return di, 0.0, 0.0, ddt, x, i_t, volt, 0.0
+
+
+@njit(cache=True)
+def _rhs_emulated(t: float, i_m: float, x: float, v: float, d_temp: float, i_b: float,
+                  mode: int, phase: int, f_prs: float, p: np.ndarray, d: np.ndarray,
+                  e: np.ndarray) -> tuple[float, float, float, float, float, float, float,
+                                          float]:
+    """:func:`_rhs` with the emulator forms (tanh law, eddy ladder) switched on."""
+    ind = _inductance(x, p[P_KL], p[P_L0], p[P_B2])
+    slope = _inductance_slope(ind, p[P_KL], p[P_B2])
+    r = _resistance(p[P_R], d_temp)
+    volt = _voltage(t, phase, d, e)
+    moving = mode == MODE_FREE
+    x_dot = v if moving else 0.0
+    di, dib, i_t = _ladder_derivatives(volt, i_m, i_b, x_dot, ind, slope, r, p[P_GE],
+                                       p[P_LLEAK], p[P_BETA], p[P_LAMS], p[P_LADR],
+                                       p[P_LADRB])
+    if phase == PH_OFF and i_m <= 0.0 and di < 0.0 and e[_el.E_BLOCK_REVERSE] != 0.0:
+        di = 0.0  # the driver's diode blocks reverse current
+    ddt = _temperature_derivative(d_temp, i_t, r, p[P_RTH], p[P_TAUTH])
+    if moving:
+        f_a = _active_force(_emulated_force(i_m, i_b, ind, slope, p), p[P_K], x,
+                            p[P_DELTA], f_prs)
+        dv = _acceleration(f_a, v, p[P_B], p[P_FC], p[P_M])  # eq. (11)
+        return di, v, dv, ddt, x, i_t, volt, dib
+    return di, 0.0, 0.0, ddt, x, i_t, volt, dib
+
+
+@njit(cache=True)
+def _emulated_force(i_m: float, i_b: float, ind: float, slope: float,
+                    p: np.ndarray) -> float:
+    """Magnetic force with the emulator forms: a F_law(i_m) + b F_law(i_b), N."""
+    ratio = p[P_LADR]
+    f_m = _law_force(i_m, ind, slope, p[P_BETA], p[P_LAMS])
+    if ratio == 0.0:
+        return f_m
+    a = 1.0 / (1.0 + ratio)
+    return a * f_m + ratio * a * _law_force(i_b, ind, slope, p[P_BETA], p[P_LAMS])
 
 
 @njit(cache=True)
 def _rk4(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, p: np.ndarray,
          d: np.ndarray, e: np.ndarray) -> tuple:
-    """One classical RK4 step of length h from the tuple (y[0..4], q_i, q_v)."""
-    y0, y1, y2, y3, y4, y5, y6 = y
-    a0, a1, a2, a3, a4, a5, a6 = _rhs(t, y0, y1, y2, y3, mode, phase, f_prs, p, d, e)
+    """One classical RK4 step of length h from the tuple (y[0..4], q_i, q_v, i_b)."""
+    y0, y1, y2, y3, y4, y5, y6, y7 = y
+    a0, a1, a2, a3, a4, a5, a6, a7 = _rhs(t, y0, y1, y2, y3, y7, mode, phase, f_prs, p, d,
+                                          e)
     hh = 0.5 * h
-    b0, b1, b2, b3, b4, b5, b6 = _rhs(t + hh, y0 + hh * a0, y1 + hh * a1, y2 + hh * a2,
-                                      y3 + hh * a3, mode, phase, f_prs, p, d, e)
-    c0, c1, c2, c3, c4, c5, c6 = _rhs(t + hh, y0 + hh * b0, y1 + hh * b1, y2 + hh * b2,
-                                      y3 + hh * b3, mode, phase, f_prs, p, d, e)
-    g0, g1, g2, g3, g4, g5, g6 = _rhs(t + h, y0 + h * c0, y1 + h * c1, y2 + h * c2,
-                                      y3 + h * c3, mode, phase, f_prs, p, d, e)
+    b0, b1, b2, b3, b4, b5, b6, b7 = _rhs(t + hh, y0 + hh * a0, y1 + hh * a1, y2 + hh * a2,
+                                          y3 + hh * a3, y7 + hh * a7, mode, phase, f_prs, p,
+                                          d, e)
+    c0, c1, c2, c3, c4, c5, c6, c7 = _rhs(t + hh, y0 + hh * b0, y1 + hh * b1, y2 + hh * b2,
+                                          y3 + hh * b3, y7 + hh * b7, mode, phase, f_prs, p,
+                                          d, e)
+    g0, g1, g2, g3, g4, g5, g6, g7 = _rhs(t + h, y0 + h * c0, y1 + h * c1, y2 + h * c2,
+                                          y3 + h * c3, y7 + h * c7, mode, phase, f_prs, p,
+                                          d, e)
     s = h / 6.0
     return (y0 + s * (a0 + 2.0 * (b0 + c0) + g0),
             y1 + s * (a1 + 2.0 * (b1 + c1) + g1),
@@ -313,7 +381,8 @@ def _rk4(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, p: n
             y3 + s * (a3 + 2.0 * (b3 + c3) + g3),
             y4 + s * (a4 + 2.0 * (b4 + c4) + g4),
             y5 + s * (a5 + 2.0 * (b5 + c5) + g5),
-            y6 + s * (a6 + 2.0 * (b6 + c6) + g6))
+            y6 + s * (a6 + 2.0 * (b6 + c6) + g6),
+            y7 + s * (a7 + 2.0 * (b7 + c7) + g7))
 
 
 @njit(cache=True)
@@ -327,9 +396,12 @@ def _terminal_current(t: float, y: np.ndarray, phase: int, p: np.ndarray, d: np.
 
 
 @njit(cache=True)
-def _f_active(i_m: float, x: float, f_prs: float, p: np.ndarray) -> float:
+def _f_active(i_m: float, i_b: float, x: float, f_prs: float, p: np.ndarray) -> float:
     ind = _inductance(x, p[P_KL], p[P_L0], p[P_B2])
     slope = _inductance_slope(ind, p[P_KL], p[P_B2])
+    if p[P_EMU] != 0.0:
+        return _active_force(_emulated_force(i_m, i_b, ind, slope, p), p[P_K], x,
+                             p[P_DELTA], f_prs)
     return _active_force(_force(i_m, slope, p[P_BETA]), p[P_K], x, p[P_DELTA], f_prs)
 
 
@@ -568,7 +640,7 @@ def _impact(t: float, h: float, t_new: float, s_hit: float, xb: float, y: tuple,
         z = _rk4(t, h, y, held, phase, f_prs, p, d, e)
         d[D_N_STEPS] += 1.0
         d[D_MODE] = held
-        return t_new, (z[0], xb, 0.0, z[3], z[4], z[5], z[6])
+        return t_new, (z[0], xb, 0.0, z[3], z[4], z[5], z[6], z[7])
     hs = s_hit * h
     if hs > _H_MIN:
         z = _rk4(t, hs, y, MODE_FREE, phase, f_prs, p, d, e)
@@ -582,7 +654,7 @@ def _impact(t: float, h: float, t_new: float, s_hit: float, xb: float, y: tuple,
         v_new = -p[P_E] * v_imp  # bounce with restitution e
     else:
         d[D_MODE] = held
-    return t + hs, (z[0], xb, v_new, z[3], z[4], z[5], z[6])
+    return t + hs, (z[0], xb, v_new, z[3], z[4], z[5], z[6], z[7])
 
 
 @njit(cache=True)
@@ -606,9 +678,9 @@ def _reversal(t: float, h: float, s_rev: float, y: tuple, z: tuple, phase: int,
             hi = hs
             v_hi = z[2]
         hs = lo + (hi - lo) * v_lo / (v_lo - v_hi)
-    if abs(_f_active(z[0], z[1], f_prs, p)) <= p[P_FC]:
+    if abs(_f_active(z[0], z[7], z[1], f_prs, p)) <= p[P_FC]:
         d[D_MODE] = MODE_STUCK
-    return t + hs, (z[0], z[1], 0.0, z[3], z[4], z[5], z[6])
+    return t + hs, (z[0], z[1], 0.0, z[3], z[4], z[5], z[6], z[7])
 
 
 @njit(cache=True)
@@ -642,10 +714,10 @@ def _release(t: float, h: float, t_new: float, y: tuple, z: tuple, mode: int, ph
     redone up to the release and the mode set to moving.
     """
     f_c = p[P_FC]
-    g1 = _leave_margin(mode, _f_active(z[0], y[1], f_prs, p), f_c)
+    g1 = _leave_margin(mode, _f_active(z[0], z[7], y[1], f_prs, p), f_c)
     if g1 <= 0.0:
         return t_new, z
-    g0 = _leave_margin(mode, _f_active(y[0], y[1], f_prs, p), f_c)
+    g0 = _leave_margin(mode, _f_active(y[0], y[7], y[1], f_prs, p), f_c)
     # a margin already positive at the start (a held step after an immediate re-impact,
     # or forced by the guard) brackets no root: release at the end
     lo = 0.0 if g0 <= 0.0 else h
@@ -659,7 +731,7 @@ def _release(t: float, h: float, t_new: float, y: tuple, z: tuple, mode: int, ph
         hs = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
         w = _rk4(t, hs, y, mode, phase, f_prs, p, d, e)
         d[D_N_STEPS] += 1.0
-        g = _leave_margin(mode, _f_active(w[0], y[1], f_prs, p), f_c)
+        g = _leave_margin(mode, _f_active(w[0], w[7], y[1], f_prs, p), f_c)
         if g > 0.0:
             hi = hs
             g_hi = g
@@ -732,11 +804,12 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
         mode = int(d[D_MODE])
         phase = int(d[D_PHASE])
         if mode != MODE_FREE and not forced:
-            if _leave_margin(mode, _f_active(y[Y_I], y[Y_X], f_prs, p), p[P_FC]) > 0.0:
+            if _leave_margin(mode, _f_active(y[Y_I], d[D_IB], y[Y_X], f_prs, p),
+                             p[P_FC]) > 0.0:
                 d[D_MODE] = MODE_FREE
                 continue
         t_new, h = _step_to(t, target, h_free if mode == MODE_FREE else h_stop)
-        y_0 = (y[0], y[1], y[2], y[3], y[4], d[D_QI], d[D_QV])
+        y_0 = (y[0], y[1], y[2], y[3], y[4], d[D_QI], d[D_QV], d[D_IB])
         z = _rk4(t, h, y_0, mode, phase, f_prs, p, d, e)
         d[D_N_STEPS] += 1.0
         if mode == MODE_FREE:
@@ -757,6 +830,7 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
             y[k] = z[k]
         d[D_QI] = z[5]
         d[D_QV] = z[6]
+        d[D_IB] = z[7]
         if phase == PH_OFF and y[Y_I] < 0.0 and e[_el.E_BLOCK_REVERSE] != 0.0:
             y[Y_I] = 0.0
         d[D_T] = t_new

@@ -7,6 +7,20 @@ With the ``magnetic_saturation`` effect (beta = 1/i_sat > 0) the flux linkage is
 lambda(x, i) = L(x) i / (1 + beta |i|) and the force is the co-energy derivative
 F = dL/dx * (u - ln(1 + u)) / beta^2 with u = beta |i|, which tends to eq. (8),
 F = (1/2) dL/dx i^2 = L^2 i^2 / (N^2 A_e mu_0), as beta -> 0 (beta = 0 is eq. (8) exactly).
+
+Emulator form ``saturation_tanh`` (``EMULATOR_EFFECTS``; not an identification candidate,
+written independently of the law above so that an emulated saturation is not the
+candidate's own equation). A fixed saturation flux linkage lambda_s = N B_sat A_e::
+
+    lambda(x, i) = lambda_s tanh(u),   u = L(x) i / lambda_s,
+    d lambda / d i = L(x) sech^2(u),   d lambda / d x = dL/dx i sech^2(u),
+    F = dL/dx (lambda_s / L)^2 (u tanh u - ln cosh u)    (co-energy derivative).
+
+It differs from the candidate in shape and in its x dependence: the incremental
+inductance falls quadratically (sech^2(u) = 1 - u^2 + ...) instead of linearly
+(1/(1 + beta i)^2 = 1 - 2 beta i + ...), and the knee current lambda_s / L(x) falls as the
+gap closes, where the candidate's 1/beta is the same at every x. As lambda_s -> inf it
+tends to eq. (5)/(8); lambda_s = 0 means off.
 """
 from __future__ import annotations
 
@@ -73,6 +87,53 @@ def _force(i: float, slope: float, beta: float) -> float:
     return slope * g / (beta * beta)
 
 
+@njit(cache=True)
+def _tanh_flux_partials(i: float, ind: float, slope: float, lam_s: float
+                        ) -> tuple[float, float]:
+    """(d lambda / d i, d lambda / d x) of the emulator's tanh law (``lam_s`` > 0, Wb)."""
+    th = math.tanh(ind * i / lam_s)
+    sech2 = 1.0 - th * th
+    return ind * sech2, slope * i * sech2
+
+
+@njit(cache=True)
+def _log_cosh(u: float) -> float:
+    a = abs(u)
+    # ln cosh u = a - ln 2 + ln(1 + e^-2a): no overflow of cosh at large a
+    return a - math.log(2.0) + math.log1p(math.exp(-2.0 * a))
+
+
+@njit(cache=True)
+def _tanh_force(i: float, ind: float, slope: float, lam_s: float) -> float:
+    """Co-energy force of the tanh law, N: dL/dx (lambda_s/L)^2 (u tanh u - ln cosh u)."""
+    u = ind * i / lam_s
+    if abs(u) < 1e-3:
+        # series (u^2/2 - u^4/4): avoids the cancellation at small currents
+        u2 = u * u
+        g = u2 * (0.5 - 0.25 * u2)
+    else:
+        g = u * math.tanh(u) - _log_cosh(u)
+    k = lam_s / ind
+    return slope * k * k * g
+
+
+@njit(cache=True)
+def _law_partials(i: float, ind: float, slope: float, beta: float, lam_s: float
+                  ) -> tuple[float, float]:
+    """Flux partials of the law in force: the emulator's tanh law if set, else the candidate's."""
+    if lam_s > 0.0:
+        return _tanh_flux_partials(i, ind, slope, lam_s)
+    return _flux_partials(i, ind, slope, beta)
+
+
+@njit(cache=True)
+def _law_force(i: float, ind: float, slope: float, beta: float, lam_s: float) -> float:
+    """Co-energy force of the law in force (see :func:`_law_partials`), N."""
+    if lam_s > 0.0:
+        return _tanh_force(i, ind, slope, lam_s)
+    return _force(i, slope, beta)
+
+
 def equivalent_length(params: ValveParameters, position_m: np.ndarray | float) -> np.ndarray:
     """Equivalent magnetic path length l_eq, eq. (2).
 
@@ -107,8 +168,14 @@ def inductance_slope(params: ValveParameters, position_m: np.ndarray | float) ->
 
 def flux_linkage(params: ValveParameters, current_a: np.ndarray | float,
                  position_m: np.ndarray | float) -> np.ndarray:
-    """Magnetising flux linkage lambda(x, i) in Wb (eq. (3): L i = N phi; with saturation)."""
+    """Magnetising flux linkage lambda(x, i) in Wb (eq. (3): L i = N phi; with saturation).
+
+    The emulator's ``saturation_tanh`` form, when set, replaces the candidate's law.
+    """
     i = np.asarray(current_a, dtype=float)
+    lam_s = params.saturation_tanh_flux_linkage_wb
+    if lam_s > 0.0:
+        return lam_s * np.tanh(inductance(params, position_m) * i / lam_s)
     return inductance(params, position_m) * i / (
         1.0 + params.saturation_coefficient_per_a * np.abs(i))
 
@@ -128,10 +195,17 @@ def magnetic_force(params: ValveParameters, current_a: np.ndarray | float,
     Returns
     -------
     numpy.ndarray
-        F_m = L(x)^2 i^2 / (N^2 A_e mu_0) when saturation is off; broadcast shape.
+        F_m = L(x)^2 i^2 / (N^2 A_e mu_0) when saturation is off; broadcast shape. The
+        emulator's ``saturation_tanh`` form, when set, replaces the candidate's law.
     """
     i = np.asarray(current_a, dtype=float)
     slope = inductance_slope(params, position_m)
+    lam_s = params.saturation_tanh_flux_linkage_wb
+    if lam_s > 0.0:
+        ind = inductance(params, position_m)
+        u = ind * i / lam_s
+        log_cosh = np.abs(u) - math.log(2.0) + np.log1p(np.exp(-2.0 * np.abs(u)))
+        return slope * (lam_s / ind) ** 2 * (u * np.tanh(u) - log_cosh)
     beta = params.saturation_coefficient_per_a
     if beta == 0.0:
         return 0.5 * slope * i * i

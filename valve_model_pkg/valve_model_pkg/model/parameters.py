@@ -23,6 +23,7 @@ __all__ = [
     'ValveParameters',
     'EffectSpec',
     'EFFECTS',
+    'EMULATOR_EFFECTS',
     'PARAMETER_FIELDS',
     'SECTIONS',
     'load_parameters',
@@ -67,12 +68,16 @@ class EffectSpec:
         Field -> (low, high), a physically sensible search range for identification.
     description : str
         One line on what the effect models.
+    demo : dict
+        Field -> value an emulator ``--effect NAME`` without values sets (emulator forms
+        only; the identification's effects take a fraction of ``bounds`` instead).
     """
 
     fields: tuple[str, ...]
     neutral: dict[str, float]
     bounds: dict[str, tuple[float, float]]
     description: str
+    demo: dict[str, float] = dataclasses.field(default_factory=dict)
 
     def is_active(self, params: ValveParameters) -> bool:
         """Return True if ``params`` switches this effect on."""
@@ -113,6 +118,34 @@ EFFECTS: dict[str, EffectSpec] = {
         {'restitution_coefficient': 0.0},
         {'restitution_coefficient': (0.0, 0.9)},
         'coefficient of restitution at both end stops (0 = plastic stop, the paper)'),
+}
+
+#: Effect forms of the emulated valve only (issue 13 item 6), written independently of
+#: the identification's candidates in :data:`EFFECTS`: a valve emulated with one of these
+#: is not the candidate's own equation, so a loop test that names the right effect is not
+#: circular. They are NOT candidates of the identification (``diagnosis`` iterates
+#: :data:`EFFECTS` only) and default to off (bit-identical outputs). Equations: the kernel
+#: modules (``magnetics._tanh_flux_partials``, ``electrical._ladder_derivatives``) and
+#: docs/effects.md. The demo values make each visible in the 1 kHz interval-mean current
+#: of a 24 V bench step (at most 11 % / 8 % of the 1.85 A final current, within 20 ms).
+EMULATOR_EFFECTS: dict[str, EffectSpec] = {
+    'saturation_tanh': EffectSpec(
+        ('saturation_tanh_flux_linkage_wb',),
+        {'saturation_tanh_flux_linkage_wb': 0.0},
+        {'saturation_tanh_flux_linkage_wb': (0.05, 1.0)},
+        'emulator form of magnetic saturation (not the candidate): flux linkage '
+        'lambda_s tanh(L(x) i / lambda_s), a fixed saturation flux whose knee current '
+        'lambda_s / L(x) moves with the air gap; force from the co-energy',
+        {'saturation_tanh_flux_linkage_wb': 0.25}),
+    'eddy_ladder': EffectSpec(
+        ('eddy_ladder_inductance_ratio', 'eddy_ladder_resistance_ohm'),
+        {'eddy_ladder_inductance_ratio': 0.0, 'eddy_ladder_resistance_ohm': 20.0},
+        {'eddy_ladder_inductance_ratio': (0.0, 3.0),
+         'eddy_ladder_resistance_ohm': (1.0, 200.0)},
+        'emulator form of eddy currents (not the candidate): the inductance split into '
+        'a fast part L/(1+r) in series with a slow part r L/(1+r) shunted by R_b (a '
+        'one-rung Foster ladder, two time constants; no resistive path at high frequency)',
+        {'eddy_ladder_inductance_ratio': 1.0, 'eddy_ladder_resistance_ohm': 20.0}),
 }
 
 #: YAML section of each non-effect field.
@@ -184,6 +217,14 @@ class ValveParameters:
         leakage_inductance effect: L_leak (0 = off).
     restitution_coefficient : float
         end_stop_bounce effect: e in [0, 1) (0 = plastic stop, the paper).
+    saturation_tanh_flux_linkage_wb : float
+        Emulator form ``saturation_tanh`` (not a candidate): saturation flux linkage
+        lambda_s, Wb; lambda = lambda_s tanh(L(x) i / lambda_s) (0 = off).
+    eddy_ladder_inductance_ratio : float
+        Emulator form ``eddy_ladder`` (not a candidate): r = L_slow / L_fast of the
+        inductance split (0 = off).
+    eddy_ladder_resistance_ohm : float
+        Emulator form ``eddy_ladder``: R_b, the eddy path shunting the slow part, ohm.
     """
 
     spool_mass_kg: float = 0.027
@@ -213,6 +254,11 @@ class ValveParameters:
     thermal_time_constant_s: float = 60.0
     leakage_inductance_h: float = 0.0
     restitution_coefficient: float = 0.0
+    # emulator effect forms (EMULATOR_EFFECTS); appended so the candidate fields keep
+    # their vector positions
+    saturation_tanh_flux_linkage_wb: float = 0.0
+    eddy_ladder_inductance_ratio: float = 0.0
+    eddy_ladder_resistance_ohm: float = 20.0
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -272,15 +318,16 @@ class ValveParameters:
         if not isinstance(effects, Mapping):
             raise ParameterError(f'effects must be a mapping, got {effects!r}')
         for effect, block in effects.items():
-            if effect not in EFFECTS:
+            spec = EFFECTS.get(effect) or EMULATOR_EFFECTS.get(effect)
+            if spec is None:
                 raise ParameterError(
-                    f'unknown effect {effect!r} (expected one of {", ".join(EFFECTS)})',
-                    key=effect)
+                    f'unknown effect {effect!r} (expected one of {", ".join(EFFECTS)}; '
+                    f'emulator forms: {", ".join(EMULATOR_EFFECTS)})', key=effect)
             block = block or {}
             if not isinstance(block, Mapping):
                 raise ParameterError(f'effect {effect!r} must be a mapping, got {block!r}')
             for key, value in block.items():
-                if key not in EFFECTS[effect].fields:
+                if key not in spec.fields:
                     raise ParameterError(
                         f'unknown parameter {key!r} = {value!r} in effect {effect!r}', key=key)
                 values[key] = value
@@ -304,6 +351,10 @@ class ValveParameters:
                                for s, names in SECTIONS.items()}
         out['effects'] = {e: {n: getattr(self, n) for n in spec.fields}
                           for e, spec in EFFECTS.items()}
+        # emulator forms only when set, so identified parameter files look as before
+        for e, spec in EMULATOR_EFFECTS.items():
+            if any(getattr(self, n) != spec.neutral[n] for n in spec.fields):
+                out['effects'][e] = {n: getattr(self, n) for n in spec.fields}
         return out
 
     def replace(self, **changes: float) -> ValveParameters:
@@ -329,8 +380,9 @@ class ValveParameters:
         return cls(**{n: float(v) for n, v in zip(PARAMETER_FIELDS, vector)})
 
     def active_effects(self) -> tuple[str, ...]:
-        """Names of the effects that these parameters switch on."""
-        return tuple(name for name, spec in EFFECTS.items() if spec.is_active(self))
+        """Names of the effects (candidates, then emulator forms) these parameters switch on."""
+        return tuple(name for registry in (EFFECTS, EMULATOR_EFFECTS)
+                     for name, spec in registry.items() if spec.is_active(self))
 
 
 #: Field order of :meth:`ValveParameters.to_vector` and of batch parameter matrices.
@@ -346,7 +398,8 @@ _POSITIVE = (
 _NON_NEGATIVE = (
     'spring_pretension_m', 'damping_n_s_per_m', 'saturation_coefficient_per_a',
     'eddy_conductance_s', 'coulomb_friction_n', 'thermal_resistance_k_per_w',
-    'leakage_inductance_h', 'restitution_coefficient',
+    'leakage_inductance_h', 'restitution_coefficient', 'saturation_tanh_flux_linkage_wb',
+    'eddy_ladder_inductance_ratio', 'eddy_ladder_resistance_ohm',
 )
 
 
@@ -382,6 +435,9 @@ PLAUSIBLE_RANGES: dict[str, tuple[float, float]] = {
     'thermal_time_constant_s': (1e-2, 1e5),
     'leakage_inductance_h': (0.0, 10.0),
     'restitution_coefficient': (0.0, 1.0),
+    'saturation_tanh_flux_linkage_wb': (0.0, 100.0),
+    'eddy_ladder_inductance_ratio': (0.0, 100.0),
+    'eddy_ladder_resistance_ohm': (0.0, 1e6),
 }
 
 #: Beyond the plausible range widened by this factor on either side a value is refused
