@@ -28,3 +28,30 @@ def test_a_missing_command_times_out_and_is_counted() -> None:
     assert not gate.may_step(10_000_000, 5.9)
     assert gate.may_step(10_000_000, 6.2)
     assert gate.timeouts == 1 and 't = 0.010 s' in gate.last_timeout
+
+
+def test_steps_past_a_tick_only_with_its_output_pressure_on_the_bus() -> None:
+    # The chamber pressure of tick T must reach the valve at T, not a step early or late
+    # depending on which of the driver's frames arrives first (the CAN demo's settling
+    # times varied by up to 30 ms between runs before).
+    gate = LockstepGateState(control_period_ns=5_000_000, timeout_s=1.0)
+    gate.tick_duty[5_000_000] = 0.5
+    gate.bus_duty = 0.5
+    gate.tick_output_pa[5_000_000] = 123_450.0
+    gate.bus_output_pa = 120_000.0             # the previous tick's pressure
+    assert not gate.may_step(5_000_000, 0.0)
+    gate.bus_output_pa = 123_450.0 + 20.0      # within one 50 Pa step of the frame
+    assert gate.may_step(5_000_000, 0.1)
+    gate.forget_before(10_000_000)
+    assert gate.tick_output_pa == {}
+
+
+def test_a_missing_pressure_times_out_and_says_so() -> None:
+    gate = LockstepGateState(control_period_ns=5_000_000, timeout_s=1.0)
+    gate.tick_duty[10_000_000] = 0.3
+    gate.bus_duty = 0.3
+    gate.tick_output_pa[10_000_000] = 2e5
+    gate.bus_output_pa = 1e5
+    assert not gate.may_step(10_000_000, 5.0)
+    assert gate.may_step(10_000_000, 6.1)
+    assert gate.timeouts == 1 and 'output pressure' in gate.last_timeout

@@ -18,6 +18,11 @@ of the wall clock:
    command on ROS too, only to know which duty the tick needs; the valve takes it from
    the bus as it would on hardware). The driver's CAN frame and the simulation's next
    ``/clock`` race; this wait makes the run the same whichever comes first.
+5. The same holds for the chamber (output) pressure the simulation publishes at tick T:
+   the driver forwards it in a ``ValvePressure`` frame, and the model does not advance
+   past T until that frame's pressure is the one stamped T. Without this the pressure
+   reached the valve one or two steps early or late depending on the computer's load
+   (step settling times of the CAN demo varied by up to 30 ms between runs).
 
 A tick whose command does not arrive within ``timeout_s`` of wall time is a *lockstep
 timeout*: the model goes on with the command in force, the bridge logs it and counts it
@@ -27,12 +32,13 @@ never runs ahead of what it has computed (``max_burst`` 0: every telemetry insta
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 
 import can
 
-from valve_driver_pkg.protocol.codec import COMMAND
+from valve_driver_pkg.protocol.codec import COMMAND, PRESSURE
 
 __all__ = ['run_on_simulation_clock', 'LockstepGateState']
 
@@ -40,6 +46,8 @@ logger = logging.getLogger('valve_controller_emulator')
 
 #: A CAN duty equals a ROS duty when they differ by at most the frame's resolution [1].
 _DUTY_RESOLUTION = 1.5e-4
+#: ... and a CAN pressure a ROS one within its resolution (50 Pa per bit, rounded) [Pa].
+_PRESSURE_RESOLUTION_PA = 26.0
 
 
 class LockstepGateState:
@@ -55,6 +63,8 @@ class LockstepGateState:
         self.target_ns = 0
         self.tick_duty: dict[int, float] = {}   # duty command stamp [ns] -> duty
         self.bus_duty: float | None = None       # the last ValveCommand duty (Enable=0: 0)
+        self.tick_output_pa: dict[int, float] = {}  # pressure stamp [ns] -> gauge [Pa]
+        self.bus_output_pa: float | None = None  # the last ValvePressure output (gauge)
         self.waiting_since: float | None = None
         self.timeouts = 0
         self.last_timeout = ''
@@ -70,7 +80,7 @@ class LockstepGateState:
             return True  # the simulation does not wait at t = 0 either: duty 0 until 5 ms
         duty = self.tick_duty.get(tick)
         if duty is not None and self.bus_duty is not None \
-                and abs(duty - self.bus_duty) <= _DUTY_RESOLUTION:
+                and abs(duty - self.bus_duty) <= _DUTY_RESOLUTION and self._pressure_in(tick):
             self.waiting_since = None
             return True
         if self.waiting_since is None:
@@ -78,17 +88,28 @@ class LockstepGateState:
             return False
         if wall_s - self.waiting_since > self.timeout_s:
             self.timeouts += 1
-            self.last_timeout = (f'no duty command for tick t = {tick * 1e-9:.3f} s reached '
+            what = 'duty command' if duty is None or self.bus_duty is None or abs(
+                duty - self.bus_duty) > _DUTY_RESOLUTION else 'output pressure'
+            self.last_timeout = (f'no {what} for tick t = {tick * 1e-9:.3f} s reached '
                                  f'the emulator within {self.timeout_s:g} s')
+            self.tick_output_pa.pop(tick, None)
             self.tick_duty[tick] = self.bus_duty if self.bus_duty is not None else 0.0
             self.waiting_since = None
             return True
         return False
 
+    def _pressure_in(self, tick: int) -> bool:
+        """Whether the bus carries tick ``tick``'s output pressure (True if none known)."""
+        want = self.tick_output_pa.get(tick)
+        return want is None or (self.bus_output_pa is not None and
+                                abs(want - self.bus_output_pa) <= _PRESSURE_RESOLUTION_PA)
+
     def forget_before(self, tick_ns: int) -> None:
-        """Drop the commands of ticks before ``tick_ns`` (bounded memory)."""
+        """Drop the commands and pressures of ticks before ``tick_ns`` (bounded memory)."""
         for stamp in [s for s in self.tick_duty if s < tick_ns]:
             del self.tick_duty[stamp]
+        for stamp in [s for s in self.tick_output_pa if s < tick_ns]:
+            del self.tick_output_pa[stamp]
 
 
 def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 0.001,
@@ -103,10 +124,12 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import FluidPressure
     from valve_msgs.msg import DutyCommand
 
-    from valve_model_pkg.interface import TOPIC_CLOCK, TOPIC_DUTY_COMMAND
-    from valve_model_pkg.interface.ros import CLOCK_QOS, COMMAND_QOS
+    from valve_model_pkg.interface import (TOPIC_CLOCK, TOPIC_DUTY_COMMAND,
+                                           TOPIC_OUTPUT_PRESSURE, gauge_from_absolute)
+    from valve_model_pkg.interface.ros import CLOCK_QOS, COMMAND_QOS, PRESSURE_QOS
 
     step_ns = int(round(step_s * 1e9))
     gate = LockstepGateState(int(round(control_period_s * 1e9)), timeout_s)
@@ -150,6 +173,14 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
                 with lock:
                     gate.bus_duty = float(signals['Duty']) if signals['Enable'] else 0.0
                     advance()
+            elif found is not None and found[0] == PRESSURE:
+                try:
+                    signals = codec.decode(msg).signals
+                except Exception:   # counted by the emulator; not a pressure
+                    continue
+                with lock:
+                    gate.bus_output_pa = float(signals['OutputPressure'])
+                    advance()
 
     from rclpy.signals import SignalHandlerOptions
     # The program's own SIGINT/SIGTERM handlers set ``stop``; rclpy must not replace them.
@@ -172,7 +203,18 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
                 gate.tick_duty[t] = min(max(float(msg.duty), 0.0), 1.0)
             advance()
 
+    def on_output_pressure(msg: FluidPressure) -> None:
+        t = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        with lock:
+            if t % gate.control_ns == 0 and t >= gate.tick_of(model_ns[0]) and \
+                    math.isfinite(msg.fluid_pressure):
+                gate.tick_output_pa[t] = gauge_from_absolute(float(msg.fluid_pressure))
+            advance()
+
+    pressure_topic = f'{valve_namespace}/{TOPIC_OUTPUT_PRESSURE}' if valve_namespace \
+        else TOPIC_OUTPUT_PRESSURE
     node.create_subscription(Clock, TOPIC_CLOCK, on_clock, CLOCK_QOS)
+    node.create_subscription(FluidPressure, pressure_topic, on_output_pressure, PRESSURE_QOS)
     node.create_subscription(DutyCommand, duty_topic, on_duty, COMMAND_QOS)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
