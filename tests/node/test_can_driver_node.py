@@ -421,3 +421,65 @@ def test_stale_and_lost_duty_commands_are_counted(start_node, ros) -> None:
         client.duty_pub.publish(msg)
     ros.wait_for(lambda: client.value('commands', 'commands_lost') == '2', 10.0,
                  'two lost commands counted')
+
+
+def test_drive_mode_parameter_reaches_the_frames_and_is_settable_at_run_time(
+        start_node, ros) -> None:
+    """Issue 13 item 2: drive_mode:=bench goes out in every ValveCommand, the controller's
+    ValveDrive comes back in the diagnostics; a run-time set acts and is logged; a bad
+    value is refused (at run time: the set fails; at start-up: exit 2)."""
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    port = free_loopback_port()
+    commands = can_backend_commands(1000.0, port=port, command_timeout_s=0.0,
+                                    drive_mode='bench')
+    emulator = start_emulator(start_node, port)
+    driver = start_node(*commands['valve_can_driver'])
+    client = ros.add(Client())
+    sniffer = Sniffer(f'127.0.0.1:{port}')
+    setter = client.create_client(SetParameters, 'valve_can_driver/set_parameters')
+
+    def set_mode(value: str):
+        request = SetParameters.Request(parameters=[Parameter(
+            name='drive_mode', value=ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                                    string_value=value))])
+        future = setter.call_async(request)
+        ros.wait_for(future.done, 10.0, f'set drive_mode {value}')
+        return future.result().results[0]
+
+    def reported() -> str:
+        """The drive mode the controller reports (ValveDrive), '' before the first."""
+        status = client.diagnostics.get('controller')
+        return {kv.key: kv.value for kv in status.values}.get('drive_mode', '') \
+            if status is not None else ''
+
+    try:
+        ros.wait_for(lambda: reported() == 'bench', 30.0,
+                     'the controller reports the bench mode')
+        assert client.value('controller', 'drive_mode_requested') == 'bench'
+        assert float(client.value('controller', 'holding_current_a')) == 0.0
+        assert sniffer.commands and all(c['DriveMode'] == 1 for c in sniffer.commands)
+        ros.wait_for(setter.service_is_ready, 20.0, 'set_parameters service')
+        result = set_mode('normal')
+        assert result.successful, result.reason
+        ros.wait_for(lambda: reported() == 'normal', 10.0,
+                     'the controller reports the normal mode')
+        assert float(client.value('controller', 'holding_current_a')) > 0.0
+        assert sniffer.commands[-1]['DriveMode'] == 0
+        assert re.search(r'drive mode bench -> normal', driver.output), driver.output[-2000:]
+        refused = set_mode('turbo')
+        assert not refused.successful and 'turbo' in refused.reason
+        n = len(sniffer.commands)
+        ros.wait_for(lambda: len(sniffer.commands) > n + 5, 10.0, 'more commands')
+        assert all(c['DriveMode'] == 0 for c in sniffer.commands[n:])
+        assert emulator.alive() and driver.alive()
+    finally:
+        sniffer.close()
+    bad = start_node('valve_can_driver', '--ros-args', '-p', 'drive_mode:=turbo')
+    deadline = time.monotonic() + 60.0
+    while bad.alive():
+        assert time.monotonic() < deadline, 'a bad drive_mode did not refuse the start'
+        time.sleep(0.1)
+    assert bad.proc.returncode == 2
+    assert 'turbo' in bad.output and 'Traceback' not in bad.output

@@ -7,8 +7,8 @@ import cantools
 import pytest
 
 from valve_driver_pkg.driver import CanDriverCore, DriverConfig
-from valve_driver_pkg.protocol import (COMMAND, CONTROL, PERIOD, PRESSURE, STATUS, TELEMETRY,
-                                       TELEMETRY_MEAN,
+from valve_driver_pkg.protocol import (COMMAND, CONTROL, DRIVE, PERIOD, PRESSURE, STATUS,
+                                       TELEMETRY, TELEMETRY_MEAN, DriveMode,
                                        EmulatorFault, ValveCodec, crc8, default_dbc_path,
                                        fault_injection_dbc_path)
 from valve_driver_pkg.protocol.codec import MAX_NODE_ID
@@ -17,8 +17,8 @@ from valve_driver_pkg.protocol.codec import MAX_NODE_ID
 TIMING = {COMMAND: (10, 'CyclicAndSpontaneous'), TELEMETRY: (1, 'Cyclic'),
           PERIOD: (100, 'CyclicAndSpontaneous'), PRESSURE: (100, 'CyclicAndSpontaneous'),
           STATUS: (100, 'Cyclic')}
-# The one message with a 29-bit id (the 11-bit block beside CANopen is full).
-TIMING_EXTENDED = {TELEMETRY_MEAN: (1, 'Cyclic')}
+# The messages with a 29-bit id (the 11-bit block beside CANopen is full).
+TIMING_EXTENDED = {TELEMETRY_MEAN: (1, 'Cyclic'), DRIVE: (100, 'CyclicAndSpontaneous')}
 
 
 def _canopen_ids() -> set[int]:
@@ -76,7 +76,12 @@ def test_the_extended_ids_never_meet_an_11_bit_id() -> None:
                                         'MeanInterval': 1e-3}, 3)
     assert msg.is_extended_id and codec.decode(msg).name == TELEMETRY_MEAN
     db = cantools.database.load_file(str(default_dbc_path()), strict=True)
-    assert [m.name for m in db.messages if m.is_extended_frame] == [TELEMETRY_MEAN]
+    assert [m.name for m in db.messages if m.is_extended_frame] == [TELEMETRY_MEAN, DRIVE]
+    drive = {codec.frame_id(DRIVE, node) for node in range(MAX_NODE_ID + 1)}
+    assert drive == set(range(0x16910, 0x16920)) and not drive & ids
+    msg = codec.encode(DRIVE, {'DriveModeActive': 1, 'CapacitorVoltage': 0.0,
+                               'HoldingCurrent': 0.0, 'SupplyVoltageMeasured': 24.0}, 3)
+    assert msg.is_extended_id and codec.decode(msg).name == DRIVE
 
 
 def test_the_driver_never_loads_the_test_messages() -> None:
@@ -135,3 +140,30 @@ def test_command_frame_carries_a_host_id() -> None:
     db = cantools.database.load_file(str(default_dbc_path()), strict=True)
     host = db.get_message_by_name(COMMAND).get_signal_by_name('HostId')
     assert (host.start, host.length, host.minimum, host.maximum) == (36, 4, 0, 15)
+
+
+def test_the_drive_mode_is_a_command_signal_with_a_value_table() -> None:
+    """Issue 13 item 2: the bench mode is a protocol matter, not an emulator flag."""
+    db = cantools.database.load_file(str(default_dbc_path()), strict=True)
+    mode = db.get_message_by_name(COMMAND).get_signal_by_name('DriveMode')
+    assert (mode.start, mode.length, mode.minimum, mode.maximum) == (34, 2, 0, 1)
+    assert dict(mode.choices) == {int(m): m.name.title() for m in DriveMode} \
+        == {0: 'Normal', 1: 'Bench'}
+    active = db.get_message_by_name(DRIVE).get_signal_by_name('DriveModeActive')
+    assert dict(active.choices) == dict(mode.choices)
+    drive = db.get_message_by_name(DRIVE)
+    assert {s.name for s in drive.signals} >= {'HoldingCurrent', 'CapacitorVoltage',
+                                               'SupplyVoltageMeasured'}
+    assert drive.get_signal_by_name('HoldingCurrent').unit == 'A'
+    assert 'bench' in db.get_message_by_name(COMMAND).get_signal_by_name(
+        'DriveMode').comment.lower()
+
+
+def test_overlapping_extended_id_ranges_are_refused(tmp_path) -> None:
+    from valve_driver_pkg.errors import DbcError
+
+    text = default_dbc_path().read_text().replace('2147576080', '2147576072')
+    bad = tmp_path / 'overlap.dbc'
+    bad.write_text(text)
+    with pytest.raises(DbcError, match='overlap'):
+        ValveCodec(0, bad)

@@ -11,8 +11,9 @@ from valve_driver_pkg.emulator import (ControllerEmulator, ControllerState, Emul
 from valve_driver_pkg.emulator.controller import UNKNOWN_INJECTED_ID
 from valve_driver_pkg.emulator.emulator_main import apply_effects, main
 from valve_driver_pkg.errors import FrameRejected
-from valve_driver_pkg.protocol import (COMMAND, PERIOD, PRESSURE, STATUS, TELEMETRY,
-                                       BusCondition, ValveCodec, parse_error_frame)
+from valve_driver_pkg.protocol import (COMMAND, DRIVE, PERIOD, PRESSURE, STATUS, TELEMETRY,
+                                       TELEMETRY_MEAN, BusCondition, DriveMode, ValveCodec,
+                                       parse_error_frame)
 from valve_model_pkg.model import ElectronicsConfig, ValveStepper, load_parameters
 
 PARAMS = load_parameters()
@@ -33,11 +34,12 @@ class Rig:
         self.counter = 0
 
     def command(self, duty: float, freq: float = 50.0, enable: int = 1, clear: int = 0,
-                corrupt: bool = False) -> None:
-        msg = self.codec.encode(COMMAND, {'Duty': duty, 'PwmFrequency': freq,
-                                          'Enable': enable, 'ClearFaults': clear,
-                                          'HostId': 1},
-                                self.counter)
+                corrupt: bool = False, mode: DriveMode | None = None) -> None:
+        signals = {'Duty': duty, 'PwmFrequency': freq, 'Enable': enable, 'ClearFaults': clear,
+                   'HostId': 1}
+        if mode is not None:
+            signals['DriveMode'] = int(mode)
+        msg = self.codec.encode(COMMAND, signals, self.counter)
         self.counter = (self.counter + 1) & 0xF
         if corrupt:
             msg.data[7] ^= 0xFF
@@ -379,3 +381,156 @@ def test_program_runs_on_a_virtual_bus_and_stops(capsys) -> None:
 def test_program_refuses_bad_arguments() -> None:
     assert main(['--interface', 'virtual', '--channel', 'x', '--effect', 'nope']) == 2
     assert main(['--interface', 'virtual', '--channel', 'x', '--fault', 'nope']) == 2
+
+
+# --- issue 13 item 2: the drive mode comes from the frames ---------------------------------------
+def _by_name(rig: Rig) -> dict[str, list]:
+    """Every frame waiting, decoded and grouped by message name (in sending order)."""
+    out: dict[str, list] = {}
+    for msg in rig.frames():
+        found = None if msg.is_error_frame else rig.codec.classify(msg.arbitration_id)
+        if found is not None:
+            out.setdefault(found[0], []).append(rig.codec.decode(msg))
+    return out
+
+
+@pytest.mark.parametrize('mode', [DriveMode.BENCH, DriveMode.NORMAL])
+def test_bench_mode_gives_the_coil_the_unchopped_supply_normal_mode_chops(mode) -> None:
+    rig = Rig(command_timeout_s=0.0)
+    try:
+        rig.command(1.0, 50.0, mode=mode)
+        rig.emu.step(0.1)
+        frames = _by_name(rig)
+    finally:
+        rig.close()
+    late = slice(25, None)   # from 25 ms: past the boost and the first period start
+    volts = [f.signals['CoilVoltage'] for f in frames[TELEMETRY][late]]
+    means = [f.signals['CoilVoltageMean'] for f in frames[TELEMETRY_MEAN][late]]
+    amps = [f.signals['CoilCurrent'] for f in frames[TELEMETRY][late]]
+    drive = frames[DRIVE][-1].signals
+    assert drive['DriveModeActive'] == mode
+    assert drive['SupplyVoltageMeasured'] == pytest.approx(24.0)
+    if mode is DriveMode.BENCH:
+        assert all(v == pytest.approx(24.0, abs=0.005) for v in volts + means)
+        assert min(amps) > 2.0 * ElectronicsConfig().holding_current_a   # no current control
+        assert (drive['HoldingCurrent'], drive['CapacitorVoltage']) == (0.0, 0.0)
+        assert rig.stepper.electronics.current_control is False
+    else:
+        # the chopper holds the current: its 20 kHz edges sit on the 1 kHz sampling grid,
+        # so the interval means (not the samples) show the chopping
+        assert max(means) < 0.5 * 24.0
+        assert max(amps) < 1.5 * ElectronicsConfig().holding_current_a
+        assert drive['HoldingCurrent'] == pytest.approx(ElectronicsConfig().holding_current_a)
+        assert drive['CapacitorVoltage'] == pytest.approx(24.0)
+
+
+def test_a_mode_change_while_driving_waits_for_the_period_start() -> None:
+    rig = Rig(command_timeout_s=0.0)
+    try:
+        rig.command(1.0, 50.0)                      # normal; periods start every 20 ms
+        rig.emu.step(0.031)
+        rig.frames()
+        rig.command(1.0, 50.0, mode=DriveMode.BENCH)
+        assert rig.emu.mode_requested is DriveMode.BENCH
+        assert rig.emu.mode_active is DriveMode.NORMAL   # duty 1 in force: not yet
+        rig.emu.step(0.0395)
+        assert rig.emu.mode_active is DriveMode.NORMAL
+        before = _by_name(rig)
+        rig.emu.step(0.045)
+        assert rig.emu.mode_active is DriveMode.BENCH   # switched at the 40 ms period start
+        after = _by_name(rig)
+    finally:
+        rig.close()
+    assert all(f.signals['DriveModeActive'] == 0 for f in before.get(DRIVE, []))
+    # reported at once (before the 41 ms telemetry), not only with the 10 Hz heartbeat
+    assert [f.signals['DriveModeActive'] for f in after[DRIVE]] == [1]
+    means = [f.signals['CoilVoltageMean'] for f in after[TELEMETRY_MEAN]]   # 40 .. 45 ms
+    assert all(v == pytest.approx(24.0, abs=0.005) for v in means[1:])
+    assert max(f.signals['CoilVoltageMean'] for f in before[TELEMETRY_MEAN]) < 12.0  # chopped
+
+
+def test_a_mode_change_at_duty_0_acts_at_once_and_never_energises() -> None:
+    rig = Rig(command_timeout_s=0.0)
+    try:
+        rig.emu.step(0.013)
+        rig.command(0.0, 50.0, mode=DriveMode.BENCH)
+        assert rig.emu.mode_active is DriveMode.BENCH    # at once: duty 0 is in force
+        rig.emu.step(0.1)
+        telemetry = rig.decoded(TELEMETRY)
+        assert all(f.signals['CoilCurrent'] == 0.0 and f.signals['CoilVoltage'] == 0.0
+                   for f in telemetry)
+        rig.command(0.0, 50.0, mode=DriveMode.NORMAL)
+        assert rig.emu.mode_active is DriveMode.NORMAL
+        assert rig.stepper.electronics == ElectronicsConfig()
+    finally:
+        rig.close()
+
+
+@pytest.mark.parametrize('mode', [DriveMode.BENCH, DriveMode.NORMAL])
+def test_duty_0_switches_off_at_once_in_either_mode(mode) -> None:
+    rig = Rig(command_timeout_s=0.0)
+    try:
+        rig.command(1.0, 50.0, mode=mode)
+        rig.emu.step(0.05)
+        on = rig.decoded(TELEMETRY)[-1].signals
+        rig.command(0.0, 50.0, mode=mode)             # mid-period (periods at 40, 60 ms)
+        rig.emu.step(0.051)
+        off = rig.decoded(TELEMETRY)[-1].signals     # 1 ms later
+    finally:
+        rig.close()
+    assert off['CoilCurrent'] < on['CoilCurrent']
+    if mode is DriveMode.BENCH:
+        assert off['CoilVoltage'] == 0.0             # no capacitor: the coil freewheels
+    else:
+        assert off['CoilVoltage'] < -1.0             # the capacitor's release pulse
+
+
+def test_the_drivers_drive_mode_reaches_the_emulator() -> None:
+    """drive_mode of the driver -> ValveCommand.DriveMode -> the emulator's electronics, and
+    the emulator's ValveDrive back into the driver's controller diagnostics."""
+    import time
+
+    from valve_driver_pkg.driver import CanDriverCore, DriverConfig
+
+    channel = f'emu_test_{next(_channels)}'
+    emu_bus = can.Bus(interface='virtual', channel=channel)
+    stepper = ValveStepper(PARAMS, ElectronicsConfig())
+    emu = ControllerEmulator(emu_bus, stepper, EmulatorConfig(command_timeout_s=0.0))
+    core = CanDriverCore(DriverConfig(interface='virtual', channel=channel,
+                                      drive_mode='bench', command_timeout_s=0.0))
+
+    def poll_until(predicate, what: str) -> None:
+        deadline = time.monotonic() + 5.0
+        while not predicate():
+            emu.poll(0.05)
+            assert time.monotonic() < deadline, f'timed out waiting for {what}'
+
+    try:
+        assert core.drive_mode == 'bench'
+        core.open()
+        core.activate()
+        core.set_command(1.0, 50.0)
+        poll_until(lambda: emu.mode_requested is DriveMode.BENCH, 'a bench command')
+        emu.step(0.06)
+        assert emu.mode_active is DriveMode.BENCH
+        assert stepper.sample().coil_voltage_v == pytest.approx(24.0)
+        deadline = time.monotonic() + 5.0
+        while core.report()[3].values.get('drive_mode') != 'bench':
+            assert time.monotonic() < deadline, 'no ValveDrive reached the driver'
+            time.sleep(0.01)
+        values = core.report()[3].values
+        assert values['drive_mode_requested'] == 'bench'
+        assert values['holding_current_a'] == 0.0
+        assert core.set_drive_mode('normal') == 'bench'
+        poll_until(lambda: emu.mode_requested is DriveMode.NORMAL, 'a normal command')
+        emu.step(0.085)                              # the 80 ms period start
+        assert emu.mode_active is DriveMode.NORMAL
+        assert stepper.electronics.current_control is True
+        with pytest.raises(ValueError, match='turbo'):
+            core.set_drive_mode('turbo')
+        assert core.drive_mode == 'normal'
+    finally:
+        core.close()
+        emu_bus.shutdown()
+    with pytest.raises(ValueError, match="'turbo'.*'normal', 'bench'"):
+        DriverConfig(drive_mode='turbo')

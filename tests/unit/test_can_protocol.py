@@ -207,3 +207,57 @@ def test_decoder_fuzz_only_accepts_or_rejects(msg: can.Message) -> None:
         assert err.reason in {r.value for r in RejectReason}
         return
     assert all(math.isfinite(v) for v in frame.signals.values())
+
+
+# --- issue 13 item 2: the drive mode and the drive electronics are part of the protocol ----------
+def test_drive_mode_is_encoded_and_defaults_to_normal() -> None:
+    from valve_driver_pkg.protocol import DriveMode
+
+    old_host = CODEC.encode(COMMAND, SAMPLE_SIGNALS[COMMAND], 1)   # a 2.0 host: no DriveMode
+    assert CODEC.decode(old_host).signals['DriveMode'] == DriveMode.NORMAL == 0
+    bench = CODEC.encode(COMMAND, dict(SAMPLE_SIGNALS[COMMAND], DriveMode=DriveMode.BENCH), 1)
+    assert CODEC.decode(bench).signals['DriveMode'] == 1
+    # bit 34 (byte 4, bit 2) and the checksum are all that differ: the old signals keep
+    # their bits and meaning
+    assert bytes(bench.data[:7]) == bytes(old_host.data[:4]) + bytes(
+        [old_host.data[4] | 0x04]) + bytes(old_host.data[5:7])
+    assert bench.data[7] != old_host.data[7]
+    with pytest.raises(ProtocolEncodeError, match='DriveMode'):
+        CODEC.encode(COMMAND, dict(SAMPLE_SIGNALS[COMMAND], DriveMode=2), 3)
+
+
+@pytest.mark.parametrize('raw', [2, 3])
+def test_reserved_drive_mode_values_are_rejected(raw: int) -> None:
+    msg = CODEC.encode(COMMAND, SAMPLE_SIGNALS[COMMAND], 4)
+    data = bytearray(msg.data)
+    data[4] |= raw << 2
+    with pytest.raises(FrameRejected) as err:
+        CODEC.decode(_with_checksum(msg.arbitration_id, data))
+    assert err.value.reason == RejectReason.OUT_OF_RANGE.value
+    assert 'DriveMode' in str(err.value)
+
+
+def test_drive_mode_names_parse_and_a_bad_name_is_refused() -> None:
+    from valve_driver_pkg.protocol import DriveMode
+
+    assert DriveMode.parse('bench') is DriveMode.BENCH
+    assert DriveMode.parse(' Normal ') is DriveMode.NORMAL
+    with pytest.raises(ValueError, match=r"'turbo'.*'normal', 'bench'"):
+        DriveMode.parse('turbo')
+
+
+def test_drive_report_round_trips_on_its_extended_id() -> None:
+    from valve_driver_pkg.protocol import DRIVE
+
+    signals = {'DriveModeActive': 1, 'CapacitorVoltage': 23.8, 'HoldingCurrent': 0.4567,
+               'SupplyVoltageMeasured': 24.37}
+    msg = CODEC.encode(DRIVE, signals, 9)
+    assert msg.is_extended_id and msg.arbitration_id == 0x16910
+    frame = CODEC.decode(msg)
+    assert (frame.name, frame.counter) == (DRIVE, 9)
+    steps = {'CapacitorVoltage': 0.25, 'HoldingCurrent': 1e-4, 'SupplyVoltageMeasured': 0.01}
+    for signal, value in signals.items():
+        assert frame.signals[signal] == pytest.approx(value, abs=steps.get(signal, 1) / 2)
+    moved = can.Message(arbitration_id=0x16911, data=msg.data, is_extended_id=True)
+    with pytest.raises(FrameRejected):   # the checksum covers the 4 id bytes
+        CODEC.decode(moved, expect_node=False)

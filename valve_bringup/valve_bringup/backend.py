@@ -30,7 +30,8 @@ def free_loopback_port() -> int:
 def can_backend_commands(rate_hz: float = 1000.0, *, port: int | None = None,
                          node_id: int = 0, command_timeout_s: float = 2.0,
                          emulator_args: Sequence[str] = (),
-                         driver_args: Sequence[str] = ()) -> dict[str, list[str]]:
+                         driver_args: Sequence[str] = (),
+                         drive_mode: str | None = None) -> dict[str, list[str]]:
     """Command lines of the emulator and the driver, by process name.
 
     Parameters
@@ -49,6 +50,10 @@ def can_backend_commands(rate_hz: float = 1000.0, *, port: int | None = None,
     emulator_args, driver_args : sequence of str
         Extra arguments (e.g. ``['--effect', 'coil_heating']`` for the emulator,
         ``['-p', 'valve_name:=valve1']`` for the driver, after ``--ros-args``).
+    drive_mode : str | None
+        The driver's ``drive_mode`` parameter (``'normal'`` | ``'bench'``: boost, chopper
+        and capacitor bypassed, sent in every ``ValveCommand``); ``None`` = the driver's
+        default (normal). The emulator takes the mode from the frames.
     """
     channel = f'127.0.0.1:{port if port is not None else free_loopback_port()}'
     return {
@@ -61,7 +66,9 @@ def can_backend_commands(rate_hz: float = 1000.0, *, port: int | None = None,
             '-p', f'channel:={channel}', '-p', f'node_id:={node_id}',
             '-p', f'telemetry_rate_hz:={float(rate_hz)}',
             '-p', f'command_timeout_s:={float(command_timeout_s)}',
-            '-p', 'autostart:=true', *driver_args],
+            '-p', 'autostart:=true',
+            *(('-p', f'drive_mode:={drive_mode}') if drive_mode is not None else ()),
+            *driver_args],
     }
 
 

@@ -11,11 +11,14 @@ import dataclasses
 import os
 from dataclasses import dataclass
 
-from valve_driver_pkg.protocol.codec import MAX_NODE_ID
+from valve_driver_pkg.protocol.codec import MAX_NODE_ID, DriveMode
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
 from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
 
-__all__ = ['DriverConfig', 'setting']
+__all__ = ['DriverConfig', 'setting', 'DRIVE_MODE_NAMES']
+
+#: Values of the ``drive_mode`` setting (``ValveCommand.DriveMode``, lower case).
+DRIVE_MODE_NAMES = tuple(mode.name.lower() for mode in DriveMode)
 
 
 def setting(default, description: str, low: float | None = None,
@@ -104,6 +107,16 @@ class DriverConfig:
     output_pressure_pa: float = setting(0.0, 'Output port pressure, gauge [Pa], until '
                                         'valve/output_pressure is received',
                                         -ATMOSPHERIC_PRESSURE_PA, 1.0e6)
+    drive_mode: str = setting('normal', 'Drive mode sent in every ValveCommand: normal (the '
+                              'valve\'s electronics: boost, holding-current chopper, capacitor '
+                              'release pulse) or bench (all three bypassed: the coil sees the '
+                              'supply while duty = 1; bare-coil steps for identification). '
+                              'Settable at run time; the controller switches at its next PWM '
+                              'period start, at once while duty 0 is in force. Duty 0 and '
+                              'every stop act at once in either mode')
+
+    def __post_init__(self) -> None:
+        DriveMode.parse(self.drive_mode)   # ValueError naming the value and the choices
 
     @property
     def telemetry_period_s(self) -> float:

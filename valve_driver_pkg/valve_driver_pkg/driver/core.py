@@ -174,6 +174,30 @@ class CanDriverCore:
         """See :meth:`TransmitScheduler.set_command`."""
         return self.scheduler.set_command(duty, pwm_frequency_hz, age_s, sequence, source)
 
+    def set_drive_mode(self, mode: str) -> str:
+        """Drive mode sent to the controller from now on (``'normal'`` | ``'bench'``).
+
+        See :meth:`TransmitScheduler.set_drive_mode`; a change is logged. Returns the mode
+        sent before (its name).
+
+        Raises
+        ------
+        ValueError
+            Not a drive mode name; nothing changes.
+        """
+        old = self.scheduler.set_drive_mode(mode)
+        new = self.scheduler.drive_mode
+        if new != old:
+            logger.info('drive mode %s -> %s: sent in every ValveCommand; the controller '
+                        'switches at its next PWM period start (at once while duty 0 is in '
+                        'force)', old.name.lower(), new.name.lower())
+        return old.name.lower()
+
+    @property
+    def drive_mode(self) -> str:
+        """The drive mode the driver sends (name)."""
+        return self.scheduler.drive_mode.name.lower()
+
     def clear_faults(self, timeout_s: float = 1.0) -> ClearResult:
         """Send ``ClearFaults=1`` once and wait for the controller's next ``ValveStatus``.
 
@@ -272,7 +296,9 @@ class CanDriverCore:
                 last_command_note=sched.last_command_note, host_id=sched.host_id,
                 foreign_host_id=tracker.foreign_host_id,
                 max_command_age_s=sched.max_command_age_s,
-                last_stale_age_s=sched.last_stale_age_s)
+                last_stale_age_s=sched.last_stale_age_s,
+                drive_mode=sched.drive_mode.name.lower(), last_drive=tracker.last_drive,
+                drive_age_s=age(now, tracker.last_drive_mono))
 
     def report(self) -> list[StatusReport]:
         """The driver's diagnostics now: bus, telemetry, commands, controller."""

@@ -13,7 +13,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 from valve_driver_pkg.driver.config import DriverConfig
-from valve_driver_pkg.protocol.codec import RejectReason
+from valve_driver_pkg.protocol.codec import DriveMode, RejectReason
 from valve_driver_pkg.protocol.error_frames import BusCondition
 
 __all__ = ['Level', 'StatusReport', 'Tally', 'COUNTER_KEYS', 'LATCHED_FLAGS', 'DriverSnapshot',
@@ -122,6 +122,10 @@ class DriverSnapshot:
     foreign_host_id: int | None = None
     max_command_age_s: float = 0.0
     last_stale_age_s: float = 0.0
+    # drive mode: sent (the drive_mode setting) and in force (the controller's ValveDrive)
+    drive_mode: str = 'normal'
+    last_drive: Mapping | None = None
+    drive_age_s: float = math.inf
 
 
 def _pick(counters: Mapping[str, int], keys: Iterable[str]) -> dict[str, int]:
@@ -245,6 +249,7 @@ def _command_status(s: DriverSnapshot) -> StatusReport:
 
 
 _STATE_NAMES = {0: 'init', 1: 'standby', 2: 'running', 3: 'fault'}
+_DRIVE_MODE_NAMES = {int(m): m.name.lower() for m in DriveMode}
 
 
 def _controller_status(s: DriverSnapshot) -> StatusReport:
@@ -280,6 +285,15 @@ def _controller_status(s: DriverSnapshot) -> StatusReport:
         status.values.update(duty_active=heartbeat['DutyActive'],
                              pwm_frequency_active_hz=heartbeat['PwmFrequencyActive'],
                              supply_voltage_v=heartbeat['SupplyVoltage'])
+    status.values['drive_mode_requested'] = s.drive_mode
+    drive = s.last_drive
+    if drive:   # what the controller reports of its electronics (ValveDrive)
+        status.values.update(
+            drive_mode=_DRIVE_MODE_NAMES.get(int(drive['DriveModeActive']), 'unknown'),
+            holding_current_a=drive['HoldingCurrent'],
+            capacitor_voltage_v=drive['CapacitorVoltage'],
+            supply_voltage_v=drive['SupplyVoltageMeasured'], drive_age_s=s.drive_age_s,
+            drive_frames=s.counters.get('drive_frames', 0))
     return status
 
 

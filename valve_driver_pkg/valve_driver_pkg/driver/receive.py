@@ -21,6 +21,9 @@ duty, PWM frequency   measured: in force at the controller (``ValvePeriod``); wi
                       last command sent (duty 0 while the controller reports ``Enabled=0``)
 pressures             the driver's inputs (parameters or pressure topics), also sent to
                       the controller in ``ValvePressure``
+drive electronics     measured: ``ValveDrive`` (mode in force, capacitor and holding-
+                      current set points, supply voltage), kept as ``last_drive`` for the
+                      controller diagnostics
 ====================  ==================================================================
 """
 from __future__ import annotations
@@ -39,9 +42,9 @@ from valve_driver_pkg.driver.diagnostics import Tally
 from valve_driver_pkg.driver.health import TelemetryHealth
 from valve_driver_pkg.driver.transmit import TransmitScheduler
 from valve_driver_pkg.errors import FrameRejected
-from valve_driver_pkg.protocol.codec import (COMMAND, PERIOD, PRESSURE, STATUS, TELEMETRY,
-                                             TELEMETRY_MEAN, CounterCheck, CounterTracker,
-                                             RejectReason,
+from valve_driver_pkg.protocol.codec import (COMMAND, DRIVE, PERIOD, PRESSURE, STATUS,
+                                             TELEMETRY, TELEMETRY_MEAN, CounterCheck,
+                                             CounterTracker, DriveMode, RejectReason,
                                              ValveCodec)
 from valve_model_pkg.model.averaging import PeriodAverager
 from valve_model_pkg.model.sample import ValveSample
@@ -105,6 +108,7 @@ class ReceiveTracker:
         self._status_counter = CounterTracker()
         self._period_counter = CounterTracker()
         self._mean_counter = CounterTracker()
+        self._drive_counter = CounterTracker()
         # (mean current A, mean voltage V, counter) of the last ValveTelemetryMean, paired
         # with the ValveTelemetry frame of the same instant (same counter) and then dropped
         self._mean: tuple[float, float, int] | None = None
@@ -119,6 +123,8 @@ class ReceiveTracker:
         self.last_reject = ''
         self.last_status: dict | None = None
         self.last_status_mono: float | None = None
+        self.last_drive: dict | None = None         # the last ValveDrive's signals
+        self.last_drive_mono: float | None = None
         self.period: tuple[float, float, float, float] | None = None   # avg, duty, f, mono
         self.rate_hz = 0.0
         self._rate_window = (time.monotonic(), 0)
@@ -135,6 +141,7 @@ class ReceiveTracker:
         self._status_counter.reset()
         self._period_counter.reset()
         self._mean_counter.reset()
+        self._drive_counter.reset()
         self._mean = None
         self.opened_mono = now
         self.health.reset(now)
@@ -192,6 +199,14 @@ class ReceiveTracker:
         elif frame.name == TELEMETRY_MEAN:
             with self._lock:
                 self._on_mean(frame.signals, frame.counter)
+        elif frame.name == DRIVE:
+            with self._lock:
+                changed = self._on_drive(frame.signals, frame.counter)
+            if changed is not None:
+                logger.info('controller reports drive mode %s in force (holding current '
+                            '%.4g A, capacitor %.4g V, supply %.4g V)', changed,
+                            frame.signals['HoldingCurrent'], frame.signals['CapacitorVoltage'],
+                            frame.signals['SupplyVoltageMeasured'])
 
     def _on_host_command(self, msg: can.Message) -> None:
         """A ValveCommand for our node on the bus: ours echoed, or another host's.
@@ -247,6 +262,20 @@ class ReceiveTracker:
         if mean is None or mean[2] != counter:
             return math.nan, math.nan
         return mean[0], mean[1]
+
+    def _on_drive(self, signals: dict, counter: int) -> str | None:
+        """Keep the ValveDrive; returns the mode's name if the mode in force changed."""
+        if self._drive_counter.check(counter) is CounterCheck.FROZEN:
+            self._reject(RejectReason.COUNTER_FROZEN.value,
+                         f'ValveDrive counter stuck at {counter}')
+            return None
+        self._tally.count('drive_frames')
+        previous, self.last_drive = self.last_drive, dict(signals)
+        self.last_drive_mono = time.monotonic()
+        mode = int(signals['DriveModeActive'])
+        if previous is None or int(previous['DriveModeActive']) != mode:
+            return DriveMode(mode).name.lower()
+        return None
 
     def _on_status(self, signals: dict, counter: int) -> None:
         if self._status_counter.check(counter) is CounterCheck.FROZEN:

@@ -27,7 +27,7 @@ from valve_driver_pkg.driver.bus_link import BusLink
 from valve_driver_pkg.driver.config import DriverConfig
 from valve_driver_pkg.driver.diagnostics import Tally
 from valve_driver_pkg.errors import ProtocolEncodeError
-from valve_driver_pkg.protocol.codec import COMMAND, PRESSURE, ValveCodec
+from valve_driver_pkg.protocol.codec import COMMAND, PRESSURE, DriveMode, ValveCodec
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
 
 __all__ = ['CommandResult', 'TransmitScheduler']
@@ -85,6 +85,7 @@ class TransmitScheduler:
         self.pwm_hz = min(max(config.pwm_frequency_hz, self._f_min), self._f_max)
         self.supply_pa = float(config.supply_pressure_pa)
         self.output_pa = float(config.output_pressure_pa)
+        self.drive_mode = DriveMode.parse(config.drive_mode)
         self.watchdog_tripped = False
         self.disable_pending = False     # deactivate(): one "disable" frame still to send
         self.last_sent_duty = 0.0
@@ -250,6 +251,31 @@ class TransmitScheduler:
             self._lock.notify_all()
             return True
 
+    def set_drive_mode(self, mode: str | DriveMode) -> DriveMode:
+        """Send ``mode`` in every ValveCommand from now on, the next frame at once.
+
+        The mode never changes what a stop does: duty 0, ``Enable=0`` (deactivate) and the
+        watchdog switch the coil off at once in either mode (docs/safety.md).
+
+        Returns
+        -------
+        DriveMode
+            The mode sent before.
+
+        Raises
+        ------
+        ValueError
+            ``mode`` is not a drive mode name (nothing changes).
+        """
+        new = mode if isinstance(mode, DriveMode) else DriveMode.parse(mode)
+        with self._lock:
+            old, self.drive_mode = self.drive_mode, new
+            if new != old:
+                self._command_dirty = True
+                self._command_gen += 1
+                self._lock.notify_all()
+        return old
+
     # --- I/O thread --------------------------------------------------------------------------
     def check_watchdog(self, now: float) -> bool:
         """Trip the duty watchdog if commands stopped; True if it tripped now."""
@@ -287,6 +313,7 @@ class TransmitScheduler:
             enable = self.active and not disabling
             duty = 0.0 if (self.watchdog_tripped or not enable) else self.duty
             freq = self.pwm_hz
+            mode = int(self.drive_mode)
             supply = min(max(self.supply_pa, self._p_lo), self._p_hi)
             output = min(max(self.output_pa, self._p_lo), self._p_hi)
             command_gen, pressure_gen = self._command_gen, self._pressure_gen
@@ -299,7 +326,8 @@ class TransmitScheduler:
             sent = self._send(link, COMMAND, {'Duty': duty, 'PwmFrequency': freq,
                                               'Enable': int(enable),
                                               'ClearFaults': int(clearing),
-                                              'HostId': self.host_id},
+                                              'HostId': self.host_id,
+                                              'DriveMode': mode},
                               self._tx_counter)
             with self._lock:
                 self._tx_counter = (self._tx_counter + 1) & 0xF

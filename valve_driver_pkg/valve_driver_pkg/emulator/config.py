@@ -1,12 +1,19 @@
-"""Settings and state names of the emulated controller firmware (ROS-free)."""
+"""Settings and state names of the emulated controller firmware (ROS-free).
+
+Drive modes (``ValveCommand.DriveMode``): the emulated hardware's own electronics (the
+stepper's ``ElectronicsConfig`` at construction; ``valve_controller_emulator``'s
+``--no-current-control`` / ``--no-capacitor`` describe hardware built without them) are
+the ``normal`` mode; :func:`bench_electronics` derives the ``bench`` mode from them.
+"""
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Protocol
 
 __all__ = ['StepperLike', 'ControllerState', 'EmulatorConfig', 'UNKNOWN_INJECTED_ID',
            'FLAG_HOLD_S', 'PERIOD_REFRESH_S', 'MIN_PRESSURE_PA', 'DEFAULT_COMMAND_TIMEOUT_S',
-           'clamp']
+           'clamp', 'bench_electronics']
 
 #: Id of the frames the ``UNKNOWN_ID`` fault puts on the bus (outside every protocol range).
 UNKNOWN_INJECTED_ID = 0x5A5
@@ -28,10 +35,32 @@ def clamp(value: float, low: float, high: float) -> float:
     return low if value < low else high if value > high else value
 
 
+def bench_electronics(normal):
+    """The ``bench`` drive mode of hardware whose normal electronics are ``normal``.
+
+    Boost, holding-current chopper and capacitor release pulse bypassed: the coil sees the
+    supply voltage for the whole main PWM high phase (as long as duty = 1) and 0 V in the
+    low phase, a bare-coil voltage step. Every other setting stays.
+
+    Parameters
+    ----------
+    normal : ElectronicsConfig
+        The electronics of the ``normal`` mode.
+
+    Returns
+    -------
+    ElectronicsConfig
+    """
+    return dataclasses.replace(normal, current_control=False, negative_voltage=False)
+
+
 class StepperLike(Protocol):
     """What the emulator needs of ``valve_model_pkg.model.ValveStepper``."""
 
     def set_command(self, duty: float, pwm_frequency_hz: float) -> None: ...
+    # optional (drive modes; without them the emulator stays in the normal mode):
+    # ``electronics`` (ElectronicsConfig), ``set_electronics(config)``,
+    # ``next_period_start_s`` (model time of the next main PWM period start, s)
     def set_pressures(self, supply_pa: float, output_pa: float) -> None: ...
     def advance_to(self, t_s: float) -> None: ...
     def sample(self): ...
@@ -71,7 +100,8 @@ class EmulatorConfig:
         (``stats['control_frames_ignored']``). The in-process :meth:`inject` API and
         ``--fault`` schedules work either way (they are the operator's own choice).
     supply_voltage_v : float
-        Drive supply voltage reported in the heartbeat [V].
+        Drive supply voltage reported in the heartbeat and in ``ValveDrive`` [V] (the
+        emulated hardware's supply; the model's is set where the stepper is built).
     overcurrent_a : float
         Coil current above which the overcurrent fault latches [A].
     max_burst : int

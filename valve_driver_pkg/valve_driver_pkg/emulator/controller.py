@@ -18,6 +18,16 @@ What the firmware does (see the package README for the frame table):
   command is remembered (``host_ids``); a second id within 1 s is logged.
 * Command watchdog: while enabled, no valid command for ``command_timeout_s`` closes the
   valve (duty 0) and sets ``CommandTimeout`` until the next valid command.
+* Drive mode (``ValveCommand.DriveMode``): ``normal`` runs the stepper's own electronics
+  (the emulated hardware's), ``bench`` bypasses boost, chopper and capacitor
+  (:func:`~valve_driver_pkg.emulator.config.bench_electronics`): the coil sees the supply
+  for as long as duty = 1. A change takes effect at the next main PWM period start, or at
+  once while duty 0 is in force (duty 0 commanded, disabled, watchdog, overcurrent); it
+  never energises the coil by itself (the model's ``set_electronics``). Duty 0 acts at
+  once in either mode.
+* ``ValveDrive`` every ``1/status_rate_hz`` and just before the telemetry frame of the
+  instant the mode in force changed: mode in force, capacitor voltage and holding-current
+  set points in force (0 = bypassed), supply voltage.
 * ``ValvePressure``: port pressures for the model.
 * ``ValveTelemetry`` every ``1/telemetry_rate_hz`` of model time: the sampled coil current,
   coil voltage and spool position (the controller's estimate; here the model's position).
@@ -46,14 +56,15 @@ import can
 
 from valve_driver_pkg.emulator.config import (FLAG_HOLD_S, MIN_PRESSURE_PA, PERIOD_REFRESH_S,
                                               UNKNOWN_INJECTED_ID, ControllerState,
-                                              EmulatorConfig, StepperLike, clamp)
+                                              EmulatorConfig, StepperLike,
+                                              bench_electronics, clamp)
 from valve_driver_pkg.emulator.fault_handling import FaultHandling
 from valve_driver_pkg.emulator.faults import FaultInjector
 from valve_driver_pkg.errors import FrameRejected, ProtocolEncodeError
-from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, PERIOD, PRESSURE, STATUS,
-                                             TELEMETRY, TELEMETRY_MEAN, CounterCheck,
-                                             CounterTracker,
-                                             EmulatorFault, ValveCodec)
+from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, DRIVE, PERIOD, PRESSURE,
+                                             STATUS, TELEMETRY, TELEMETRY_MEAN, CounterCheck,
+                                             CounterTracker, DriveMode, EmulatorFault,
+                                             ValveCodec)
 
 __all__ = ['StepperLike', 'EmulatorConfig', 'ControllerEmulator', 'ControllerState',
            'UNKNOWN_INJECTED_ID']
@@ -120,9 +131,22 @@ class ControllerEmulator(FaultHandling):
         self.stats = {'commands': 0, 'commands_rejected': 0, 'telemetry_sent': 0,
                       'telemetry_suppressed': 0, 'status_sent': 0, 'overruns': 0,
                       'send_errors': 0, 'control_frames': 0, 'control_frames_ignored': 0,
-                      'fault_clears': 0}
+                      'fault_clears': 0, 'drive_sent': 0}
         self.host_ids: dict[int, float] = {}   # HostId -> model time of its last command
         self._last_current_a = 0.0
+        # Drive modes: the stepper's electronics are the hardware's normal mode.
+        self._normal_electronics = getattr(stepper, 'electronics', None)
+        self._modes_supported = (self._normal_electronics is not None
+                                 and hasattr(stepper, 'set_electronics')
+                                 and hasattr(stepper, 'next_period_start_s'))
+        self.mode_requested = DriveMode.NORMAL
+        self.mode_active = DriveMode.NORMAL
+        self._applied_duty = 0.0
+        self._drive_counter = 0
+        self._drive_due = False      # the mode in force changed: ValveDrive before telemetry
+        self._drive_ranges = {name: self.codec.signal_range(DRIVE, name)
+                              for name in ('CapacitorVoltage', 'HoldingCurrent',
+                                           'SupplyVoltageMeasured')}
         stepper.reset()
         stepper.set_pressures(supply_pressure_pa, output_pressure_pa)
         stepper.set_command(0.0, self._pwm_hz)
@@ -201,16 +225,61 @@ class ControllerEmulator(FaultHandling):
         self._enabled = bool(signals['Enable'])
         self._duty = float(signals['Duty'])
         self._pwm_hz = float(signals['PwmFrequency'])
+        # The output first: a stop acts at once, and the mode then follows at once too.
         self._apply_output()
+        self._request_mode(DriveMode(int(signals.get('DriveMode', DriveMode.NORMAL))))
 
     def _apply_output(self) -> None:
         drive = self._enabled and not self._timed_out and not self._overcurrent
+        duty = self._duty if drive else 0.0
         try:
-            self.stepper.set_command(self._duty if drive else 0.0, self._pwm_hz)
+            self.stepper.set_command(duty, self._pwm_hz)
         except ValueError as err:   # the model refused the command: close the valve
             self._flag_until['range'] = self._model_t + FLAG_HOLD_S
             logger.warning('emulator: command not applied (%s); valve closed', err)
+            duty = 0.0
             self.stepper.set_command(0.0, self._pwm_hz if self._pwm_hz > 0 else 50.0)
+        self._applied_duty = duty
+        if duty == 0.0:   # duty 0 is in force at once: a requested mode may switch now
+            self._switch_mode()
+
+    # --- drive mode --------------------------------------------------------------------------
+    def _request_mode(self, mode: DriveMode) -> None:
+        """A command asked for ``mode``: now if duty 0 is in force, else at a period start."""
+        if mode != self.mode_requested:
+            self.mode_requested = mode
+            if not self._modes_supported and mode != DriveMode.NORMAL:
+                logger.warning('emulator: drive mode %s requested, but the model cannot '
+                               'switch its electronics; staying normal', mode.name.lower())
+            else:
+                logger.info('emulator: drive mode %s requested', mode.name.lower())
+        if self._applied_duty == 0.0:
+            self._switch_mode()
+
+    def _switch_mode(self) -> None:
+        """Put the requested drive mode in force now (if it differs and can)."""
+        mode = self.mode_requested
+        if mode == self.mode_active or not self._modes_supported:
+            return
+        normal = self._normal_electronics
+        self.stepper.set_electronics(normal if mode == DriveMode.NORMAL
+                                     else bench_electronics(normal))
+        self.mode_active = mode
+        self._drive_due = True
+        logger.info('emulator: drive mode %s in force at t = %.4f s', mode.name.lower(),
+                    self._model_t)
+
+    def _switch_mode_at_period_start(self, t_s: float) -> None:
+        """A requested mode change waits for the first main PWM period start up to ``t_s``."""
+        if self.mode_requested == self.mode_active or not self._modes_supported:
+            return
+        start = float(self.stepper.next_period_start_s)
+        if start > t_s:
+            return
+        if start > self._model_t:
+            self.stepper.advance_to(start)
+            self._model_t = start
+        self._switch_mode()
 
     # --- model time --------------------------------------------------------------------------
     def step(self, t_s: float, max_burst: int = 0) -> int:
@@ -253,6 +322,7 @@ class ControllerEmulator(FaultHandling):
                 instants += 1
                 while self._next_status_t <= t_k + 1e-12:
                     self._send_status()
+                    self._send_drive()
                     self._next_status_t += self._status_period_s
             self._advance(t_s)
             return instants
@@ -260,6 +330,7 @@ class ControllerEmulator(FaultHandling):
     def _advance(self, t_s: float) -> None:
         if t_s > self._model_t:
             self._check_watchdog(t_s)
+            self._switch_mode_at_period_start(t_s)
             self.stepper.advance_to(t_s)
             self._model_t = t_s
         for fault in self.faults.expire(self._model_t):
@@ -336,6 +407,8 @@ class ControllerEmulator(FaultHandling):
             self._apply_output()
             logger.warning('emulator: overcurrent %.3f A; output off until ClearFaults', current)
         position = float(s.spool_position_m) if self.config.position_estimate else 0.0
+        if self._drive_due:
+            self._send_drive()
         self._send_period(s)
         self._send_mean(*mean)
         signals = {
@@ -372,6 +445,27 @@ class ControllerEmulator(FaultHandling):
         self._period_counter = (self._period_counter + 1) & 0xF
         if self._send(msg):
             self._period_sent, self._period_sent_t = key, self._model_t
+
+    def _send_drive(self) -> None:
+        """``ValveDrive``: the drive electronics in force and the supply voltage."""
+        if self._silent():
+            return
+        electronics = getattr(self.stepper, 'electronics', None)
+        ranges = self._drive_ranges
+        capacitor = (electronics.capacitor_voltage_v
+                     if electronics is not None and electronics.negative_voltage else 0.0)
+        holding = (electronics.holding_current_a
+                   if electronics is not None and electronics.current_control else 0.0)
+        signals = {'DriveModeActive': int(self.mode_active),
+                   'CapacitorVoltage': clamp(capacitor, *ranges['CapacitorVoltage']),
+                   'HoldingCurrent': clamp(holding, *ranges['HoldingCurrent']),
+                   'SupplyVoltageMeasured': clamp(self.config.supply_voltage_v,
+                                                  *ranges['SupplyVoltageMeasured'])}
+        msg = self.codec.encode(DRIVE, signals, self._drive_counter, timestamp=time.time())
+        self._drive_counter = (self._drive_counter + 1) & 0xF
+        if self._send(msg):
+            self._drive_due = False
+            self.stats['drive_sent'] += 1
 
     def _send_status(self) -> None:
         if self._silent():

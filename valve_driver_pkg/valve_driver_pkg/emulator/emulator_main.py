@@ -84,20 +84,31 @@ def build_parser() -> argparse.ArgumentParser:
     model = p.add_argument_group('valve model')
     model.add_argument('--params-file', default='',
                        help='valve parameter YAML (default: valve_model_pkg config/valve.yaml)')
-    model.add_argument('--supply-voltage-v', type=float, default=24.0)
+    # The emulated hardware. A bench run needs none of the two --no-* flags: the host asks
+    # for the bench mode in ValveCommand.DriveMode (driver parameter drive_mode:=bench).
+    model.add_argument('--supply-voltage-v', type=float, default=24.0,
+                       help='drive supply voltage of the emulated hardware [V] (default 24)')
     model.add_argument('--no-current-control', action='store_true',
-                       help='no current-control chopper (bare PWM voltage)')
+                       help='hardware built without the boost/holding-current chopper (its '
+                            'normal mode is bare PWM voltage); the bench mode is asked for '
+                            'over the bus (ValveCommand.DriveMode), not with this flag')
     model.add_argument('--no-capacitor', action='store_true',
-                       help='no negative release voltage from the capacitor')
+                       help='hardware built without the capacitor\'s negative release pulse; '
+                            'see --no-current-control for the bench mode')
     model.add_argument('--supply-pressure-pa', type=float, default=400_000.0,
                        help='supply pressure, gauge [Pa], until a ValvePressure frame arrives')
     model.add_argument('--output-pressure-pa', type=float, default=0.0,
                        help='output pressure, gauge [Pa], until a ValvePressure frame arrives')
     model.add_argument('--effect', action='append', default=[], metavar='NAME',
                        help='switch on a physical effect the nominal model lacks '
-                            '(repeatable): magnetic_saturation, eddy_current, '
+                            '(repeatable). The identification\'s own candidate '
+                            'equations: magnetic_saturation, eddy_current, '
                             'coulomb_friction, coil_heating, leakage_inductance, '
-                            'end_stop_bounce')
+                            'end_stop_bounce. Emulator forms written independently of '
+                            'the candidates (not candidate equations; docs/effects.md): '
+                            'saturation_tanh (tanh flux-linkage law, fixed saturation '
+                            'flux; a form of magnetic_saturation), eddy_ladder (two-'
+                            'time-constant ladder; a form of eddy_current)')
     model.add_argument('--effect-param', action='append', default=[], metavar='FIELD=VALUE',
                        help='value of an effect parameter (repeatable), e.g. '
                             'thermal_resistance_k_per_w=80')
@@ -135,10 +146,14 @@ def apply_effects(params, effects: list[str], values: list[str]):
     ----------
     params : ValveParameters
     effects : list of str
-        Effect names (``valve_model_pkg.model.EFFECTS``).
+        Effect names: the identification's candidates (``valve_model_pkg.model.EFFECTS``)
+        or the emulator forms written independently of them
+        (``valve_model_pkg.model.parameters.EMULATOR_EFFECTS``: ``saturation_tanh``,
+        ``eddy_ladder``).
     values : list of str
-        ``FIELD=VALUE`` items; a field of a named effect without a value gets
-        :data:`EFFECT_DEMO_FRACTION` of its identification range (switching field only).
+        ``FIELD=VALUE`` items; a field of a named candidate effect without a value gets
+        :data:`EFFECT_DEMO_FRACTION` of its identification range (switching field only),
+        the fields of an emulator form their ``demo`` values (visible in a 24 V step).
 
     Raises
     ------
@@ -146,6 +161,7 @@ def apply_effects(params, effects: list[str], values: list[str]):
         Unknown effect or field, a bad number, or a field of an effect not named.
     """
     from valve_model_pkg.model import EFFECTS
+    from valve_model_pkg.model.parameters import EMULATOR_EFFECTS
 
     changes: dict[str, float] = {}
     for item in values:
@@ -158,8 +174,15 @@ def apply_effects(params, effects: list[str], values: list[str]):
             raise ValueError(f'--effect-param {item!r}: {text!r} is not a number') from err
     named_fields: set[str] = set()
     for name in effects:
+        if name in EMULATOR_EFFECTS:
+            spec = EMULATOR_EFFECTS[name]
+            named_fields.update(spec.fields)
+            for field, value in spec.demo.items():
+                changes.setdefault(field, value)
+            continue
         if name not in EFFECTS:
-            raise ValueError(f'unknown effect {name!r}; expected one of {", ".join(EFFECTS)}')
+            raise ValueError(f'unknown effect {name!r}; expected one of {", ".join(EFFECTS)} '
+                             f'or an emulator form {", ".join(EMULATOR_EFFECTS)}')
         spec = EFFECTS[name]
         named_fields.update(spec.fields)
         switch = spec.fields[0]

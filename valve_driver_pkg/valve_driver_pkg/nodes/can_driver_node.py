@@ -17,6 +17,12 @@ apart):
 - serves ``~/clear_faults`` (std_srvs/Trigger): sends ``ClearFaults`` once, waits for the
   controller's next heartbeat and answers what was cleared and what is still active
   (success = no latched fault left).
+- parameter ``drive_mode`` (``normal`` | ``bench``, checked at start-up and on every set;
+  settable at run time, the change is logged): sent as ``ValveCommand.DriveMode`` in every
+  command frame; the controller's ``ValveDrive`` report (mode in force, holding-current and
+  capacitor set points, supply voltage) is published in the controller status of
+  ``/diagnostics``. Stops (duty 0, deactivate, watchdog, shutdown) act at once in either
+  mode.
 
 Duty commands are counted (received, rejected, on the bus, superseded, lost by their
 ``sequence`` per ``header.frame_id``, stale: older than ``stale_command_s`` from their
@@ -46,7 +52,7 @@ from dataclasses import dataclass
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
+                                ParameterType, SetParametersResult)
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleState, Node, TransitionCallbackReturn
 from rclpy.task import Future
@@ -57,6 +63,7 @@ from valve_msgs.msg import DutyCommand, ValveState
 from valve_driver_pkg.driver.config import DriverConfig, setting
 from valve_driver_pkg.driver.core import CanDriverCore
 from valve_driver_pkg.errors import ValveDriverError
+from valve_driver_pkg.protocol.codec import DriveMode
 from valve_model_pkg.interface import (TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
                                        TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
                                        TOPIC_SUPPLY_PRESSURE, gauge_from_absolute)
@@ -122,6 +129,10 @@ class CanDriverNode(Node):
         self._hardware_id = ''
         self._status_prefix = self.get_fully_qualified_name().lstrip('/')
         self._clear_service = None
+        # A bad drive_mode refuses the start (exit 2) with the value and the choices.
+        DriveMode.parse(self.get_parameter('drive_mode').value)
+        self.add_on_set_parameters_callback(self._check_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
 
     def _read(self, settings: type) -> object:
         """The typed snapshot of a settings dataclass from the parameters."""
@@ -224,6 +235,28 @@ class CanDriverNode(Node):
         if self._diag_pub is not None:
             self.destroy_publisher(self._diag_pub)
             self._diag_pub = None
+
+    # --- parameters --------------------------------------------------------------------------
+    def _check_parameters(self, parameters: list) -> SetParametersResult:
+        """Refuse a drive_mode that is not a drive mode (the others: as declared)."""
+        for param in parameters:
+            if param.name == 'drive_mode':
+                try:
+                    DriveMode.parse(param.value)
+                except ValueError as err:
+                    return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters: list) -> None:
+        """drive_mode acts at once (the next ValveCommand); the others at configure."""
+        for param in parameters:
+            if param.name != 'drive_mode':
+                continue
+            core = self._core
+            if core is not None:
+                core.set_drive_mode(param.value)   # logs the change
+            else:
+                self.get_logger().info(f'drive_mode {param.value}: sent once configured')
 
     # --- inputs ------------------------------------------------------------------------------
     def _on_duty(self, msg: DutyCommand) -> None:

@@ -1,8 +1,8 @@
 """ROS-free CAN protocol of the valve controller: DBC file, cantools codec, checksums."""
-from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, PERIOD, PRESSURE, STATUS,
-                                             TELEMETRY, TELEMETRY_MEAN, CounterCheck,
-                                             CounterTracker,
-                                             DecodedFrame, EmulatorFault, RejectReason,
+from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, DRIVE, PERIOD, PRESSURE,
+                                             STATUS, TELEMETRY, TELEMETRY_MEAN, CounterCheck,
+                                             CounterTracker, DecodedFrame, DriveMode,
+                                             EmulatorFault, RejectReason,
                                              ValveCodec, crc8, default_dbc_path,
                                              fault_injection_dbc_path)
 from valve_driver_pkg.protocol.error_frames import (BusCondition, ErrorFrameInfo,
@@ -10,7 +10,7 @@ from valve_driver_pkg.protocol.error_frames import (BusCondition, ErrorFrameInfo
 
 __all__ = [
     'COMMAND', 'TELEMETRY', 'TELEMETRY_MEAN', 'PERIOD', 'PRESSURE', 'STATUS', 'CONTROL',
-    'ValveCodec',
+    'DRIVE', 'DriveMode', 'ValveCodec',
     'DecodedFrame', 'RejectReason', 'CounterTracker', 'CounterCheck', 'EmulatorFault', 'crc8',
     'default_dbc_path', 'fault_injection_dbc_path', 'BusCondition', 'ErrorFrameInfo',
     'make_error_frame', 'parse_error_frame',

@@ -13,9 +13,14 @@ tools (``include_test_messages=True``). Every frame is 8 bytes with the same tra
   byte first; the four bytes of a 29-bit id) followed by data bytes 0..6. The id is part
   of the checksum so a frame of another node or message can never pass for ours.
 
-Every message has an 11-bit id except ``ValveTelemetryMean`` (the interval means, 1 kHz):
-the 11-bit block beside CANopen is full (6 messages x 16 nodes), so it uses the 29-bit ids
-0x16900 + node, which no CANopen device uses (:data:`EXTENDED_MESSAGE_NAMES`).
+Every message has an 11-bit id except ``ValveTelemetryMean`` (the interval means, 1 kHz)
+and ``ValveDrive`` (the drive electronics in force, 10 Hz): the 11-bit block beside CANopen
+is full (6 messages x 16 nodes), so they use the 29-bit ids 0x16900 + node and 0x16910 +
+node, which no CANopen device uses (:data:`EXTENDED_MESSAGE_NAMES`).
+
+The drive mode (``ValveCommand.DriveMode``, :class:`DriveMode`) came with protocol 2.1; a
+caller that leaves it out encodes 0 = ``Normal``, what a 2.0 controller does
+(:data:`SIGNAL_DEFAULTS`). Every other signal must be given.
 
 Encoding is strict: a signal outside its DBC range raises :class:`ProtocolEncodeError`
 naming the signal, the limit and the value (callers clamp first; see the driver core).
@@ -39,7 +44,8 @@ from valve_driver_pkg.errors import DbcError, FrameRejected, ProtocolEncodeError
 
 __all__ = [
     'COMMAND', 'TELEMETRY', 'TELEMETRY_MEAN', 'PERIOD', 'PRESSURE', 'STATUS', 'CONTROL',
-    'MESSAGE_NAMES', 'TEST_MESSAGE_NAMES', 'EXTENDED_MESSAGE_NAMES', 'MAX_NODE_ID',
+    'DRIVE', 'DriveMode', 'SIGNAL_DEFAULTS', 'MESSAGE_NAMES', 'TEST_MESSAGE_NAMES',
+    'EXTENDED_MESSAGE_NAMES', 'MAX_NODE_ID',
     'FRAME_LENGTH', 'RejectReason', 'EmulatorFault',
     'DecodedFrame', 'ValveCodec', 'CounterCheck', 'CounterTracker', 'crc8', 'frame_checksum',
     'default_dbc_path', 'fault_injection_dbc_path',
@@ -51,11 +57,15 @@ TELEMETRY_MEAN = 'ValveTelemetryMean'  # controller -> host, 1 kHz interval mean
 PERIOD = 'ValvePeriod'            # controller -> host, per PWM period / on change + 10 Hz
 PRESSURE = 'ValvePressure'        # host -> controller, 10 Hz + on change
 STATUS = 'ValveStatus'            # controller -> host, 10 Hz heartbeat
+DRIVE = 'ValveDrive'              # controller -> host, 10 Hz + on change (29-bit id)
 CONTROL = 'EmulatorControl'       # tester -> emulator, fault injection (valve_test.dbc)
 #: The messages of the protocol (valve.dbc), the only ones the driver knows.
-MESSAGE_NAMES = (COMMAND, TELEMETRY, PERIOD, PRESSURE, STATUS, TELEMETRY_MEAN)
+MESSAGE_NAMES = (COMMAND, TELEMETRY, PERIOD, PRESSURE, STATUS, TELEMETRY_MEAN, DRIVE)
 #: Messages with a 29-bit id (all others: 11-bit).
-EXTENDED_MESSAGE_NAMES = (TELEMETRY_MEAN,)
+EXTENDED_MESSAGE_NAMES = (TELEMETRY_MEAN, DRIVE)
+#: Signals added after protocol 2.0 and their value when a caller leaves them out (what a
+#: controller of the older protocol does): ``DriveMode`` 0 = Normal.
+SIGNAL_DEFAULTS = {COMMAND: {'DriveMode': 0}}
 #: Test-only messages (valve_test.dbc): the emulator and test tools add them.
 TEST_MESSAGE_NAMES = (CONTROL,)
 
@@ -77,6 +87,33 @@ class RejectReason(str, enum.Enum):
     COUNTER_FROZEN = 'counter_frozen'
     OUT_OF_RANGE = 'out_of_range'
     FRAME_TYPE = 'frame_type'          # remote, extended-id or CAN FD frame
+
+
+class DriveMode(enum.IntEnum):
+    """Values of ``ValveCommand.DriveMode`` and ``ValveDrive.DriveModeActive`` (VAL_ table).
+
+    ``NORMAL``: the valve's drive electronics (boost, holding-current chopper, capacitor
+    release pulse). ``BENCH``: boost, chopper and capacitor bypassed; the coil sees the
+    supply voltage for the whole main PWM high phase (as long as duty = 1).
+    """
+
+    NORMAL = 0
+    BENCH = 1
+
+    @classmethod
+    def parse(cls, text: str) -> DriveMode:
+        """The mode named ``text`` (``'normal'`` or ``'bench'``, any case).
+
+        Raises
+        ------
+        ValueError
+            Any other name; the message lists the valid ones.
+        """
+        try:
+            return cls[str(text).strip().upper()]
+        except KeyError:
+            names = ', '.join(repr(m.name.lower()) for m in cls)
+            raise ValueError(f'drive mode {text!r} is not one of {names}') from None
 
 
 class EmulatorFault(enum.IntEnum):
@@ -206,14 +243,17 @@ class ValveCodec:
             self._ranges[name] = tuple(
                 (s.name, s.minimum, s.maximum) for s in message.signals
                 if s.name not in ('Counter', 'Checksum'))
-        spans = sorted((base, base + MAX_NODE_ID, name) for name, base in self._base_ids.items()
-                       if name not in EXTENDED_MESSAGE_NAMES)
-        for (lo_a, hi_a, a), (lo_b, _, b) in zip(spans, spans[1:]):
-            if lo_b <= hi_a:
-                raise DbcError(f'DBC {self.dbc_path}: id ranges of {a} and {b} overlap '
-                               f'(each message needs {MAX_NODE_ID + 1} ids)')
-        if spans[-1][1] > 0x7FF:
-            raise DbcError(f'DBC {self.dbc_path}: {spans[-1][2]} ids exceed 11 bits')
+        for extended in (False, True):
+            spans = sorted((base, base + MAX_NODE_ID, name)
+                           for name, base in self._base_ids.items()
+                           if (name in EXTENDED_MESSAGE_NAMES) == extended)
+            for (lo_a, hi_a, a), (lo_b, _, b) in zip(spans, spans[1:]):
+                if lo_b <= hi_a:
+                    raise DbcError(f'DBC {self.dbc_path}: id ranges of {a} and {b} overlap '
+                                   f'(each message needs {MAX_NODE_ID + 1} ids)')
+            if spans and spans[-1][1] > (0x1FFFFFFF if extended else 0x7FF):
+                raise DbcError(f'DBC {self.dbc_path}: {spans[-1][2]} ids exceed '
+                               f'{29 if extended else 11} bits')
         # id -> (message name, node id) for every id of the protocol, for O(1) lookups.
         # (29-bit ids are above 0x7FF, so one table holds both kinds.)
         self._by_id = {base + n: (name, n) for name, base in self._base_ids.items()
@@ -266,7 +306,8 @@ class ValveCodec:
         name : str
             DBC message name.
         signals : Mapping[str, float]
-            Physical values of every signal except ``Counter`` and ``Checksum``.
+            Physical values of every signal except ``Counter`` and ``Checksum`` (and the
+            later signals of :data:`SIGNAL_DEFAULTS`, which default to their old meaning).
         counter : int
             Rolling counter value, taken modulo 16.
         node_id : int | None
@@ -284,7 +325,7 @@ class ValveCodec:
             the limit and the value (cantools' strict check).
         """
         message = self._messages[name]
-        values = dict(signals)
+        values = {**SIGNAL_DEFAULTS.get(name, {}), **signals}
         values['Counter'] = counter & 0xF
         values['Checksum'] = 0
         try:

@@ -140,6 +140,29 @@ class ValveStepper:
         _k.command(self._d, self._e, float(duty), 1.0 / float(pwm_frequency_hz))
         self._pending = (float(duty), float(pwm_frequency_hz))
 
+    @property
+    def next_period_start_s(self) -> float:
+        """Model time of the next main PWM period start, s (where a command takes effect)."""
+        return float(self._d[_k.D_NEXT_BOUNDARY])
+
+    def set_electronics(self, electronics: ElectronicsConfig) -> None:
+        """Switch the drive electronics at the current model time (a controller's drive mode).
+
+        The caller chooses the instant (the CAN emulator: a period start, or at once while
+        duty 0 is in force). The state is kept: a capacitor pulse already running decays as
+        it started. If the main PWM is high, its high phase restarts under the new
+        electronics as at a rising edge (without current control: the supply from now on;
+        with it: a boost, then the chopper); the capacitor keeps charging from its edge. A
+        low main PWM stays low, so a switch never energises the coil by itself.
+        """
+        self._electronics = electronics
+        self._e = electronics.to_vector()
+        d = self._d
+        if d[_k.D_MAIN_ON] != 0.0:
+            vc_on, t_on = d[_k.D_VC_ON], d[_k.D_T_ON]
+            _k._rising_edge(float(d[_k.D_T]), self._y, self._p, d, self._e)
+            d[_k.D_VC_ON], d[_k.D_T_ON] = vc_on, t_on
+
     def set_pressures(self, supply_pa: float, output_pa: float = 0.0) -> None:
         """Set the supply and output gauge pressures in Pa (effective immediately)."""
         _check_pressures(supply_pa, output_pa)
