@@ -36,7 +36,9 @@ from .truth import TruthValve, perturbed, simulate_truth
 LISTED_EFFECTS = ('magnetic_saturation', 'eddy_current', 'coulomb_friction', 'coil_heating',
                   'leakage_inductance', 'end_stop_bounce')
 OUTSIDE_EFFECT = 'supply_ripple'
-CASES = ('paper', 'none') + LISTED_EFFECTS + (OUTSIDE_EFFECT,)
+#: A second effect outside the list, of another form (a drop in the voltage balance).
+OUTSIDE_EFFECT_2 = 'diode_drop'
+CASES = ('paper', 'none') + LISTED_EFFECTS + (OUTSIDE_EFFECT, OUTSIDE_EFFECT_2)
 
 FULL_SCALE_A = 2.5
 NOISE_FRACTION = 0.005
@@ -78,6 +80,7 @@ def effect_changes(effect: str) -> dict[str, float]:
         'end_stop_bounce': {'restitution': 0.5},
         'supply_ripple': {'ripple_fraction': 0.08, 'ripple_hz': 100.0,
                           'source_resistance_ohm': 0.3},
+        'diode_drop': {'diode_drop_v': 1.0, 'diode_knee_a': 0.02},
     }
     if effect not in table:
         raise ValueError(f'unknown case {effect!r}; choose from {sorted(table)}')
@@ -154,7 +157,8 @@ def generate_case(out_dir: str | Path, case: str, *, seed: int = 1, long: bool |
     out_dir : str or pathlib.Path
         Parent directory; the case gets a sub-directory of its name.
     case : str
-        ``paper``, ``none``, one of :data:`LISTED_EFFECTS` or ``supply_ripple``.
+        ``paper``, ``none``, one of :data:`LISTED_EFFECTS`, ``supply_ripple`` or
+        ``diode_drop``.
     seed : int
         Seeds the valve instance and the noise (different cases with one seed still get
         different valves: the case name is mixed in).

@@ -22,12 +22,15 @@ leakage_inductance  a constant series inductance ``L_s`` that makes no force
 end_stop_bounce     Newtonian impact with restitution ``e`` at both end stops
 ==================  ========================================================================
 
-and one effect outside that list:
+and two effects outside that list:
 
 ==================  ========================================================================
 supply_ripple       the bench supply carries a ripple (100 Hz, 8 % in the generated case) and
                     sags with the current through a source resistance; the CSV's voltage
                     column logs the commanded voltage, so the model never sees it
+diode_drop          a diode-like drop in the driver path (the switch while on, the freewheel
+                    diode while off):
+                    ``V_d (1 - exp(-|i| / i_k)) sign(i)`` against the current, at all times
 ==================  ========================================================================
 """
 from __future__ import annotations
@@ -73,6 +76,9 @@ class TruthValve:
     ripple_fraction: float = 0.0
     ripple_hz: float = 100.0
     source_resistance_ohm: float = 0.0
+    # a second effect outside the list (a diode-like drop with a knee current)
+    diode_drop_v: float = 0.0
+    diode_knee_a: float = 0.02
 
     def inductance(self, x: float) -> float:
         """Position-dependent inductance of eq. (4) [H]."""
@@ -140,12 +146,15 @@ class _Truth:
     def supply(self, t: float, v_cmd: float, i: float) -> float:
         """Voltage that really reaches the coil (the outside-the-list effect)."""
         v = self.v
+        drop = 0.0
+        if v.diode_drop_v:
+            drop = math.copysign(v.diode_drop_v * -math.expm1(-abs(i) / v.diode_knee_a), i)
         if v.ripple_fraction == 0.0 and v.source_resistance_ohm == 0.0:
-            return v_cmd
+            return v_cmd - drop
         ripple = 1.0 + v.ripple_fraction * math.sin(2.0 * math.pi * v.ripple_hz * t)
         # The sag only exists while the supply drives the coil (not in freewheel at 0 V).
         sag = v.source_resistance_ohm * i if v_cmd != 0.0 else 0.0
-        return v_cmd * ripple - sag
+        return v_cmd * ripple - sag - drop
 
     def electrical(self, t: float, y: np.ndarray, v_cmd: float, vel: float
                    ) -> tuple[float, float, float]:

@@ -122,6 +122,8 @@ class Diagnosis:
     #: Judged on (set by select): data and the baseline's noise, for the second effect.
     judge: object = None
     base_mae: dict | None = None
+    #: The open-ended sparse augmentation (:mod:`.unlisted`), when it was tried.
+    unlisted: object = None
 
 
 def _stack(data: FitData, arrays: list[np.ndarray]) -> np.ndarray:
@@ -325,7 +327,7 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
     struct_base = _structured_energy(judge, baseline, noise)
     for c in candidates:
         if not c.refitted or c.params is None:
-            c.reason = 'not refitted (signature too weak)'
+            c.reason = c.reason or 'not refitted (signature too weak)'
             continue
         p = len(c.fields)
         aug_fit = fit.errors(c.params)

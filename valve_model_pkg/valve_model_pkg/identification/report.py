@@ -7,9 +7,12 @@
                     "validation": {...} | null, "residual": {...}, "sensitivity": {...}},
       "augmented": {... the same, for the model with the selected effect (== baseline
                     when the effect is "none")},
-      "diagnosis": {"effect": "<name>|none", "confidence": "high|medium|low",
+      "diagnosis": {"effect": "<name>|unlisted|none", "confidence": "high|medium|low",
                     "evidence": [...], "numbers": {...}, "candidates": [...ranked...],
                     "unexplained_structure": bool},
+      "unlisted":  {"tried", "claimed", "terms", "coefficients", "errors": {
+                    "baseline_fit", "baseline_validation", "augmented_fit",
+                    "augmented_validation"}, ...} | null,
       "files": {...}, "timings_s": {...}, "units": {...}
     }
 
@@ -17,6 +20,12 @@
 parameters are SI with the names of ``ValveParameters``. ``params.yaml`` is the full
 parameter set in the nested form ``load_parameters`` reads, so ``valve_simulate`` and
 ``valve_map`` use the identified (and augmented) model directly.
+
+``unlisted`` is the open-ended sparse term of :mod:`.unlisted`, tried when no listed effect
+explains a structured residual; when it pays the effect is ``unlisted``. The model cannot
+simulate such a term, so it is never written to ``params.yaml`` (which then holds the
+baseline) and ``augmented`` stays the baseline; its errors before and after are in
+``unlisted.errors``.
 """
 from __future__ import annotations
 
@@ -91,10 +100,12 @@ def report_dict(ident: Identification) -> dict[str, object]:
             'second_effect': d.second,
             'remaining_structure': d.remaining,
         }
+    unl = getattr(d, 'unlisted', None) if d is not None else None
     return _clean({
         'baseline': _stage_dict(ident.baseline),
         'augmented': _stage_dict(ident.augmented),
         'diagnosis': diag,
+        'unlisted': unl.to_json() if unl is not None else None,
         'start_parameters': _parameters(ident.start),
         'table2_measured': TABLE2_MEASURED,
         'search_bounds': {b.name: [b.low, b.high] for b in ident.space.bounds},
@@ -138,7 +149,9 @@ def _plot(ident: Identification, out: Path) -> list[str]:
     sets = [('fit', ident.fit_files, ident.sim_fit)]
     if ident.val_files:
         sets.append(('validation', ident.val_files, ident.sim_val))
-    aug = ident.diagnosis is not None and ident.diagnosis.effect != 'none'
+    aug = ident.diagnosis is not None and ident.diagnosis.effect not in ('none', 'unlisted')
+    unl = getattr(ident.diagnosis, 'unlisted', None) if ident.diagnosis is not None else None
+    unl_cur = unl.currents if unl is not None and unl.claimed else {}
     for role, files, sims in sets:
         for k, m in enumerate(files):
             fig, ax = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
@@ -156,6 +169,12 @@ def _plot(ident: Identification, out: Path) -> list[str]:
                 ax[1].plot(t_ms, r_a * 1e3, '-', lw=0.4, alpha=0.35, color='C1')
                 ax[1].plot(t_ms, _smooth(m.t_s, r_a) * 1e3, '-', lw=1.6, color='C1',
                            label='augmented residual (moving mean)')
+            if unl_cur.get(role):
+                lab = 'baseline + unlisted term (linearised; not in params.yaml)'
+                ax[0].plot(t_ms, unl_cur[role][k], '--', lw=1.2, label=lab)
+                r_u = m.current_a - unl_cur[role][k]
+                ax[1].plot(t_ms, _smooth(m.t_s, r_u) * 1e3, '-', lw=1.6, color='C2',
+                           label='residual with the unlisted term (moving mean)')
             ax[0].set_ylabel('current [A]')
             ax[0].set_title(f'{role}: {m.name}')
             ax[0].legend(loc='lower right')
@@ -175,6 +194,49 @@ def _fmt(v: float | None, scale: float = 1.0, digits: int = 4) -> str:
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return '-'
     return f'{v * scale:.{digits}g}'
+
+
+def _unlisted_section(u: dict | None) -> list[str]:
+    """report.md lines on the open-ended sparse term (empty when it was not tried)."""
+    if not u:
+        return []
+    lines = ['', '## Effect outside the list: sparse term in the voltage balance', '']
+    if not u['tried']:
+        return lines + [f'Not tried: {u["reason"]}.']
+    lines += [f'Equation searched: `{u["equation"]}`; the terms are evaluated on the '
+              'model\'s simulation and the baseline parameters move with them (a joint '
+              f'least-squares step, simulated). Rule: {u["rule"]}.', '']
+    verdict = ('**Claimed as `unlisted`** (confidence ' + str(u['confidence']) + ')'
+               if u['claimed'] else '**Not claimed**: ' + str(u['reason']))
+    lines += [verdict + '. No listed effect is named for it.', '']
+    if u['terms']:
+        lines += ['| term | coefficient | unit |', '|---|---|---|']
+        for n in u['terms']:
+            lines.append(f'| `{n}` | {_fmt(u["coefficients"][n])} | '
+                         f'{u["coefficient_units"][n]} |')
+        lines.append('')
+    moved = u.get('baseline_parameters_with_term') or {}
+    if moved and u['claimed']:
+        lines += ['Baseline parameters with the term: ' + ', '.join(
+            f'{PAPER_SYMBOLS.get(n, n)} {_fmt(v)}' for n, v in moved.items()
+            if n in PAPER_SYMBOLS) + ' (report.json `unlisted`).', '']
+    e = u.get('errors') or {}
+    if e:
+        lines += ['| model | data | IAE [A s] | RMSE [mA] | NRMSE [%] |',
+                  '|---|---|---|---|---|']
+        for key, label in (('baseline_fit', ('baseline', 'fit')),
+                           ('augmented_fit', ('baseline + term', 'fit')),
+                           ('baseline_validation', ('baseline', 'validation')),
+                           ('augmented_validation', ('baseline + term', 'validation'))):
+            f = e.get(key)
+            if f:
+                lines.append(f'| {label[0]} | {label[1]} | {_fmt(f["iae"])} | '
+                             f'{_fmt(f["rmse"], 1e3)} | {_fmt(f["nrmse_pct"], 1, 3)} |')
+        lines.append('')
+    lines.append('The model (kernel) cannot simulate this term, so its coefficients are not '
+                 'in params.yaml (it holds the baseline parameters); they are in report.json '
+                 'under `unlisted`.')
+    return lines
 
 
 def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
@@ -255,10 +317,11 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
                      f'{_fmt(b["parameters"]["equivalent_gap_m"])} | '
                      f'{_fmt(a["parameters"]["equivalent_gap_m"])} | '
                      f'+-{_fmt(gap["ci95_pct"], 1, 2)} % |')
-    if d is not None and d['effect'] != 'none':
+    if d is not None and d['effect'] in EFFECTS:
         for f in EFFECTS[d['effect']].fields:
             lines.append(f'| {f} | ({d["effect"]}) | - | neutral | neutral | '
                          f'{_fmt(a["parameters"][f])} | |')
+    lines += _unlisted_section(rep.get('unlisted'))
     lines += ['', '## What the data pin down', '']
     if sens:
         lines.append(f'Pinned down (95 % CI below 5 %): {", ".join(sens["pinned_down"])}.')
@@ -304,7 +367,8 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
             lines += [f'  - {n}' for n in f['notes']]
     t = rep['timings_s']
     lines += ['', f'Run time {t.get("total", 0):.1f} s, {rep["simulations"]} simulations.',
-              '']
+              '', 'Time split: ' + ', '.join(f'{k} {v:.1f} s' for k, v in t.items()
+                                             if k != 'total') + '.', '']
     return '\n'.join(lines)
 
 
@@ -327,6 +391,9 @@ def write_report(ident: Identification, out_dir: str | Path, *, plots: bool = Tr
               + ''.join(f'#   fit: {m.source}\n' for m in ident.fit_files)
               + ''.join(f'#   validation: {m.source}\n' for m in ident.val_files)
               + f'# Diagnosis: {rep["diagnosis"]["effect"] if rep["diagnosis"] else "-"}\n'
+              + ('# The unlisted term is not in this file (the model cannot simulate it): '
+                 'see report.json "unlisted".\n'
+                 if rep['diagnosis'] and rep['diagnosis']['effect'] == 'unlisted' else '')
               + '# Loadable with valve_model_pkg.model.load_parameters (valve_simulate, '
               'valve_map).\n')
     body = yaml.safe_dump(_clean(ident.augmented.params.to_dict()), sort_keys=False)
