@@ -9,7 +9,7 @@ import logging
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 
@@ -19,13 +19,15 @@ import numpy as np
 
 from ..model.parameters import EFFECTS, ValveParameters
 from .diagnosis import (
-    CandidateResult, Diagnosis, describe_remaining, refit_effect, score_signatures,
+    _PROFILE_FRACTIONS as PROFILE_FRACTIONS, DBIC_THRESHOLD, CandidateResult, Diagnosis,
+    _dbic, _effective_counts, _floors, describe_remaining, refit_effect, score_signatures,
     second_effect, select,
 )
 from .drive import DriveReport, fit_drive
 from .measurements import Measurement, hold_out
 from .problem import (
-    ErrorFigures, FitData, ParameterSpace, baseline_space, start_point, unit_objective,
+    ErrorFigures, FitData, ParameterSpace, baseline_space, effect_space, start_point,
+    unit_objective,
 )
 from .residuals import ResidualReport, analyse_residuals
 from .search import SearchSettings, direct_search
@@ -58,6 +60,36 @@ class IdentifySettings:
                                            initial_step=0.1, restarts=3)
     max_refits: int = len(EFFECTS)
     diagnose: bool = True
+    #: Candidates refitted: the ``refit_top_k`` best signature scores (plus the partner
+    #: of a pair the signatures hardly separate, :data:`REFIT_PAIRS`); None refits all
+    #: (up to ``max_refits``). The others are reported as skipped, with their score.
+    refit_top_k: int | None = 4
+    #: The search stages (global stage, simplices, drive electronics, other start points,
+    #: refits) run on at most this much of each record through the electronics [s]; the
+    #: polish, the intervals and the selection use the whole fit window.
+    operation_search_window_s: float = 0.4
+    #: Alternations of drive electronics and valve search.
+    electronics_rounds: int = 2
+    #: Nelder-Mead iterations of the drive electronics' last fit (on the fit window, from
+    #: the search window's values).
+    final_drive_effort: int = 40
+    #: Nelder-Mead iterations of a refit's polish on the fit window (records through the
+    #: electronics, refits that paid on the search window).
+    refit_polish_iterations: int = 150
+    #: Effort of the baseline search and of the refits when the fit data run the drive
+    #: electronics (each simulated second costs ~20 ms there, against ~1 ms for a 40 ms
+    #: step): fewer simplices and iterations, the polish on the fit window shows
+    #: convergence all the same.
+    operation_baseline: SearchSettings = SearchSettings(global_samples=256, starts=4,
+                                                        max_iterations=300,
+                                                        stall_iterations=40)
+    operation_refit: SearchSettings = SearchSettings(global_samples=0, starts=5,
+                                                     max_iterations=120, initial_step=0.1,
+                                                     restarts=1, stall_iterations=25)
+    #: Nelder-Mead iterations of the local searches around the search's optimum on records
+    #: through the electronics (valve re-search after the electronics, other start points,
+    #: each polish round on the fit window).
+    operation_local_iterations: int = 150
     #: Records through the electronics are fitted on at most this much of their length
     #: after their discarded start [s] (the simulation of a chopped record costs about
     #: 25 ms per simulated second; a second holds 20-100 PWM periods).
@@ -75,6 +107,147 @@ class IdentifySettings:
                    refit=SearchSettings(global_samples=0, starts=5, max_iterations=300,
                                         initial_step=0.1, restarts=2),
                    diagnose=diagnose)
+
+
+#: Candidates whose signatures look alike on a current record (the friction force and
+#: the leakage inductance both delay and soften the stroke's dip): refitting one of a
+#: pair refits the other, so the selection can say when the data cannot separate them.
+REFIT_PAIRS: tuple[tuple[str, str], ...] = (('coulomb_friction', 'leakage_inductance'),)
+
+
+def choose_refits(candidates: list['CandidateResult'], settings: 'IdentifySettings'
+                  ) -> tuple[list['CandidateResult'], list[tuple['CandidateResult', str]]]:
+    """Candidates to refit (``candidates`` ranked by signature score, best first) and the
+    skipped ones with the reason in words."""
+    k = settings.refit_top_k
+    limit = settings.max_refits
+    if k is None or k >= len(candidates):
+        chosen = list(candidates[:limit])
+    else:
+        chosen = list(candidates[:k])
+        names = {c.effect for c in chosen}
+        for a, b in REFIT_PAIRS:
+            for x, y in ((a, b), (b, a)):
+                if x in names and y not in names:
+                    chosen += [c for c in candidates if c.effect == y]
+                    names.add(y)
+        chosen = [c for c in candidates if c in chosen][:max(limit, 0)]
+    skipped = []
+    for rank, c in enumerate(candidates, 1):
+        if c in chosen:
+            continue
+        skipped.append((c, f'not refitted: signature score {c.signature_correlation:+.2f} '
+                           f'ranked {rank} of {len(candidates)}; only the '
+                           f'{min(k or limit, limit)} best (and the partner of '
+                           'friction/leakage) are refitted'))
+    return chosen, skipped
+
+
+def search_data(fit_list: list[Measurement], fit: 'FitData', settings: 'IdentifySettings'
+                ) -> tuple['FitData', str]:
+    """The data the search stages run on: records through the electronics cut to the
+    search window (``fit`` itself when nothing is cut), and a note in words."""
+    span = settings.operation_search_window_s
+    cut = [_window(m, span) if m.drive is not None else m for m in fit_list]
+    if all(a is b for a, b in zip(cut, fit_list)):
+        return fit, ''
+    data = FitData(cut)
+    names = [a.name for a, b in zip(cut, fit_list) if a is not b]
+    return data, (f'search stages (global stage, simplices, drive electronics, other start '
+                  f'points, effect refits) on the first {span:g} s of the compared part of '
+                  f'{", ".join(names)}; the polish, intervals and selection on the whole fit '
+                  'and validation windows')
+
+
+def _lap(say: Callable[[str], None], what: str, t0: float) -> float:
+    """Seconds since ``t0``, said as a progress line."""
+    dt = time.perf_counter() - t0
+    say(f'time: {what} {dt:.1f} s')
+    return dt
+
+
+def _use_electronics(electronics, *datas) -> None:
+    """Set the identified drive electronics on every data set given (None skipped)."""
+    for d in datas:
+        if d is not None:
+            d.electronics = electronics
+
+
+def _two_starts(u: np.ndarray, others: np.ndarray | None) -> np.ndarray:
+    """``u`` and a second start (the nearest other start point of the global stage, or a
+    small offset), so that a lock-step local search keeps two cores busy."""
+    if others is not None:
+        far = [x for x in np.atleast_2d(others) if np.max(np.abs(x - u)) > 1e-3]
+        if far:
+            near = min(far, key=lambda x: float(np.max(np.abs(x - u))))
+            return np.vstack([u, u + 0.25 * (near - u)])
+    return np.vstack([u, np.clip(u + 0.02, 0.0, 1.0)])
+
+
+def refit_early_stop(space: ParameterSpace, data: 'FitData', params: ValveParameters,
+                     effect: str, settings: SearchSettings, bar_cost: float
+                     ) -> tuple[ValveParameters, float, ParameterSpace, bool]:
+    """:func:`.diagnosis.refit_effect` with an early stop, for records through the
+    electronics (each simulation of the search window costs ~5 ms).
+
+    The coarse profile (one simplex per trial amount of the effect, the baseline
+    parameters adapting) runs first; when none of the amounts brings the cost below
+    ``bar_cost`` (the baseline's own cost on ``data``) the effect cannot pay and the fine
+    profile is skipped. Otherwise the same fine profile as ``refit_effect``.
+
+    Returns
+    -------
+    params, cost, space, stopped
+    """
+    ext = effect_space(space, effect)
+    u_base = ext.to_unit(params)
+    first = ext.names.index(EFFECTS[effect].fields[0])
+    starts = []
+    for frac in PROFILE_FRACTIONS:
+        u = u_base.copy()
+        u[first] = frac
+        starts.append(u)
+    fun = unit_objective(ext, data)
+    res = direct_search(fun, np.array(starts), replace(settings, restarts=0),
+                        label=f'refit {effect}', fixed=np.array([first]))
+    if not res.cost < bar_cost:
+        return ext.params(res.u), res.cost, ext, True
+    grid = np.array(PROFILE_FRACTIONS)
+    k = int(np.argmin(np.abs(grid - res.u[first])))
+    lo = grid[k - 1] if k > 0 else 0.0
+    hi = grid[k + 1] if k + 1 < grid.size else 1.0
+    fine = []
+    for frac in (lo + 0.5 * (grid[k] - lo), grid[k] - 0.25 * (grid[k] - lo),
+                 grid[k] + 0.25 * (hi - grid[k]), grid[k] + 0.5 * (hi - grid[k])):
+        u = res.u.copy()
+        u[first] = frac
+        fine.append(u)
+    fine.append(res.u.copy())
+    res2 = direct_search(fun, np.array(fine), replace(settings,
+                                                      initial_step=0.5 * settings.initial_step),
+                         label=f'refit {effect} (fine)', fixed=np.array([first]))
+    best = res2 if res2.cost <= res.cost else res
+    return ext.params(best.u), best.cost, ext, False
+
+
+def polish_candidate(ext: ParameterSpace, data: 'FitData', params: ValveParameters,
+                     baseline: ValveParameters, settings: 'IdentifySettings'
+                     ) -> tuple[ValveParameters, float]:
+    """Local search of a refitted candidate on the whole fit window: from its search-window
+    optimum and from the baseline with the candidate's effect amount."""
+    fun = unit_objective(ext, data)
+    u_a = ext.to_unit(params)
+    mixed = baseline.replace(**{n: getattr(params, n) for n in ext.names
+                                if n not in baseline_space(baseline).names})
+    u_b = ext.to_unit(mixed)
+    st = SearchSettings(global_samples=0, starts=2,
+                        max_iterations=settings.refit_polish_iterations, initial_step=0.03,
+                        restarts=1, stall_iterations=30, tolerance=1e-5)
+    res = direct_search(fun, np.vstack([u_a, u_b]), st, label='refit polish')
+    c_a = float(fun(u_a[None, :])[0])
+    if c_a <= res.cost:
+        return params, c_a
+    return ext.params(res.u), float(res.cost)
 
 
 @dataclass
@@ -186,12 +359,17 @@ CONVERGENCE_RELATIVE = 1e-3
 
 def polish(space: ParameterSpace, data: FitData, u: np.ndarray, cost: float,
            noise_a: float, say: Callable[[str], None], rounds: int = 3,
-           others: np.ndarray | None = None) -> tuple[np.ndarray, Convergence]:
+           others: np.ndarray | None = None, check_data: FitData | None = None,
+           check_label: str = '', iterations: int = 300) -> tuple[np.ndarray, Convergence]:
     """Polish the baseline until a fresh local search no longer pays (see Convergence).
 
     The first round also runs independent simplices from ``others`` (other start points:
     the measured values, the global stage's other good points), in lock step: a lower cost
-    reached from elsewhere means the search had stopped in a local minimum.
+    reached from elsewhere means the search had stopped in a local minimum. With
+    ``check_data`` (the search window of a long record) those simplices run there, and
+    their best point is carried to ``data`` when it is better there too; the rounds on
+    ``data`` then start from the best point (and a second start beside it, so two cores
+    work).
     """
     fun = unit_objective(space, data)
     noise_mae = noise_a * math.sqrt(2.0 / math.pi) if math.isfinite(noise_a) else 0.0
@@ -200,13 +378,36 @@ def polish(space: ParameterSpace, data: FitData, u: np.ndarray, cost: float,
     best_u, best_c = u.copy(), cost
     converged = False
     gain = math.inf
+    checked = ''
+    n_others = 0 if others is None else len(others)
+    if check_data is not None and n_others:
+        fun_c = unit_objective(space, check_data)
+        own = float(fun_c(best_u[None, :])[0])
+        st = SearchSettings(global_samples=0, starts=n_others + 1, max_iterations=iterations,
+                            initial_step=0.1, restarts=0, stall_iterations=30,
+                            tolerance=1e-6, seed=1)
+        res = direct_search(fun_c, np.vstack([best_u[None, :], np.atleast_2d(others)]), st,
+                            label='baseline other starts')
+        there = float(fun(res.u[None, :])[0])
+        moved = there < best_c
+        if moved:
+            best_u, best_c = res.u.copy(), there
+        checked = (f'; simplices from the optimum and from the {n_others} other start points '
+                   f'on {check_label} reached {res.cost:.4g} A there (the optimum: {own:.4g}'
+                   f' A), {there:.4g} A on the fit window'
+                   + (' (taken)' if moved else ' (not better: kept the optimum)'))
+        say('baseline other start points' + checked)
+        others = None
     for r in range(rounds):
         starts = best_u[None, :]
         if r == 0 and others is not None and len(others):
             starts = np.vstack([best_u[None, :], np.atleast_2d(others)])
-        st = SearchSettings(global_samples=0, starts=starts.shape[0], max_iterations=300,
-                            initial_step=0.1 / (r + 1), restarts=2, stall_iterations=60,
-                            tolerance=1e-6, seed=r + 1)
+        elif check_data is not None:
+            starts = _two_starts(best_u, None)
+        short = iterations < 300
+        st = SearchSettings(global_samples=0, starts=starts.shape[0], max_iterations=iterations,
+                            initial_step=0.1 / (r + 1), restarts=1 if short else 2,
+                            stall_iterations=40 if short else 60, tolerance=1e-6, seed=r + 1)
         res = direct_search(fun, starts, st, label=f'baseline polish {r + 1}')
         gain = best_c - res.cost
         costs.append(float(res.cost))
@@ -217,15 +418,15 @@ def polish(space: ParameterSpace, data: FitData, u: np.ndarray, cost: float,
         if gain <= tol:
             converged = True
             break
-    statement = (f'baseline converged: local polishes from the optimum and from '
-                 f'{0 if others is None else len(others)} other start points lowered the cost '
-                 f'(mean absolute error) from {cost:.4g} A to {best_c:.4g} A; the last polish '
-                 f'gained {max(gain, 0.0):.2g} A, within '
+    where = '' if checked else f' and from {n_others} other start points'
+    statement = (f'baseline converged: local polishes from the optimum{where} lowered the '
+                 f'cost (mean absolute error) from {cost:.4g} A to {best_c:.4g} A; the last '
+                 f'polish gained {max(gain, 0.0):.2g} A, within '
                  f'{tol:.2g} A = max({100 * CONVERGENCE_FRACTION:g} % of the noise MAE '
-                 f'{noise_mae:.3g} A, {CONVERGENCE_RELATIVE:g} of the cost)'
+                 f'{noise_mae:.3g} A, {CONVERGENCE_RELATIVE:g} of the cost)' + checked
                  if converged else
                  f'baseline NOT shown converged: {rounds} polishes still lowered the cost '
-                 f'({cost:.4g} -> {best_c:.4g} A, tolerance {tol:.2g} A)')
+                 f'({cost:.4g} -> {best_c:.4g} A, tolerance {tol:.2g} A)' + checked)
     return best_u, Convergence(search_cost_a=cost, polish_costs_a=costs, final_cost_a=best_c,
                                noise_mae_a=noise_mae, tolerance_a=tol, converged=converged,
                                statement=statement)
@@ -322,43 +523,60 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
         say(f'validation file {m.summary()}')
     space = baseline_space(base)
     start = start_point(space)
+    search, search_note = search_data(fit_list, fit, settings)
+    if search_note:
+        notes.append(search_note)
+        say(search_note)
+    fun_s = unit_objective(space, search)
     fun = unit_objective(space, fit)
+    timings: dict[str, float] = {'phase_grid': time.perf_counter() - t_start}
     say('baseline: direct search over ' + ', '.join(space.names))
     t0 = time.perf_counter()
-    res = direct_search(fun, space.to_unit(start), settings.baseline, progress=say,
-                        label='baseline')
+    through = fit.through_electronics
+    res = direct_search(fun_s, space.to_unit(start),
+                        settings.operation_baseline if through else settings.baseline,
+                        progress=say, label='baseline')
     say(f'baseline: cost {res.cost:.6g} A after {res.evaluations} simulations')
     u_best, c_best = res.u, res.cost
+    timings['baseline_search'] = _lap(say, 'baseline search', t0)
     drive = None
     if fit.through_electronics:
         # Electronics and valve alternately: the drive constants with the valve held, then
-        # the valve again under the identified electronics.
-        for _ in range(2):
-            drive = fit_drive(fit, space.params(u_best))
-            fit.electronics = drive.electronics
-            if val is not None:
-                val.electronics = drive.electronics
+        # the valve again under the identified electronics (both on the search window).
+        t0 = time.perf_counter()
+        for _ in range(settings.electronics_rounds):
+            drive = fit_drive(search, space.params(u_best))
+            _use_electronics(drive.electronics, fit, search, val)
             say('drive electronics: ' + ', '.join(f'{k} = {v:.4g}'
                                                   for k, v in drive.values.items()))
-            c_best = float(fun(u_best[None, :])[0])
-            again = direct_search(fun, u_best, SearchSettings(
-                global_samples=0, starts=1, max_iterations=settings.baseline.max_iterations,
-                initial_step=0.08, restarts=2), label='baseline (electronics identified)')
+            c_best = float(fun_s(u_best[None, :])[0])
+            again = direct_search(fun_s, _two_starts(u_best, res.starts_u), SearchSettings(
+                global_samples=0, starts=2, max_iterations=settings.operation_local_iterations,
+                initial_step=0.08, restarts=1, stall_iterations=30),
+                label='baseline (electronics identified)')
             if again.cost < c_best:
                 u_best, c_best = again.u, again.cost
+        timings['electronics'] = _lap(say, 'drive electronics', t0)
+    t0 = time.perf_counter()
+    c_best = float(fun(u_best[None, :])[0])
     noise0 = float(np.nanmedian([noise_std(r) for r in fit.residuals(space.params(u_best))]))
     others = [space.to_unit(start)]
     if res.starts_u is not None:
         others += [x for x in res.starts_u if np.max(np.abs(x - u_best)) > 0.05][:3]
-    u_best, conv = polish(space, fit, u_best, c_best, noise0, say, others=np.array(others))
+    u_best, conv = polish(space, fit, u_best, c_best, noise0, say, others=np.array(others),
+                          check_data=None if search is fit else search,
+                          check_label=search_note and f'the first '
+                          f'{settings.operation_search_window_s:g} s (search window)',
+                          iterations=settings.operation_local_iterations if through else 300)
+    c_best = conv.final_cost_a
     say(conv.statement)
     if fit.through_electronics:
-        drive = fit_drive(fit, space.params(u_best))
-        fit.electronics = drive.electronics
-        if val is not None:
-            val.electronics = drive.electronics
+        drive = fit_drive(fit, space.params(u_best), effort=settings.final_drive_effort)
+        _use_electronics(drive.electronics, fit, search, val)
     baseline_params = space.params(u_best)
-    timings = {'baseline_fit': time.perf_counter() - t0}
+    timings['baseline_polish'] = _lap(say, 'baseline polish', t0)
+    timings['baseline_fit'] = sum(timings.get(k, 0.0) for k in (
+        'baseline_search', 'electronics', 'baseline_polish'))
     at_bound = fit.at_bound(space, baseline_params)
     if at_bound:
         say('baseline parameters at a search bound (misfit): ' + ', '.join(at_bound))
@@ -379,12 +597,12 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
             '; the data determine ' + ', '.join(misfit) + ' (95 % CI below '
             f'{MISFIT_CI95_PCT:g} %): a sign of misfit' if misfit else
             '; the data hardly see them (wide intervals): not read as misfit'))
-    timings['baseline_analysis'] = time.perf_counter() - t0
+    timings['baseline_analysis'] = _lap(say, 'baseline analysis', t0)
     diag = None
     augmented = baseline
     sim_fit_a, sim_val_a = sim_fit_b, sim_val_b
     if settings.diagnose:
-        t0 = time.perf_counter()
+        t_diag = t0 = time.perf_counter()
         residuals = [np.where(v, m.current_a - c, np.nan)
                      for m, v, c in zip(fit.measurements, fit.valid, sim_fit_b)]
         scores = score_signatures(space, fit, baseline_params, residuals)
@@ -393,33 +611,80 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
         candidates = [CandidateResult(effect=eff, fields=EFFECTS[eff].fields,
                                       signature_correlation=scores[eff][0],
                                       signature_amplitude=scores[eff][1]) for eff in order]
+        timings['signatures'] = _lap(say, 'signatures', t0)
+        chosen, skipped = choose_refits(candidates, settings)
+        for c, why in skipped:
+            c.reason = why
+            say(f'refit {c.effect} skipped: {why}')
+        # The baseline's cost on the data the refits search (the bar a refit must clear
+        # before it is worth polishing on the whole fit window).
+        refit_settings = settings.operation_refit if through else settings.refit
+        if search is not fit:
+            counts_s = _effective_counts(search, baseline_params)
+            floors_s = _floors(search)
+            base_mae_s = search.errors(baseline_params).mae_per_file
+            c_search = float(fun_s(u_best[None, :])[0])
 
         def run(c: CandidateResult) -> CandidateResult:
             # Each refit in its own thread, its simulations on that thread without the GIL.
-            p_aug, cost, _ = refit_effect(space, fit.serial(), baseline_params, c.effect,
-                                          settings.refit, progress=None)
+            t1 = time.perf_counter()
+            how = ''
+            if search is fit:
+                p_aug, cost, ext = refit_effect(space, search.serial(), baseline_params,
+                                                c.effect, refit_settings, progress=None)
+            else:
+                p_aug, cost, ext, stopped = refit_early_stop(
+                    space, search.serial(), baseline_params, c.effect, refit_settings,
+                    c_search)
+                if stopped:
+                    how = (f' (stopped after the coarse profile: no trial amount brought the '
+                           f'search window cost below the baseline\'s {c_search:.4g} A)')
+                # Could it pay? The fit criterion (dBIC, effective sample counts) on the
+                # search window; one that cannot is evaluated as found, not polished.
+                dbic_s = _dbic(base_mae_s, search.serial().errors(p_aug).mae_per_file,
+                               counts_s, len(c.fields), floors_s)
+                if not stopped and dbic_s < DBIC_THRESHOLD:
+                    # It could pay: polish it on the whole fit window like the baseline.
+                    p_aug, cost = polish_candidate(ext, fit.serial(), p_aug, baseline_params,
+                                                   settings)
+                    how = (f' (search window dBIC {dbic_s:.1f}: polished on the fit '
+                           'window)')
+                else:
+                    cost = float(fit.serial().cost(p_aug.to_vector()[None, :])[0])
+                    how = how or (f' (search window dBIC {dbic_s:.1f}, not below '
+                                  f'{DBIC_THRESHOLD:g}: cannot pay, not polished on the fit '
+                                  'window, evaluated as found)')
             c.refitted = True
             c.params = p_aug
             c.parameters = {f: getattr(p_aug, f) for f in c.fields}
             c.fit_cost = cost
-            say(f'refit {c.effect}: cost {cost:.6g} A (baseline {res.cost:.6g} A), '
-                + ', '.join(f'{k} = {v:.4g}' for k, v in c.parameters.items()))
+            dt = time.perf_counter() - t1
+            timings[f'refit_{c.effect}'] = dt
+            say(f'refit {c.effect}: cost {cost:.6g} A (baseline {c_best:.6g} A), '
+                + ', '.join(f'{k} = {v:.4g}' for k, v in c.parameters.items())
+                + f'{how}; {dt:.1f} s')
             return c
 
-        workers = max(1, min(settings.max_refits, os.cpu_count() or 1))
+        t0 = time.perf_counter()
+        workers = max(1, min(len(chosen), os.cpu_count() or 1))
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            list(pool.map(run, candidates[:settings.max_refits]))
+            list(pool.map(run, chosen))
+        timings['refits'] = _lap(say, f'{len(chosen)} refits', t0)
+        t0 = time.perf_counter()
         diag = select(candidates, fit, val, baseline_params, baseline_at_bound=misfit,
                       space=space)
+        timings['selection'] = _lap(say, 'selection', t0)
         if diag.effect != 'none':
-            second_effect(diag, space, fit, val, settings.refit, say)
-        timings['diagnosis'] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            second_effect(diag, space, fit, val, refit_settings, say)
+            timings['second_effect'] = _lap(say, 'second effect', t0)
+        timings['diagnosis'] = time.perf_counter() - t_diag
         say(f'diagnosis: {diag.effect} (confidence {diag.confidence})')
         for line in diag.evidence:
             say('  ' + line)
         if diag.effect != 'none':
+            t0 = time.perf_counter()
             augmented, sim_fit_a, sim_val_a = _stage(diag.params, fit, val)
-            from .problem import effect_space
             aug_space = space
             for eff in diag.kept_effects:
                 aug_space = effect_space(aug_space, eff)
@@ -429,12 +694,22 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
                           if n in space.names],
                 nrmse_pct=augmented.fit.nrmse_pct)
             describe_remaining(diag, augmented)
+            timings['augmented_analysis'] = time.perf_counter() - t0
+        if diag.effect == 'none' and diag.unexplained_structure:
+            # Issue 13 item 4: an open-ended sparse term for structure no listed effect
+            # explains (it may turn the answer into 'unlisted'; params stay the baseline's).
+            from .unlisted import offer_unlisted
+            t0 = time.perf_counter()
+            offer_unlisted(diag, fit, val, baseline_params, say)
+            timings['unlisted'] = _lap(say, 'unlisted term', t0)
     timings['total'] = time.perf_counter() - t_start
+    say('time split: ' + ', '.join(f'{k} {v:.1f} s' for k, v in timings.items()))
     ident = Identification(
         fit_files=fit.measurements, val_files=val.measurements if val else [],
         baseline=baseline, augmented=augmented, diagnosis=diag, start=start, space=space,
         timings_s=timings,
-        simulations=fit.simulations + (val.simulations if val else 0),
+        simulations=fit.simulations + (val.simulations if val else 0)
+        + (search.simulations if search is not fit else 0),
         sim_fit={'baseline': sim_fit_b, 'augmented': sim_fit_a},
         sim_val={'baseline': sim_val_b, 'augmented': sim_val_a},
         convergence=conv, drive=drive, at_bound=at_bound, notes=notes)

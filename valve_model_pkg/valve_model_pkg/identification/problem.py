@@ -16,12 +16,15 @@ from __future__ import annotations
 
 import copy
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 
 from ..model import ElectronicsConfig
+from ..model.trace import PARALLEL_MIN_BATCH
 from ..model.parameters import EFFECTS, ValveParameters
 from .errors import IdentificationError
 from .measurements import Measurement
@@ -275,6 +278,20 @@ class ErrorFigures:
                 'mae_per_file_a': self.mae_per_file}
 
 
+#: Smallest batch :meth:`FitData.cost` splits over threads.
+_SPLIT_MIN_BATCH = 2
+_WORKERS = os.cpu_count() or 1
+_POOL: list[ThreadPoolExecutor] = []
+
+
+def _pool() -> ThreadPoolExecutor:
+    """The identification's thread pool for small batches (created on first use)."""
+    if not _POOL:
+        _POOL.append(ThreadPoolExecutor(max_workers=_WORKERS,
+                                        thread_name_prefix='valve-ident'))
+    return _POOL[0]
+
+
 def _trapezoid_weights(t: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Weights w with sum(w |r|) = trapezoid integral of |r| over the valid samples."""
     w = np.zeros(t.size)
@@ -391,6 +408,14 @@ class FitData:
     def cost(self, raw: np.ndarray) -> np.ndarray:
         """Sum over files of the mean absolute current error [A], shape (m,)."""
         raw = np.atleast_2d(raw)
+        m_rows = raw.shape[0]
+        if self.parallel and _SPLIT_MIN_BATCH <= m_rows < PARALLEL_MIN_BATCH and _WORKERS > 1:
+            # The kernel runs batches below PARALLEL_MIN_BATCH on the calling thread (the
+            # lock-step Nelder-Mead asks 2-7 points at a time): split them over threads,
+            # each simulating without the GIL, so both cores work.
+            view = self.serial()
+            parts = np.array_split(raw, min(_WORKERS, m_rows))
+            return np.concatenate(list(_pool().map(view.cost, parts)))
         total = np.zeros(raw.shape[0])
         for m, setup, w, T in zip(self.measurements, self.setups, self.weights,
                                   self.durations):
@@ -445,5 +470,5 @@ def unit_objective(space: ParameterSpace, data: FitData):
     return fun
 
 
-__all__ += ['GAP', 'MIN_HOLDING_GAP_M', 'PAPER_SYMBOLS', 'equivalent_gap_m', 'start_point',
-            'unit_objective']
+__all__ += ['GAP', 'MIN_HOLDING_GAP_M', 'PAPER_SYMBOLS', 'equivalent_gap_m',
+            'start_point', 'unit_objective']
