@@ -33,7 +33,7 @@ from ..model.parameters import ValveParameters
 from .problem import GAP, PAPER_SYMBOLS, FitData, ParameterSpace, equivalent_gap_m
 
 __all__ = ['SensitivityReport', 'analyse_sensitivity', 'noise_std', 'equivalent_gap_m',
-           'residual_inflation']
+           'residual_inflation', 'misfit_floor_pct']
 
 _PINNED_CI95_PCT = 5.0
 #: NRMSE [%] above which the intervals are floored at the NRMSE.
@@ -174,6 +174,42 @@ def residual_inflation(residuals: list[np.ndarray], sigma: float) -> tuple[float
     return size * corr, {'size': size, 'correlation': corr, 'lag1': rho}
 
 
+def misfit_floor_pct(jac: np.ndarray, residuals: list[np.ndarray], sigma: float,
+                     var_white: np.ndarray) -> tuple[np.ndarray, float]:
+    """95 % interval floor [%] per parameter from the residual's structure, and its size [A].
+
+    A model error is a bias, not noise: however many samples there are, a residual with
+    ``r_s`` A RMS of structure beyond the noise can hold a parameter off its true value by
+    the change that moves the current by ``r_s`` RMS (with the other parameters free to
+    compensate). With ``M = J^T J / N`` that change is ``r_s sqrt((M^-1)_jj)``, i.e. the
+    white-noise standard error ``sqrt(var_white_j)`` (at noise ``sigma``) times
+    ``r_s sqrt(N) / sigma``. ``r_s^2 = mean(r^2) - sigma^2 (1 + 3 sqrt(2 / N))``: the
+    noise's own sampling spread does not count as structure (clean data keep their
+    intervals).
+
+    Parameters
+    ----------
+    jac : numpy.ndarray, shape (N, n_params)
+        Current sensitivities [A per unit relative change].
+    residuals : list of numpy.ndarray
+        Measured minus simulated current per file [A].
+    sigma : float
+        Noise standard deviation [A] (``var_white`` was computed with it).
+    var_white : numpy.ndarray, shape (n_params,)
+        White-noise variances of the relative parameters [1].
+    """
+    r = np.concatenate([x[np.isfinite(x)] for x in residuals]) if residuals else np.zeros(0)
+    n = int(jac.shape[0])
+    if r.size < 4 or n < 4 or not math.isfinite(sigma) or sigma <= 0.0:
+        return np.zeros(len(var_white)), 0.0
+    excess = float(np.mean(r ** 2)) - sigma ** 2 * (1.0 + 3.0 * math.sqrt(2.0 / r.size))
+    if excess <= 0.0:
+        return np.zeros(len(var_white)), 0.0
+    r_s = math.sqrt(excess)
+    std = np.sqrt(np.maximum(var_white, 0.0)) * r_s * math.sqrt(n) / sigma
+    return 1.96 * 100.0 * std, r_s
+
+
 def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParameters,
                         *, at_bound: list[str] | tuple[str, ...] = (),
                         nrmse_pct: float | None = None) -> SensitivityReport:
@@ -244,6 +280,15 @@ def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParam
                  f'{infl_parts["size"]:.3g} x correlation {infl_parts["correlation"]:.3g}, '
                  'see residual_inflation)')
     ci95 = {n: 1.96 * v for n, v in rel_std.items()}
+    floor, r_struct = misfit_floor_pct(jac, residuals, sigma, var / infl ** 2)
+    if r_struct > 0.0:
+        for j, n in enumerate(names):
+            if math.isfinite(ci95[n]) and floor[j] > ci95[n]:
+                ci95[n] = float(floor[j])
+        notes.append(f'the residual holds {1e3 * r_struct:.3g} mA RMS of structure beyond '
+                     'the noise: no interval is narrower than the parameter change that '
+                     'moves the current by that much (a misfit of that size can hide a '
+                     'bias of that size; see misfit_floor_pct)')
     if nrmse_pct is not None and math.isfinite(nrmse_pct) and nrmse_pct > _MISFIT_NRMSE_PCT:
         # A model that misses by more than 5 % of the range cannot pin anything tighter
         # than its miss: the intervals are floored at the NRMSE.
