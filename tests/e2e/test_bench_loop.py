@@ -29,3 +29,43 @@ def test_bench_loop_names_the_injected_effect_and_improves_the_error(tmp_path):
     assert (out / 'step24_identified.csv').exists()
     assert (out / 'map_identified.json').exists()
     assert 'valve_simulator with the identified parameters: started and stopped cleanly' in text
+
+
+#: The operation loop's effect: one the identification names from an operational record
+#: (docs/loop.md says why this one).
+OPERATION_EFFECT = 'eddy_current'
+#: How much worse the tracking may get after the loop [mm RMS]: the identified map changes
+#: flow_to_duty's duties a little and the integrator of the position controller takes up
+#: the rest; a worse map would show as a larger RMS error over the steps.
+TRACKING_TOLERANCE_MM = 0.5
+
+
+def test_operation_loop_names_the_effect_and_improves_the_error(tmp_path):
+    out = tmp_path / 'operation'
+    proc = subprocess.run(['valve_bench_loop', '--mode', 'operation', '--effect',
+                           OPERATION_EFFECT, '--quick', '--out', str(out)],
+                          capture_output=True, text=True, timeout=900, env=dict(os.environ))
+    text = proc.stdout + proc.stderr
+    assert proc.returncode == 0, text[-5000:]
+    loop = json.loads((out / 'loop.json').read_text())
+    assert loop['diagnosis']['effect'] == OPERATION_EFFECT, loop['diagnosis']
+    base, aug = loop['baseline']['validation'], loop['augmented']['validation']
+    assert aug['iae'] < base['iae'], (base, aug)
+    before, after = loop['tracking']['before']['rms_mm'], loop['tracking']['after']['rms_mm']
+    assert 0.0 < before and 0.0 < after
+    assert after <= before + TRACKING_TOLERANCE_MM, (before, after)
+    for side in ('before', 'after'):
+        assert loop['flow'][side]['rms_pct'] >= 0.0
+    assert loop['flow']['after']['rms_pct'] <= loop['flow']['before']['rms_pct'] + 0.1
+    for stage in ('run_before', 'identification', 'map', 'run_after', 'evaluation', 'total'):
+        assert loop['stages_s'][stage] > 0.0
+    assert loop['simulator_started'] is True
+    # Both runs are bags of the suite through the CAN driver, each with its run report; the
+    # after run's flow_to_duty ran on the identified map.
+    for side in ('before', 'after'):
+        assert len(list((out / side).glob('bag_can_*/metadata.yaml'))) == 1
+        assert (out / side / 'report' / 'report.json').exists()
+    assert (out / 'map_identified.json').exists()
+    assert f'map_file:={(out / "map_identified.json").resolve()}' in text
+    md = (out / 'loop.md').read_text()
+    assert OPERATION_EFFECT in md and 'identification/report.md' in md

@@ -1,6 +1,6 @@
 """valve_bench_loop: close the loop through the bench, over CAN, from recorded bags.
 
-    valve_bench_loop [--effect coil_heating] [-o/--out DIR] [--quick]
+    valve_bench_loop [--mode bench|operation] [--effect coil_heating] [-o/--out DIR] [--quick]
 
 1. Bench experiments on the CAN backend: the controller emulator runs a valve that carries
    a physical effect the nominal model lacks (``--effect``); the driver publishes
@@ -19,6 +19,24 @@ Why not identify from the demo's position-control run: with the drive electronic
 the coil voltage is a 20 kHz chopper signal that a 1 kHz state stream cannot carry, so
 the current cannot be simulated from the recorded voltage. The bench records use the
 same backend, driver, topics and recorder as the demo.
+
+The loop in service (``--mode operation``, :mod:`valve_bringup.operation_loop`) closes the
+loop from the suite's own operation instead (docs/loop.md):
+
+1. the suite runs as ``make demo`` does (:mod:`valve_bringup.demo`, CAN backend, lockstep
+   clock, as fast as possible), the emulator's valve carrying the effect, the position
+   controller moving the cylinder through a sequence of steps; the bag goes to
+   ``DIR/before/``;
+2. ``valve_identify --fit <bag>``: the bag's ``valve/state`` carries the interval-mean coil
+   current and the duty commands, read as an operational record through the drive
+   electronics (the last 30 % held out for validation);
+3. ``valve_map --params`` rebuilds the static map from the identified parameters,
+   ``valve_simulator`` starts with them (briefly), and the same position sequence runs
+   again with ``flow_to_duty`` on the identified parameters and map (``DIR/after/``);
+4. the position-tracking error (RMS of goal - position) and the flow prediction error (the
+   model with nominal and with identified parameters, driven by the recorded duty commands,
+   against the recorded ``mass_flow``) before and after go to ``DIR/loop.json`` and
+   ``DIR/loop.md``.
 """
 from __future__ import annotations
 
@@ -31,15 +49,30 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from valve_bringup.supervisor import ChildExited, ProcessSpec, Supervisor
 
-__all__ = ['main', 'BenchRecord', 'record_bench_step', 'DEFAULT_EFFECT_PARAMS']
+if TYPE_CHECKING:
+    import numpy as np
+
+__all__ = ['main', 'BenchRecord', 'record_bench_step', 'DEFAULT_EFFECT_PARAMS',
+           'OPERATION_GOALS', 'run_operation_loop', 'tracking_error', 'flow_prediction_error']
 
 #: Effect parameters of the emulated valve when --effect-param is not given. Coil heating
 #: is made visible within the 0.8 s steps (a real coil's time constant is minutes).
 DEFAULT_EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
     'coil_heating': ('thermal_resistance_k_per_w=5', 'thermal_time_constant_s=0.5'),
+}
+
+#: The effect of ``--mode operation`` when --effect is not given (one the identification
+#: names from an operational record: docs/loop.md).
+OPERATION_DEFAULT_EFFECT = 'eddy_current'
+
+#: Effect parameters of the emulated valve in ``--mode operation`` (default: the
+#: emulator's, half of the identification range of the switching field).
+OPERATION_EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
+    'coil_heating': ('thermal_resistance_k_per_w=40', 'thermal_time_constant_s=0.5'),
 }
 
 
@@ -68,10 +101,12 @@ def record_bench_step(record: BenchRecord, bag: Path, effect_args: tuple[str, ..
     from valve_model_pkg.interface import TOPIC_DUTY_COMMAND, TOPIC_STATE
     from valve_model_pkg.nodes.probe import StateProbe
 
-    emulator_args = ('--no-current-control', '--no-capacitor',
-                     '--supply-voltage-v', f'{record.supply_voltage_v:g}',
+    # The emulator gets only its hardware (supply, pressure, effect); the bench mode (boost,
+    # chopper and capacitor bypassed) is asked for over the bus, as of a real controller.
+    emulator_args = ('--supply-voltage-v', f'{record.supply_voltage_v:g}',
                      '--supply-pressure-pa', f'{supply_pressure_pa:g}', *effect_args)
-    specs = can_backend_processes(rate_hz=1000.0, emulator_args=emulator_args) + [
+    specs = can_backend_processes(rate_hz=1000.0, emulator_args=emulator_args,
+                                  drive_mode='bench') + [
         ProcessSpec('valve_recorder', ['valve_recorder', TOPIC_STATE, TOPIC_DUTY_COMMAND,
                                        '-o', str(bag)])]
     with Supervisor() as sup:
@@ -125,12 +160,335 @@ def _run(argv: list[str]) -> subprocess.CompletedProcess:
     return proc
 
 
+#: Position goals of the loop in service [m] and how long each is held [s] (simulated):
+#: up and down strokes of different lengths, so the valve fills and exhausts.
+OPERATION_GOALS = ((0.020, 2.0), (0.060, 2.0), (0.040, 2.0), (0.080, 2.0), (0.030, 2.0))
+#: The same with --quick: three steps (a 4.5 s record after the 0.5 s pre-roll).
+OPERATION_GOALS_QUICK = ((0.020, 1.5), (0.060, 1.5), (0.035, 1.5))
+
+
+def _run_suite(label: str, run_dir: Path, effect_args: tuple[str, ...],
+               goals: tuple[tuple[float, float], ...],
+               flow_to_duty_args: tuple[str, ...] = ()) -> Path:
+    """One position-control run of the suite as ``make demo`` runs it; returns its bag."""
+    from valve_bringup.demo import DemoConfig, run
+    cfg = DemoConfig(backend='can', out=run_dir, effect_args=effect_args, goals=goals,
+                     clock='lockstep', real_time_factor_max=0.0,
+                     flow_to_duty_args=flow_to_duty_args)
+    _say(f'{label}: the suite on the CAN backend (lockstep, as fast as possible), '
+         f'{len(goals)} position steps, output {run_dir}')
+    code = run(cfg, out_given=True)
+    if code == 130:
+        raise KeyboardInterrupt('the suite run was interrupted')
+    if code != 0:
+        raise RuntimeError(f'the {label} run of the suite failed (exit code {code})')
+    bags = sorted(p.parent for p in run_dir.glob('bag_*/metadata.yaml'))
+    if len(bags) != 1:
+        raise RuntimeError(f'{run_dir}: expected one bag, found {len(bags)}')
+    return bags[0]
+
+
+def tracking_error(bag: Path) -> dict:
+    """Position-tracking error of a run: goal in force - piston position, from the bag.
+
+    The goals (``cylinder/position_goal``, std_msgs/Float64 without a header) are placed on
+    the joint states' simulation time as the run report places the setpoints (the stamp of
+    the last joint state received before each goal). The error is taken at every joint
+    state from the first goal on.
+
+    Returns
+    -------
+    dict
+        ``rms_mm``, ``mean_abs_mm``, ``max_abs_mm`` [mm], ``duration_s`` [s], ``samples``.
+    """
+    import numpy as np
+
+    from valve_model_pkg.cli.report import _sim_time_map  # the report's time base
+    from valve_model_pkg.interface import TOPIC_JOINT_STATES, TOPIC_POSITION_GOAL
+    from valve_model_pkg.recording import load_bag
+    data = load_bag(bag, ['/' + TOPIC_JOINT_STATES, '/' + TOPIC_POSITION_GOAL])
+    joints = data.get('/' + TOPIC_JOINT_STATES)
+    goals = data.get('/' + TOPIC_POSITION_GOAL)
+    if joints is None or goals is None or not len(joints) or not len(goals):
+        raise ValueError(f'{bag}: no {TOPIC_JOINT_STATES} or {TOPIC_POSITION_GOAL} messages')
+    stamps = joints.stamp_ns if joints.stamp_ns is not None else joints.log_time_ns
+    origin = int(stamps[0])
+    tj = (np.asarray(stamps, dtype=np.int64) - origin) * 1e-9
+    pos = np.array([p[0] for p in joints['position']], dtype=float)
+    to_stamp = _sim_time_map(data, origin)
+    tg = to_stamp(goals) if to_stamp is not None else \
+        (np.asarray(goals.log_time_ns, dtype=np.int64) - origin) * 1e-9
+    goal = np.asarray(goals['data'], dtype=float)
+    k = np.searchsorted(tg, tj, side='right') - 1
+    sel = k >= 0
+    err = goal[k[sel]] - pos[sel]
+    return {'rms_mm': float(np.sqrt(np.mean(err ** 2)) * 1e3),
+            'mean_abs_mm': float(np.mean(np.abs(err)) * 1e3),
+            'max_abs_mm': float(np.max(np.abs(err)) * 1e3),
+            'duration_s': float(tj[sel][-1] - tj[sel][0]), 'samples': int(err.size),
+            'bag': str(bag)}
+
+
+def _held_period_means(t: np.ndarray, x: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """The suite's per-period moving average on the drive's own period grid: the mean of
+    ``x`` over the last complete period [s_k, s_k+1] ending at or before each sample (0
+    before the first one ends)."""
+    import numpy as np
+    c = np.concatenate(([0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(t))))
+    cum = np.interp(starts, t, c)
+    means = np.diff(cum) / np.diff(starts)
+    k = np.searchsorted(starts[1:], t, side='right') - 1   # last period ended at or before t
+    return np.where(k >= 0, means[np.clip(k, 0, None)], 0.0)
+
+
+def flow_prediction_error(bag: Path, params_files: dict[str, Path | None]) -> dict:
+    """Mass-flow prediction error of parameter sets against the flow recorded in ``bag``.
+
+    The model runs the drive electronics from the recorded duty commands
+    (``InputTrace.pwm_commands`` on the period grid the identification's reader
+    reconstructs), at the record's median supply and output pressures for the spool's
+    flow force; the flow is eq. (12) of the per-period moving average of the simulated spool
+    position at the pressures recorded at each sample, as the valve computes its
+    ``valve/state.mass_flow``.
+
+    Parameters
+    ----------
+    bag : pathlib.Path
+        A bag of the suite (``valve/state`` through the drive electronics).
+    params_files : dict
+        Label -> parameter YAML (None = the packaged nominal set).
+
+    Returns
+    -------
+    dict
+        Per label ``rms_kg_s`` [kg/s] and ``rms_pct`` [% of full flow]; ``full_flow_kg_s``
+        (eq. 12, spool open, at the median supply pressure into the atmosphere).
+    """
+    import numpy as np
+
+    from valve_model_pkg.identification.measurements import read_bag
+    from valve_model_pkg.interface import TOPIC_STATE
+    from valve_model_pkg.model import (InputTrace, load_parameters, orifice_mass_flow,
+                                       simulate_trace_batch)
+    from valve_model_pkg.recording import load_bag
+    m = read_bag(bag)
+    d = m.drive
+    if d is None:
+        raise ValueError(f'{bag}: valve/state is not an operational record (no duty commands)')
+    state = load_bag(bag, ['/' + TOPIC_STATE])['/' + TOPIC_STATE]
+    if len(state) != m.t_s.size:
+        raise ValueError(f'{bag}: {len(state)} valve/state messages but {m.t_s.size} samples')
+    p_sup = np.asarray(state['supply_pressure'], dtype=float)
+    p_out = np.asarray(state['output_pressure'], dtype=float)
+    measured = np.asarray(state['mass_flow'], dtype=float)
+    trace = InputTrace.pwm_commands(d.t_s, d.duty, d.pwm_frequency_hz, d.supply_voltage_v)
+    # a 0.1 ms grid resolves the stroke (under 1 ms) for the period means
+    t_fine = np.arange(1, int(np.ceil(m.t_s[-1] / 1e-4)) + 1) * 1e-4
+    labels = list(params_files)
+    params = [load_parameters(str(p)) if p is not None else load_parameters()
+              for p in params_files.values()]
+    res = simulate_trace_batch(params, trace, t_fine, sampling='instant',
+                               supply_pressure_pa=float(np.median(p_sup)),
+                               output_pressure_pa=float(np.median(p_out)))
+    starts = np.asarray(d.period_starts_s, dtype=float)
+    nominal = load_parameters()
+    full = float(orifice_mass_flow(nominal.stroke_m, float(np.median(p_sup)), 0.0, nominal))
+    out: dict = {'full_flow_kg_s': full, 'samples': int(m.t_s.size),
+                 'duration_s': float(m.t_s[-1] - m.t_s[0]), 'bag': str(bag)}
+    t_fine0 = np.concatenate(([0.0], t_fine))
+    for n, (label, par) in enumerate(zip(labels, params)):
+        x = np.concatenate(([0.0], res.spool_position_m[n]))
+        x_avg = np.interp(m.t_s, t_fine0, _held_period_means(t_fine0, x, starts))
+        flow = orifice_mass_flow(x_avg, p_sup, p_out, par)
+        err = flow - measured
+        ok = np.isfinite(err)
+        rms = float(np.sqrt(np.mean(err[ok] ** 2)))
+        out[label] = {'rms_kg_s': rms, 'rms_pct': 100.0 * rms / full,
+                      'mean_predicted_kg_s': float(np.mean(flow[ok])),
+                      'mean_measured_kg_s': float(np.mean(measured[ok]))}
+    return out
+
+
+def _simulator_check(params: Path) -> bool:
+    """Start ``valve_simulator`` with ``params`` for a few seconds; True if it simulated."""
+    sim = subprocess.Popen(['valve_simulator', '--ros-args', '-p',
+                            f'params_file:={params.resolve()}'],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                           start_new_session=True)
+    try:
+        time.sleep(4.0)
+    finally:
+        os.killpg(sim.pid, signal.SIGINT)
+        try:
+            sim_out, _ = sim.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(sim.pid, signal.SIGKILL)
+            sim_out, _ = sim.communicate()
+    started = 'simulating' in sim_out
+    _say(f'valve_simulator with the identified parameters: '
+         f'{"started and stopped cleanly" if started else "FAILED"}')
+    if not started:
+        print(sim_out, flush=True)
+    return started
+
+
+def _figures(block: dict) -> dict:
+    return {part: {k: block[part][k] for k in ('iae', 'rmse', 'nrmse_pct')
+                   if k in block[part]}
+            for part in ('fit', 'validation') if block.get(part)}
+
+
+def run_operation_loop(out: Path, effect: str, effect_args: tuple[str, ...],
+                       quick: bool = False) -> int:
+    """The loop in service (``--mode operation``); returns the exit code."""
+    goals = OPERATION_GOALS_QUICK if quick else OPERATION_GOALS
+    stages: dict[str, float] = {}
+    t_start = time.monotonic()
+
+    def stage(name: str, t0: float) -> None:
+        stages[name] = round(time.monotonic() - t0, 2)
+        _say(f'stage {name}: {stages[name]:.1f} s')
+
+    for sub in ('before', 'after'):
+        if (out / sub / 'report').exists():
+            raise ValueError(f'{out / sub} already holds a run; give another --out')
+    t0 = time.monotonic()
+    bag_before = _run_suite('before', out / 'before', effect_args, goals)
+    stage('run_before', t0)
+
+    t0 = time.monotonic()
+    ident = out / 'identification'
+    _run(['valve_identify', '--fit', str(bag_before), '--out', str(ident)]
+         + (['--quick'] if quick else []))
+    stage('identification', t0)
+    report = json.loads((ident / 'report.json').read_text())
+    diag = report['diagnosis']
+    base, aug = report['baseline'], report['augmented']
+    _say(f'injected effect: {effect}; diagnosis: {diag["effect"]} '
+         f'(confidence {diag.get("confidence", "?")})')
+    for block_name, block in (('baseline', base), ('augmented', aug)):
+        for part in ('fit', 'validation'):
+            m = block.get(part) or {}
+            if m:
+                _say(f'{block_name:>9} {part:>10}: IAE {m["iae"]:.4g} A s, RMSE '
+                     f'{m["rmse"] * 1e3:.2f} mA, NRMSE {m["nrmse_pct"]:.2f} %')
+    params = (ident / 'params.yaml').resolve()
+
+    t0 = time.monotonic()
+    map_file = (out / 'map_identified.json').resolve()
+    # flow_to_duty sends 50 Hz (its pwm_frequency_hz) and inverts the map at the supply
+    # pressure, interpolating between the map's pressures: 50 Hz over 0..6 bar suffices.
+    _run(['valve_map', '--params', str(params), '-o', str(map_file), '--frequencies', '50',
+          '--pressures-bar', '0', '2', '4', '6', '--fig-dir', str(out / 'map'), '-q'])
+    stage('map', t0)
+    t0 = time.monotonic()
+    sim_ok = _simulator_check(params)
+    stage('simulator_check', t0)
+    if not sim_ok:
+        return 1
+
+    t0 = time.monotonic()
+    bag_after = _run_suite('after', out / 'after', effect_args, goals, flow_to_duty_args=(
+        '-p', f'map_file:={map_file}', '-p', f'params_file:={params}'))
+    stage('run_after', t0)
+
+    t0 = time.monotonic()
+    tracking = {'before': tracking_error(bag_before), 'after': tracking_error(bag_after)}
+    flow_runs = {name: flow_prediction_error(bag, {'nominal': None, 'identified': params})
+                 for name, bag in (('before_run', bag_before), ('after_run', bag_after))}
+    stage('evaluation', t0)
+    # The headline flow error is on the after run: a record the identification never saw.
+    flow = {'before': {'params': 'nominal', **flow_runs['after_run']['nominal']},
+            'after': {'params': 'identified', **flow_runs['after_run']['identified']},
+            'record': 'after_run', 'full_flow_kg_s': flow_runs['after_run']['full_flow_kg_s'],
+            'runs': flow_runs}
+    stages['total'] = round(time.monotonic() - t_start, 2)
+    loop = {
+        'mode': 'operation', 'effect_injected': effect, 'emulator_args': list(effect_args),
+        'goals': [{'position_mm': g * 1e3, 'hold_s': h} for g, h in goals],
+        'quick': quick,
+        'diagnosis': diag,
+        'baseline': _figures(base), 'augmented': _figures(aug),
+        'identification': {'report': str(ident / 'report.md'), 'params': str(params),
+                           'timings_s': report.get('timings_s', {})},
+        'map': str(map_file), 'simulator_started': sim_ok,
+        'tracking': tracking, 'flow': flow, 'stages_s': stages,
+        'units': {'iae': 'A s', 'rmse': 'A', 'rms_mm': 'mm', 'rms_kg_s': 'kg/s',
+                  'rms_pct': '% of full flow', 'stages_s': 's (wall time)'},
+    }
+    (out / 'loop.json').write_text(json.dumps(loop, indent=2, default=str) + '\n')
+    (out / 'loop.md').write_text(_loop_markdown(loop, out))
+    _say(f'tracking error (RMS goal - position): before {tracking["before"]["rms_mm"]:.3f} mm, '
+         f'after {tracking["after"]["rms_mm"]:.3f} mm')
+    _say(f'flow prediction error (RMS, % of full flow, after run): nominal '
+         f'{flow["before"]["rms_pct"]:.2f} %, identified {flow["after"]["rms_pct"]:.2f} %')
+    _say('stage times [s]: ' + ', '.join(f'{k} {v:.1f}' for k, v in stages.items()))
+    _say(f'loop report: {out / "loop.md"} (and loop.json)')
+    return 0
+
+
+def _loop_markdown(loop: dict, out: Path) -> str:
+    """``loop.md``: the loop's numbers for a person, with pointers to the plots."""
+    diag, base, aug = loop['diagnosis'], loop['baseline'], loop['augmented']
+    tr, fl, st = loop['tracking'], loop['flow'], loop['stages_s']
+
+    def fig(block: dict, part: str, key: str, scale: float = 1.0, fmt: str = '.4g') -> str:
+        v = (block.get(part) or {}).get(key)
+        return 'n/a' if v is None else format(v * scale, fmt)
+    lines = [
+        '# The loop in service', '',
+        f'Effect carried by the emulator\'s valve: **{loop["effect_injected"]}**; named by '
+        f'the identification: **{diag.get("effect")}** (confidence '
+        f'{diag.get("confidence", "n/a")}).', '',
+        '## Coil current (identification from the before run\'s bag)', '',
+        '| model | fit IAE [A s] | validation IAE [A s] | validation RMSE [mA] |',
+        '|---|---|---|---|',
+        f'| baseline (nominal equations) | {fig(base, "fit", "iae")} | '
+        f'{fig(base, "validation", "iae")} | {fig(base, "validation", "rmse", 1e3, ".2f")} |',
+        f'| augmented ({diag.get("effect")}) | {fig(aug, "fit", "iae")} | '
+        f'{fig(aug, "validation", "iae")} | {fig(aug, "validation", "rmse", 1e3, ".2f")} |',
+        '', 'Validation: the last 30 % of the record, never seen by the fit. Details and plots: '
+        '[identification/report.md](identification/report.md).', '',
+        '## Position tracking (RMS of goal - position over the run)', '',
+        '| run | flow_to_duty with | RMS [mm] | mean abs [mm] | max abs [mm] |',
+        '|---|---|---|---|---|',
+        f'| before | nominal parameters and map | {tr["before"]["rms_mm"]:.3f} | '
+        f'{tr["before"]["mean_abs_mm"]:.3f} | {tr["before"]["max_abs_mm"]:.2f} |',
+        f'| after | identified parameters and map | {tr["after"]["rms_mm"]:.3f} | '
+        f'{tr["after"]["mean_abs_mm"]:.3f} | {tr["after"]["max_abs_mm"]:.2f} |',
+        '', 'Plots: [before/report/report.md](before/report/report.md) '
+        '(before/report/overview.png), [after/report/report.md](after/report/report.md) '
+        '(after/report/overview.png).', '',
+        '## Flow prediction (model driven by the recorded duty commands vs valve/state '
+        'mass_flow)', '',
+        f'RMS error in % of full flow ({fl["full_flow_kg_s"] * 1e3:.2f} g/s: spool open, '
+        'supply into the atmosphere):', '',
+        '| record | nominal parameters | identified parameters |', '|---|---|---|']
+    for name, run in fl['runs'].items():
+        lines.append(f'| {name.replace("_", " ")} | {run["nominal"]["rms_pct"]:.2f} % | '
+                     f'{run["identified"]["rms_pct"]:.2f} % |')
+    lines += ['', 'The after run was not used by the identification. The static map from the '
+              'identified parameters: `map_identified.json` (figures in `map/`).', '',
+              '## Time of each stage (wall time)', '',
+              '| stage | s |', '|---|---|']
+    lines += [f'| {k} | {v:.1f} |' for k, v in st.items()]
+    timings = loop['identification'].get('timings_s') or {}
+    if timings:
+        lines += ['', 'Identification split: ' + ', '.join(
+            f'{k} {v:.1f} s' for k, v in timings.items() if isinstance(v, (int, float)))]
+    return '\n'.join(lines) + '\n'
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``valve_bench_loop``."""
     parser = argparse.ArgumentParser(prog='valve_bench_loop',
                                      description=__doc__.split('\n')[0])
-    parser.add_argument('--effect', default='coil_heating',
-                        help='physical effect of the emulated valve (default coil_heating)')
+    parser.add_argument('--mode', choices=('bench', 'operation'), default='bench',
+                        help='bench: bare-coil voltage steps (default); operation: the loop '
+                        'in service, from position-control runs of the suite (docs/loop.md)')
+    parser.add_argument('--effect', default=None,
+                        help='physical effect of the emulated valve (default coil_heating in '
+                        'bench mode, eddy_current in operation mode)')
     parser.add_argument('--effect-param', action='append', default=None, metavar='FIELD=VALUE',
                         help='value of an effect parameter, passed to the emulator (default '
                         'for coil_heating: a small coil that heats noticeably within a '
@@ -147,14 +505,33 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _interrupt)
 
     out = args.out
+    if args.effect is None:
+        args.effect = 'coil_heating' if args.mode == 'bench' else OPERATION_DEFAULT_EFFECT
+    from valve_model_pkg.model import EFFECTS
+    from valve_model_pkg.model.parameters import EMULATOR_EFFECTS  # forms, not candidates
+    if args.effect != 'none' and args.effect not in EFFECTS and args.effect not in \
+            EMULATOR_EFFECTS:
+        parser.error(f'--effect {args.effect!r}: expected none or one of {", ".join(EFFECTS)} '
+                     f'or an emulator form {", ".join(EMULATOR_EFFECTS)}')
     out.mkdir(parents=True, exist_ok=True)
     effect_args: tuple[str, ...] = ()
     effect_params = args.effect_param
     if effect_params is None:
-        effect_params = list(DEFAULT_EFFECT_PARAMS.get(args.effect, ()))
+        defaults = DEFAULT_EFFECT_PARAMS if args.mode == 'bench' \
+            else OPERATION_EFFECT_PARAMS
+        effect_params = list(defaults.get(args.effect, ()))
     if args.effect and args.effect != 'none':
         effect_args = ('--effect', args.effect) + tuple(
             a for item in effect_params for a in ('--effect-param', item))
+    if args.mode == 'operation':
+        try:
+            return run_operation_loop(out, args.effect, effect_args, quick=args.quick)
+        except KeyboardInterrupt:
+            _say('interrupted')
+            return 130
+        except (ChildExited, RuntimeError, OSError, KeyError, ValueError) as err:
+            _say(f'error: {err}')
+            return 1
     stamp = time.strftime('%Y%m%d-%H%M%S')
     try:
         fit = record_bench_step(BenchRecord('fit', 24.0), out / f'bench_24V_{stamp}',
@@ -181,18 +558,7 @@ def main(argv: list[str] | None = None) -> int:
         _run(['valve_map', '--params', str(params), '-o', str(out / 'map_identified.json'),
               '--frequencies', '50', '--pressures-bar', '0', '4', '--duty-step', '0.02',
               '--fig-dir', str(out)])
-        sim = subprocess.Popen(['valve_simulator', '--ros-args', '-p',
-                                f'params_file:={params.resolve()}'],
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                               start_new_session=True)
-        time.sleep(4.0)
-        os.killpg(sim.pid, signal.SIGINT)
-        sim_out, _ = sim.communicate(timeout=20)
-        started = 'simulating' in sim_out
-        _say(f'valve_simulator with the identified parameters: '
-             f'{"started and stopped cleanly" if started else "FAILED"}')
-        if not started:
-            print(sim_out)
+        if not _simulator_check(params):
             return 1
         _say(f'identification report: {ident / "report.md"}')
         return 0

@@ -59,6 +59,9 @@ class DemoConfig:
     cylinder: str = 'single'           # single | double (lockstep only)
     live: bool = False                 # Foxglove WebSocket view on 127.0.0.1
     live_port: int = 8765
+    #: Extra ``--ros-args`` of every flow_to_duty (e.g. ``-p map_file:=M -p params_file:=P``:
+    #: the loop in service restarts it with an identified map); empty = its defaults.
+    flow_to_duty_args: tuple[str, ...] = ()
 
     @property
     def lockstep(self) -> bool:
@@ -110,7 +113,8 @@ def suite_processes(cfg: DemoConfig, bag: Path) -> list[ProcessSpec]:
             backend = backend_processes(cfg.backend, rate_hz=cfg.rate_hz,
                                         emulator_args=cfg.effect_args)
         return backend + [
-            ProcessSpec('flow_to_duty', ['flow_to_duty']),
+            ProcessSpec('flow_to_duty', ['flow_to_duty', *(
+                ('--ros-args', *cfg.flow_to_duty_args) if cfg.flow_to_duty_args else ())]),
             ProcessSpec('pneumatic_cylinder', ['pneumatic_cylinder']),
             ProcessSpec('position_controller', ['position_controller']),
             recorder,
@@ -139,7 +143,7 @@ def suite_processes(cfg: DemoConfig, bag: Path) -> list[ProcessSpec]:
     for ns in cfg.valves:
         remap = ['-r', f'__ns:=/{ns}'] if ns else []
         procs.append(ProcessSpec(f'flow_to_duty{"_" + ns if ns else ""}', [
-            'flow_to_duty', '--ros-args', *remap, *sim_time]))
+            'flow_to_duty', '--ros-args', *remap, *sim_time, *cfg.flow_to_duty_args]))
     double = ['-p', 'cylinder:=double'] if cfg.cylinder == 'double' else []
     procs.append(ProcessSpec('position_controller', [
         'position_controller', '--ros-args', *sim_time, *double]))

@@ -546,6 +546,16 @@ def _bag_records_to_measurement(spath: str, topic: str, valve: str | None,
         notes.append('all header stamps are zero; the bag receive times are used')
         stamps = logtimes
     t = stamps - stamps[0]
+    n_back = int(np.count_nonzero(np.diff(t) <= 0.0))
+    if n_back and np.all(np.diff(seq) > 0) and t[-1] > t[0]:
+        # The CAN driver on simulation time stamps each state on receipt with a /clock
+        # that can lag a step behind the emulator's telemetry; the telemetry itself comes
+        # at one message per step, which the sequence numbers count.
+        step = (t[-1] - t[0]) / (seq[-1] - seq[0])
+        t = (seq - seq[0]) * step
+        notes.append(f'{n_back} header stamps do not increase while the sequence numbers '
+                     f'do; the time axis is rebuilt from the sequence numbers at the mean '
+                     f'step {step * 1e3:.4g} ms')
     _check_time_axis(spath, t, None)
     freq_all, duty_all = arr[:, 9], arr[:, 10]
     if np.any(freq_all > 0.0) and np.any(duty_all > 0.0):
@@ -834,11 +844,16 @@ def drive_from_in_force(t: np.ndarray, duty: np.ndarray, freq: np.ndarray, suppl
 def _with_offs(drive: DriveInput, t_off: np.ndarray, f_at: np.ndarray) -> DriveInput:
     """``drive`` with immediate duty-0 commands at ``t_off`` merged in."""
     from dataclasses import replace
+    # A switch-off must not move the period grid, and the model latches its frequency at
+    # the next period start: it carries the frequency of the model's command in force (in
+    # the lead-in before the first period start, the lead-in's, not the record's f_at).
+    k_cmd = np.clip(np.searchsorted(drive.t_s, t_off, side='right') - 1, 0, None)
+    f_cmd = drive.pwm_frequency_hz[k_cmd]
     ts = np.concatenate((drive.t_s, t_off))
     order = np.argsort(ts, kind='stable')
     out = replace(
         drive, t_s=ts[order], duty=np.concatenate((drive.duty, np.zeros(t_off.size)))[order],
-        pwm_frequency_hz=np.concatenate((drive.pwm_frequency_hz, f_at))[order],
+        pwm_frequency_hz=np.concatenate((drive.pwm_frequency_hz, f_cmd))[order],
         supply_voltage_v=np.full(ts.size, float(drive.supply_voltage_v[0])),
         off_times_s=t_off, off_freq_hz=f_at)
     k = np.searchsorted(out.period_starts_s, t_off, side='right') - 1
