@@ -117,8 +117,10 @@ def test_driver_watchdog_closes_at_once_at_0_1_hz() -> None:
         off = rig.stepper.off_after(t_stop)
         assert off <= DEENERGISE_BOUND_S, off
         assert all(s.coil_voltage_v <= 0.0 for s in rig.stepper.samples if s.t_s > t_stop)
-        # the watchdog's frame came after its timeout (+ refresh and scheduling slack)
-        assert 0.2 <= t_stop - t_open <= 0.2 + 1.5
+        # the watchdog's frame came after its timeout (+ refresh and scheduling slack); the
+        # driver times out on the wall clock and the emulator's model time follows it with a
+        # few ms of skew either way (CI saw 0.1996 s), hence the 10 ms allowance below
+        assert 0.2 - 0.01 <= t_stop - t_open <= 0.2 + 1.5
         last = rig.stepper.samples[-1]
         assert last.spool_position_m == 0.0 and last.duty == 0.0
     finally:
