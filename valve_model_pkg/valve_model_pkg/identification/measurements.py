@@ -77,6 +77,8 @@ _MIN_SAMPLES = 10
 MEAN_CURRENT_FIELD = 'coil_current_mean'
 #: A coil voltage at or below this everywhere counts as no excitation [V].
 _MIN_EXCITATION_V = 1e-3
+#: An interval-mean current at most this is exactly 0 (the coil never energised) [A].
+_REST_MEAN_A = 1e-9
 
 
 @dataclass(frozen=True)
@@ -550,12 +552,18 @@ def _bag_records_to_measurement(spath: str, topic: str, valve: str | None,
     if n_back and np.all(np.diff(seq) > 0) and t[-1] > t[0]:
         # The CAN driver on simulation time stamps each state on receipt with a /clock
         # that can lag a step behind the emulator's telemetry; the telemetry itself comes
-        # at one message per step, which the sequence numbers count.
-        step = (t[-1] - t[0]) / (seq[-1] - seq[0])
+        # at one message per step, which the sequence numbers count. The step is the
+        # median over pairs half the record apart: from the two end stamps alone, a last
+        # one that lags a step makes it 0.02 % short at 5000 messages (a least-squares
+        # line is biased too, the lags are one-sided), and the samples then drift a whole
+        # step against the model's PWM grid by the end.
+        half = seq.size // 2
+        step = float(np.median((t[half:] - t[:seq.size - half])
+                               / (seq[half:] - seq[:seq.size - half])))
         t = (seq - seq[0]) * step
         notes.append(f'{n_back} header stamps do not increase while the sequence numbers '
-                     f'do; the time axis is rebuilt from the sequence numbers at the mean '
-                     f'step {step * 1e3:.4g} ms')
+                     f'do; the time axis is rebuilt from the sequence numbers at the '
+                     f'step {step * 1e3:.6g} ms (median over half-record spans)')
     _check_time_axis(spath, t, None)
     freq_all, duty_all = arr[:, 9], arr[:, 10]
     if np.any(freq_all > 0.0) and np.any(duty_all > 0.0):
@@ -651,7 +659,7 @@ def _bag_operation(spath: str, topic: str, frame: str, t: np.ndarray, arr: np.nd
     output = _median_pressure(arr[:, 8], 'output_pressure', 0.0, notes)
     notes.append(f'the bag does not carry the drive supply voltage: {DEFAULT_BAG_SUPPLY_V:g} V '
                  '(the suite\'s) is assumed')
-    drive, dnotes = drive_from_in_force(t, duty, freq, DEFAULT_BAG_SUPPLY_V)
+    drive, dnotes = drive_from_in_force(t, duty, freq, DEFAULT_BAG_SUPPLY_V, current)
     notes += dnotes
     moving = np.flatnonzero(duty > 0.0)
     at_rest = bool(moving.size and t[moving[0]] - t[0] >= 1.0 / freq[0])
@@ -725,7 +733,8 @@ def _lead(period_s: float) -> float:
     return min(_LATCH_LEAD_S, 0.25 * period_s)
 
 
-def _phase_from_changes(t: np.ndarray, change_idx: np.ndarray, period_s: float
+def _phase_from_changes(t: np.ndarray, change_idx: np.ndarray, period_s: float,
+                        rise: tuple[float, float] | None = None
                         ) -> tuple[float, tuple[float, float]] | None:
     """First main PWM period start in [t0, t0 + T) consistent with the changes seen.
 
@@ -733,15 +742,28 @@ def _phase_from_changes(t: np.ndarray, change_idx: np.ndarray, period_s: float
     ``(t[k-1], t[k]]``. The phase that satisfies most such intervals (the middle of the
     widest set that does) is returned with the range of shifts that satisfy as many
     (the identification refines the phase in it from the current); ``None`` without any
-    change.
+    change. ``rise`` = ``[lo, hi)``: a period start the current shows (the first rise of
+    the interval-mean current from exactly 0), kept as a hard constraint when some phase
+    meets it. The interval ends are candidates too: a controller whose PWM grid is locked
+    to its telemetry grid (the emulator: 20 ms = 20 telemetry periods) starts a period
+    exactly at a sample time, which the middle of the range misses by half a sample.
     """
     if change_idx.size == 0:
         return None
     a, b = t[change_idx - 1], t[change_idx]
-    cand = t[0] + period_s * (np.arange(4000) + 0.5) / 4000.0
-    d = np.mod(b[None, :] - cand[:, None], period_s)
+    ends = [b] + ([np.array([rise[0]])] if rise is not None else [])
+    cand = np.sort(np.concatenate(
+        [t[0] + period_s * (np.arange(4000) + 0.5) / 4000.0]
+        + [t[0] + np.mod(e - t[0], period_s) for e in ends]))
+    # 1 ns tolerance: a start at exactly b (or at the rise) stays in (a, b] after mod
+    d = np.mod(b[None, :] - cand[:, None] + _PHASE_TOL_S, period_s) - _PHASE_TOL_S
     ok = d < (b - a)[None, :]
     score = ok.sum(axis=1)
+    if rise is not None:
+        dr = np.mod(cand - rise[0] + _PHASE_TOL_S, period_s) - _PHASE_TOL_S
+        meets = dr < rise[1] - rise[0]
+        if np.any(meets):
+            score = np.where(meets, score, -1)
     best = score == score.max()
     # middle of the longest run of best candidates (circular runs are rare; take linear)
     idx = np.flatnonzero(best)
@@ -749,6 +771,24 @@ def _phase_from_changes(t: np.ndarray, change_idx: np.ndarray, period_s: float
     run = max(runs, key=len)
     mid = float(cand[run[len(run) // 2]])
     return mid, (float(cand[run[0]]) - mid, float(cand[run[-1]]) - mid)
+
+
+#: Time tolerance of the phase candidates [s].
+_PHASE_TOL_S = 1e-9
+
+
+def _first_rise(t: np.ndarray, current: np.ndarray | None, duty: np.ndarray,
+                end: int) -> tuple[float, float] | None:
+    """``[t[j], t[j + 1])``: where the first period start lies if the interval-mean current
+    is exactly 0 up to sample j (the coil was never energised before t[j]) and not at j + 1
+    (within the first ``end`` samples, with a non-zero duty by then); else None."""
+    if current is None:
+        return None
+    live = np.flatnonzero(~(np.abs(current[:end]) <= _REST_MEAN_A))
+    if live.size == 0 or live[0] == 0 or not np.any(duty[:live[0] + 1] > 0.0):
+        return None
+    j = int(live[0]) - 1
+    return float(t[j]), float(t[j + 1])
 
 
 def _commands_from_periods(starts: list[float], duty: list[float], freq: list[float],
@@ -787,13 +827,16 @@ def _commands_from_periods(starts: list[float], duty: list[float], freq: list[fl
                       period_freq_hz=np.asarray(freq))
 
 
-def drive_from_in_force(t: np.ndarray, duty: np.ndarray, freq: np.ndarray, supply_v: float
+def drive_from_in_force(t: np.ndarray, duty: np.ndarray, freq: np.ndarray, supply_v: float,
+                        current_mean: np.ndarray | None = None
                         ) -> tuple[DriveInput, list[str]]:
     """Commands of an operational record (duty and frequency *in force* per sample).
 
     The main PWM period grid is reconstructed: its phase from the samples at which the
     command in force changes (each change happens at a period start between the previous
-    sample and that one), then period by period with the frequency in force.
+    sample and that one), then period by period with the frequency in force. With
+    ``current_mean`` (interval means [A]) the first rise of the current from exactly 0
+    narrows the phase (see :func:`_first_rise`).
 
     Returns
     -------
@@ -809,7 +852,8 @@ def drive_from_in_force(t: np.ndarray, duty: np.ndarray, freq: np.ndarray, suppl
     f_first = freq[0]
     first_f_change = np.flatnonzero(np.diff(freq) != 0)
     end_first = first_f_change[0] + 1 if first_f_change.size else t.size
-    found = _phase_from_changes(t, change[change <= end_first], 1.0 / f_first)
+    found = _phase_from_changes(t, change[change <= end_first], 1.0 / f_first,
+                                _first_rise(t, current_mean, duty, end_first))
     if found is None:
         phase = float(t[0])
         prange = (0.0, 1.0 / f_first)
@@ -821,8 +865,10 @@ def drive_from_in_force(t: np.ndarray, duty: np.ndarray, freq: np.ndarray, suppl
                      f'period start at {phase * 1e3:.3f} ms')
     # the period in progress at the first sample started one period before the phase
     s = phase
-    while s - 1.0 / f_first >= 0.0:
+    while s - 1.0 / f_first >= -_PHASE_TOL_S:
         s -= 1.0 / f_first
+    if s < _PHASE_TOL_S:
+        s = 0.0  # a start at t = 0 within rounding (a phase on the sample grid)
     starts, dl, fl = [], [], []
     t_end = float(t[-1])
     while s <= t_end:
@@ -849,11 +895,26 @@ def _with_offs(drive: DriveInput, t_off: np.ndarray, f_at: np.ndarray) -> DriveI
     # the lead-in before the first period start, the lead-in's, not the record's f_at).
     k_cmd = np.clip(np.searchsorted(drive.t_s, t_off, side='right') - 1, 0, None)
     f_cmd = drive.pwm_frequency_hz[k_cmd]
-    ts = np.concatenate((drive.t_s, t_off))
+    # The period commands skip repeats of the (duty, f) before; after a switch-off the
+    # next non-zero period must be commanded again, or the model stays off for it.
+    re_t, re_d, re_f = [], [], []
+    if drive.period_duty is not None:
+        starts = drive.period_starts_s
+        for t0, t1 in zip(t_off, np.append(t_off[1:], np.inf)):
+            j = int(np.searchsorted(starts, t0, side='right'))
+            if j >= starts.size or starts[j] >= t1 or drive.period_duty[j] <= 0.0:
+                continue
+            if not np.any((drive.t_s > t0) & (drive.t_s < starts[j])):
+                re_t.append(max(starts[j] - _lead(1.0 / drive.period_freq_hz[j]),
+                                0.5 * (t0 + starts[j])))
+                re_d.append(float(drive.period_duty[j]))
+                re_f.append(float(drive.period_freq_hz[j]))
+    ts = np.concatenate((drive.t_s, t_off, re_t))
     order = np.argsort(ts, kind='stable')
     out = replace(
-        drive, t_s=ts[order], duty=np.concatenate((drive.duty, np.zeros(t_off.size)))[order],
-        pwm_frequency_hz=np.concatenate((drive.pwm_frequency_hz, f_cmd))[order],
+        drive, t_s=ts[order],
+        duty=np.concatenate((drive.duty, np.zeros(t_off.size), re_d))[order],
+        pwm_frequency_hz=np.concatenate((drive.pwm_frequency_hz, f_cmd, re_f))[order],
         supply_voltage_v=np.full(ts.size, float(drive.supply_voltage_v[0])),
         off_times_s=t_off, off_freq_hz=f_at)
     k = np.searchsorted(out.period_starts_s, t_off, side='right') - 1

@@ -1,0 +1,72 @@
+"""A CAN-lockstep bag read for identification: the time axis rebuilt from the sequence
+numbers and the main PWM grid placed where the controller has it. The emulator's PWM grid
+is locked to its 1 kHz telemetry (both tick from model time 0), so a period starts exactly
+at a sample time; the nominal model must then reproduce the recorded interval means (a
+reader that put the start mid-interval, or rebuilt the step from the two end stamps, was
+off by tens of mA). Fast: no identification run."""
+from __future__ import annotations
+
+import numpy as np
+
+from valve_model_pkg.identification.measurements import (
+    _bag_records_to_measurement, drive_from_in_force,
+)
+from valve_model_pkg.identification.model_adapter import prepare_trace, simulate_trace_batch
+from valve_model_pkg.model import InputTrace, load_parameters
+from valve_model_pkg.model import simulate_trace_batch as model_trace_batch
+
+_N = 1201          # telemetry messages, 1 ms apart, from model time 0
+_STEP_S = 1e-3
+
+
+def _lockstep_records() -> tuple[list[tuple], np.ndarray]:
+    """ValveState fields of the emulator on the simulation clock (nominal model, 50 Hz)."""
+    t = np.arange(_N) * _STEP_S
+    # commands given between period starts (control ticks); each latches at the next start
+    t_cmd = [0.0, 0.0123, 0.0571, 0.2333, 0.6012]
+    duty_cmd = [0.0, 0.30, 0.55, 0.40, 0.62]
+    trace = InputTrace.pwm_commands(t_cmd, duty_cmd, [50.0] * len(t_cmd), 24.0)
+    res = model_trace_batch(load_parameters(), trace, t, sampling='interval_mean',
+                            supply_pressure_pa=4e5)
+    starts = np.ceil(np.array(t_cmd) / 0.02) * 0.02          # where each one latches
+    in_force = np.array(duty_cmd)[np.searchsorted(starts, t + 1e-12, side='right') - 1]
+    # stamps on receipt with a /clock a step behind now and then, the last one included
+    lag = np.where(np.arange(_N) % 7 == 3, _STEP_S, 0.0)
+    lag[-1] = _STEP_S
+    stamps = 100.0 + t - lag
+    records = [('valve', float(stamps[k]), float(stamps[k]), k, 0.0, 0.0, 0.0, False, 4e5,
+                0.0, 50.0, float(in_force[k]), float(res.coil_current_a[0, k]), 1.0)
+               for k in range(_N)]
+    return records, res.coil_current_a[0]
+
+
+def test_lockstep_bag_time_axis_and_pwm_grid_match_the_emulator() -> None:
+    records, _ = _lockstep_records()
+    m = _bag_records_to_measurement('lockstep', '/valve/state', None, records)
+    # one message per 1 ms step: the lagging last stamp must not shorten the step
+    np.testing.assert_allclose(m.t_s, np.arange(_N) * _STEP_S, atol=1e-9)
+    # the first energised period starts exactly at 20 ms (the grid of model time 0)
+    first = m.drive.period_starts_s[m.drive.period_duty > 0][0]
+    assert abs(first - 0.020) < 1e-9
+    np.testing.assert_allclose(np.diff(m.drive.period_starts_s[:6]), 0.02, atol=1e-9)
+
+
+def test_nominal_model_reproduces_a_lockstep_bag_through_the_adapter() -> None:
+    """Reader + adapter + nominal parameters = the recorded interval means (< 1 mA)."""
+    records, recorded = _lockstep_records()
+    m = _bag_records_to_measurement('lockstep', '/valve/state', None, records)
+    sim, _ = simulate_trace_batch(load_parameters().to_vector()[None, :], prepare_trace(m))
+    err = sim[0] - recorded
+    assert np.max(np.abs(err[m.valid])) < 1e-3
+
+
+def test_a_switch_off_does_not_swallow_the_next_period_of_the_same_duty() -> None:
+    """Duty 0 seen for a while, then the same duty again: the model must pulse again."""
+    t = np.arange(1, 201) * 1e-3
+    duty = np.where(t > 0.0123, 0.5, 0.0)
+    duty[(t > 0.0245) & (t <= 0.0323)] = 0.0      # off at once, back at the 32.3 ms start
+    drive, _ = drive_from_in_force(t, duty, np.full(t.size, 100.0), 24.0)
+    off = drive.off_times_s[0]
+    nxt = drive.period_starts_s[drive.period_starts_s > off][0]
+    before = drive.t_s < nxt
+    assert drive.duty[before][-1] == 0.5 and drive.t_s[before][-1] > off
