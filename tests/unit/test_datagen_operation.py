@@ -183,8 +183,10 @@ def test_identification_of_a_clean_nominal_record(tmp_path_factory) -> None:
     Seen (2026-11-23, 21 min on a machine at load 15-20, 2 cores): diagnosis ``none``,
     confidence low, with the baseline residual called structured (4.5 mA RMS beyond a
     1.7 mA noise estimate: the generator's hysteresis regulator and capacitor are not the
-    suite's PI chopper); NRMSE 0.49 %; R, x_max, A_e, delta, s pinned down and within
-    0.8, 0.8, 1.3, 3.0, 1.6 % of the truth; hold current 0.5012 A.
+    suite's PI chopper); NRMSE 0.49 %; R, x_max, A_e, delta, s within 0.8, 0.8, 1.3, 3.0,
+    1.6 % of the truth; hold current 0.5012 A. With the misfit floor on the intervals
+    (sensitivity.misfit_floor_pct) only R stays pinned down (95 % CI 4.5 %), the others'
+    intervals (5.6-9.5 %) cover the truth.
     """
     from valve_model_pkg.cli.identify import main as identify_main
     base = tmp_path_factory.mktemp('ops-ident')
@@ -209,9 +211,17 @@ def test_identification_of_a_clean_nominal_record(tmp_path_factory) -> None:
             'core_area_m2': tv['flux_area_m2'], 'spring_pretension_m': tv['pretension_m'],
             'equivalent_gap_m': tv['core_length_m'] / tv['mu_r'] + 2 * tv['total_gap_m']}
     pinned = base_rep['sensitivity']['pinned_down']
-    assert {'coil_resistance_ohm', 'stroke_m', 'core_area_m2'} <= set(pinned)
+    assert 'coil_resistance_ohm' in pinned
     for name in pinned:
         if name in true:
             assert base_rep['parameters'][name] == pytest.approx(true[name], rel=0.05), name
+    # The intervals are honest: the generator's electronics are not the suite's, the
+    # residual is structured, and every stated 95 % interval covers the truth (before the
+    # misfit floor, x_max, A_e and delta were off by 2-6x their stated intervals).
+    ci95 = base_rep['sensitivity']['ci95_pct']
+    for name, value in true.items():
+        if ci95.get(name) is not None:
+            err_pct = 100.0 * abs(base_rep['parameters'][name] / value - 1.0)
+            assert err_pct <= ci95[name], (name, err_pct, ci95[name])
     assert rep['drive_electronics']['values']['holding_current_a'] == pytest.approx(
         0.5, rel=0.01)
