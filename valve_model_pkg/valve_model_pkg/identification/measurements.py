@@ -880,10 +880,21 @@ def drive_from_in_force(t: np.ndarray, duty: np.ndarray, freq: np.ndarray, suppl
     from dataclasses import replace
     drive = _commands_from_periods(starts, dl, fl, supply_v)
     if offs.size:
-        # immediate switch-offs, in the middle of the interval in which they were seen
-        t_off = 0.5 * (t[offs - 1] + t[offs])
+        on_samples = found is not None and float(np.min(np.abs(t - phase))) < 1e-6
+        if on_samples:
+            # The period grid lies on the sample instants: the controller acts on its own
+            # telemetry grid (the emulator in lockstep does), so a switch-off seen in an
+            # interval acted at its start (mid-interval put 0.5 ms of supply too much on
+            # the coil: 86 mA at a switch-off of a CAN demo bag).
+            t_off = t[offs - 1].astype(float)
+            where = 'at the start of the interval in which they were seen (the period grid ' \
+                'lies on the sample instants)'
+        else:
+            # unknown instant within the interval: its middle
+            t_off = 0.5 * (t[offs - 1] + t[offs])
+            where = 'mid-interval'
         drive = _with_offs(drive, t_off, np.interp(t_off, t, freq))
-        notes.append(f'{offs.size} switch-offs (duty 0 acts at once) placed mid-interval')
+        notes.append(f'{offs.size} switch-offs (duty 0 acts at once) placed {where}')
     return replace(drive, phase_range_s=prange), notes
 
 
