@@ -63,7 +63,7 @@ independently of the identification's candidates, so a valve emulated with them 
 the candidate's own equation. Their slow ladder current i_b is integrated with y like
 the integrals (the 8th component of the step tuple) and kept in ``d[D_IB]``. With both
 off (``p[P_EMU] == 0``) every function takes the code path it took before they existed,
-so outputs are bit-identical (tests/unit/test_emulator_effect_forms.py).
+so outputs are bit-identical (tests/unit/test_can_emulator_effect_forms.py).
 """
 from __future__ import annotations
 
