@@ -40,11 +40,6 @@ OPERATION_EFFECT = 'eddy_current'
 TRACKING_TOLERANCE_MM = 0.5
 
 
-@pytest.mark.skipif(
-    os.environ.get('VALVE_OPERATION_LOOP_TEST') != '1',
-    reason='known open (issue 13 item 1): the identification from the CAN demo bag misfits '
-    'the nominal model by tens of mA and does not name the effect yet; '
-    'VALVE_OPERATION_LOOP_TEST=1 runs it')
 def test_operation_loop_names_the_effect_and_improves_the_error(tmp_path):
     out = tmp_path / 'operation'
     proc = subprocess.run(['valve_bench_loop', '--mode', 'operation', '--effect',
