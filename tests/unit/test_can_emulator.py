@@ -4,6 +4,7 @@ from __future__ import annotations
 import itertools
 
 import can
+import numpy as np
 import pytest
 
 from valve_driver_pkg.emulator import (ControllerEmulator, ControllerState, EmulatorConfig,
@@ -534,3 +535,24 @@ def test_the_drivers_drive_mode_reaches_the_emulator() -> None:
         emu_bus.shutdown()
     with pytest.raises(ValueError, match="'turbo'.*'normal', 'bench'"):
         DriverConfig(drive_mode='turbo')
+
+
+def test_adc_noise_is_on_the_reported_current_only() -> None:
+    """--current-noise-a: the reported current and its interval mean carry the ADC's noise
+    (seeded); the model's own current, which the overcurrent check reads, does not."""
+    quiet, noisy = Rig(), Rig(current_noise_a=0.003, noise_seed=7)
+    try:
+        reported = {}
+        for name, r in (('quiet', quiet), ('noisy', noisy)):
+            r.emu.step(0.1)   # valve at rest: the coil current is exactly 0
+            reported[name] = np.array([m.signals['CoilCurrentMean']
+                                       for m in r.decoded(TELEMETRY_MEAN)])
+        assert np.all(reported['quiet'] == 0.0)
+        std = float(np.std(reported['noisy']))
+        assert 0.002 < std < 0.004, std
+        assert noisy.emu.stepper.sample().coil_current_a == 0.0
+    finally:
+        quiet.close()
+        noisy.close()
+    with pytest.raises(ValueError):
+        EmulatorConfig(current_noise_a=-1e-3)

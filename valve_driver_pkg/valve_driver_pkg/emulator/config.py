@@ -107,6 +107,13 @@ class EmulatorConfig:
     max_burst : int
         In real time, the most telemetry frames sent at once after a stall; beyond it the
         frames are skipped (the counter still advances, so the host sees the loss).
+    current_noise_a : float
+        Standard deviation of the current ADC's noise on the reported coil current and its
+        interval mean [A] (0: an ideal ADC). A real controller's current has noise; a
+        noise-free record makes every residual smooth, so an identification counts few
+        independent samples in it (valve_bench_loop uses 2 mA).
+    noise_seed : int
+        Seed of that noise (reproducible runs).
     """
 
     node_id: int = 0
@@ -118,11 +125,15 @@ class EmulatorConfig:
     supply_voltage_v: float = 24.0
     overcurrent_a: float = 6.0
     max_burst: int = 5
+    current_noise_a: float = 0.0
+    noise_seed: int = 0
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.telemetry_rate_hz <= 10_000.0:
             raise ValueError(f'telemetry_rate_hz {self.telemetry_rate_hz!r} outside [1, 10000]')
         if not 0.1 <= self.status_rate_hz <= 1000.0:
             raise ValueError(f'status_rate_hz {self.status_rate_hz!r} outside [0.1, 1000]')
+        if not 0.0 <= self.current_noise_a <= 0.5:
+            raise ValueError(f'current_noise_a {self.current_noise_a!r} outside [0, 0.5] A')
         if self.command_timeout_s < 0.0:
             raise ValueError(f'command_timeout_s {self.command_timeout_s!r} is negative')

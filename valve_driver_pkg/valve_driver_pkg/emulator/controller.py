@@ -53,6 +53,7 @@ import threading
 import time
 
 import can
+import numpy as np
 
 from valve_driver_pkg.emulator.config import (FLAG_HOLD_S, MIN_PRESSURE_PA, PERIOD_REFRESH_S,
                                               UNKNOWN_INJECTED_ID, ControllerState,
@@ -98,6 +99,7 @@ class ControllerEmulator(FaultHandling):
         self.bus = bus
         self.stepper = stepper
         self.faults = FaultInjector(fault_seed)
+        self._adc_rng = np.random.default_rng(self.config.noise_seed)
         self._lock = threading.RLock()
         self._telemetry_period_s = 1.0 / self.config.telemetry_rate_hz
         self._status_period_s = 1.0 / self.config.status_rate_hz
@@ -383,6 +385,8 @@ class ControllerEmulator(FaultHandling):
         counter = self._mean_counter
         if not self.faults.is_active(EmulatorFault.FREEZE_COUNTER):
             self._mean_counter = (counter + 1) & 0xF
+        if self.config.current_noise_a > 0.0:
+            current += float(self._adc_rng.normal(0.0, self.config.current_noise_a))
         signals = {'CoilCurrentMean': clamp(current, self._i_lo, self._i_hi),
                    'CoilVoltageMean': clamp(voltage, self._v_lo, self._v_hi),
                    'MeanInterval': clamp(width, self._w_lo, self._w_hi)}
@@ -411,6 +415,8 @@ class ControllerEmulator(FaultHandling):
             self._send_drive()
         self._send_period(s)
         self._send_mean(*mean)
+        if self.config.current_noise_a > 0.0:   # the ADC's noise, not the coil's current
+            current += float(self._adc_rng.normal(0.0, self.config.current_noise_a))
         signals = {
             'CoilCurrent': clamp(current, self._i_lo, self._i_hi),
             'CoilVoltage': clamp(float(s.coil_voltage_v), self._v_lo, self._v_hi),

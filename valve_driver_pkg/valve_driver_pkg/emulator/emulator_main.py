@@ -88,6 +88,9 @@ def build_parser() -> argparse.ArgumentParser:
     # for the bench mode in ValveCommand.DriveMode (driver parameter drive_mode:=bench).
     model.add_argument('--supply-voltage-v', type=float, default=24.0,
                        help='drive supply voltage of the emulated hardware [V] (default 24)')
+    model.add_argument('--current-noise-a', type=float, default=0.0,
+                       help='standard deviation of the current ADC noise on the reported '
+                            'coil current and its interval mean [A] (default 0; seeded)')
     model.add_argument('--no-current-control', action='store_true',
                        help='hardware built without the boost/holding-current chopper (its '
                             'normal mode is bare PWM voltage); the bench mode is asked for '
@@ -228,7 +231,8 @@ def main(argv: list[str] | None = None) -> int:
                                 position_estimate=not args.no_position_estimate,
                                 fault_injection=(args.fault_injection
                                                  and not args.no_control_frames),
-                                supply_voltage_v=args.supply_voltage_v)
+                                supply_voltage_v=args.supply_voltage_v,
+                                current_noise_a=args.current_noise_a)
         stepper = make_stepper(args)
     except (ValueError, OSError, ImportError, AttributeError) as err:
         logger.error('cannot start: %s', err)
