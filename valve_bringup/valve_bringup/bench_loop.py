@@ -87,6 +87,21 @@ class BenchRecord:
     post_s: float = 0.2
 
 
+#: The listed candidate whose physics an emulator effect form (written independently of
+#: the candidates, docs/effects.md) stands for: naming it, or `unlisted`, is a right answer.
+NEAREST_CANDIDATE: dict[str, str] = {'saturation_tanh': 'magnetic_saturation',
+                                     'eddy_ladder': 'eddy_current'}
+
+
+def expected_answers(effect: str) -> list[str]:
+    """The diagnoses that count as right for the effect the emulator's valve carries."""
+    if not effect or effect == 'none':
+        return ['none']
+    if effect in NEAREST_CANDIDATE:
+        return [NEAREST_CANDIDATE[effect], 'unlisted']
+    return [effect]
+
+
 #: Current ADC noise of the emulated bench controller [A] (standard deviation).
 BENCH_ADC_NOISE_A = 2e-3
 
@@ -416,6 +431,8 @@ def run_operation_loop(out: Path, effect: str, effect_args: tuple[str, ...],
         'goals': [{'position_mm': g * 1e3, 'hold_s': h} for g, h in goals],
         'quick': quick,
         'diagnosis': diag,
+        'judgement': {'expected': expected_answers(effect),
+                      'right': diag.get('effect') in expected_answers(effect)},
         'baseline': _figures(base), 'augmented': _figures(aug),
         'identification': {'report': str(ident / 'report.md'), 'params': str(params),
                            'timings_s': report.get('timings_s', {})},
