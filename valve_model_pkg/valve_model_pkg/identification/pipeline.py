@@ -620,7 +620,6 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
         # before it is worth polishing on the whole fit window).
         refit_settings = settings.operation_refit if through else settings.refit
         if search is not fit:
-            counts_s = _effective_counts(search, baseline_params)
             floors_s = _floors(search)
             base_mae_s = search.errors(baseline_params).mae_per_file
             c_search = float(fun_s(u_best[None, :])[0])
@@ -641,8 +640,10 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
                            f'search window cost below the baseline\'s {c_search:.4g} A)')
                 # Could it pay? The fit criterion (dBIC, effective sample counts) on the
                 # search window; one that cannot is evaluated as found, not polished.
+                # (samples counted in the candidate's residual, as select() does)
                 dbic_s = _dbic(base_mae_s, search.serial().errors(p_aug).mae_per_file,
-                               counts_s, len(c.fields), floors_s)
+                               _effective_counts(search.serial(), p_aug), len(c.fields),
+                               floors_s)
                 if not stopped and dbic_s < DBIC_THRESHOLD:
                     # It could pay: polish it on the whole fit window like the baseline.
                     p_aug, cost = polish_candidate(ext, fit.serial(), p_aug, baseline_params,
