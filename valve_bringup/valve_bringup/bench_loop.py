@@ -173,6 +173,25 @@ def record_bench_step(record: BenchRecord, bag: Path, effect_args: tuple[str, ..
     return bag
 
 
+def _identify(records: list[str], ident: Path, quick: bool, effect: str) -> dict:
+    """Run ``valve_identify`` on ``records`` into ``ident``; say the diagnosis and errors.
+
+    Returns the parsed ``report.json``.
+    """
+    _run(['valve_identify', *records, '--out', str(ident)] + (['--quick'] if quick else []))
+    report = json.loads((ident / 'report.json').read_text())
+    diag = report['diagnosis']
+    _say(f'injected effect: {effect}; diagnosis: {diag["effect"]} '
+         f'(confidence {diag.get("confidence", "?")})')
+    for block_name in ('baseline', 'augmented'):
+        for part in ('fit', 'validation'):
+            m = report[block_name].get(part) or {}
+            if m:
+                _say(f'{block_name:>9} {part:>10}: IAE {m["iae"]:.4g} A s, RMSE '
+                     f'{m["rmse"] * 1e3:.2f} mA, NRMSE {m["nrmse_pct"]:.2f} %')
+    return report
+
+
 def _run(argv: list[str]) -> subprocess.CompletedProcess:
     _say('$ ' + ' '.join(argv))
     proc = subprocess.run(argv, text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
@@ -381,20 +400,10 @@ def run_operation_loop(out: Path, effect: str, effect_args: tuple[str, ...],
 
     t0 = time.monotonic()
     ident = out / 'identification'
-    _run(['valve_identify', '--fit', str(bag_before), '--out', str(ident)]
-         + (['--quick'] if quick else []))
+    report = _identify(['--fit', str(bag_before)], ident, quick, effect)
     stage('identification', t0)
-    report = json.loads((ident / 'report.json').read_text())
     diag = report['diagnosis']
     base, aug = report['baseline'], report['augmented']
-    _say(f'injected effect: {effect}; diagnosis: {diag["effect"]} '
-         f'(confidence {diag.get("confidence", "?")})')
-    for block_name, block in (('baseline', base), ('augmented', aug)):
-        for part in ('fit', 'validation'):
-            m = block.get(part) or {}
-            if m:
-                _say(f'{block_name:>9} {part:>10}: IAE {m["iae"]:.4g} A s, RMSE '
-                     f'{m["rmse"] * 1e3:.2f} mA, NRMSE {m["nrmse_pct"]:.2f} %')
     params = (ident / 'params.yaml').resolve()
 
     t0 = time.monotonic()
@@ -564,19 +573,7 @@ def main(argv: list[str] | None = None) -> int:
         val = record_bench_step(BenchRecord('validate', 15.0), out / f'bench_15V_{stamp}',
                                 effect_args)
         ident = out / 'identification'
-        _run(['valve_identify', '--fit', str(fit), '--validate', str(val), '--out', str(ident)]
-             + (['--quick'] if args.quick else []))
-        report = json.loads((ident / 'report.json').read_text())
-        diag = report['diagnosis']
-        base, aug = report['baseline'], report['augmented']
-        _say(f'injected effect: {args.effect}; diagnosis: {diag["effect"]} '
-             f'(confidence {diag.get("confidence", "?")})')
-        for block_name, block in (('baseline', base), ('augmented', aug)):
-            for part in ('fit', 'validation'):
-                m = block.get(part) or {}
-                if m:
-                    _say(f'{block_name:>9} {part:>10}: IAE {m["iae"]:.4g} A s, RMSE '
-                         f'{m["rmse"] * 1e3:.2f} mA, NRMSE {m["nrmse_pct"]:.2f} %')
+        _identify(['--fit', str(fit), '--validate', str(val)], ident, args.quick, args.effect)
         params = ident / 'params.yaml'
         _run(['valve_simulate', '--experiment', 'step', '--voltage', '24', '--duration',
               '0.02', '--params', str(params), '--out', str(out / 'step24_identified.csv')])

@@ -192,6 +192,26 @@ def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, 
     params, cost, space
         The refitted parameters, their cost on ``data`` and the extended space.
     """
+    p, cost, ext, _ = refit_effect_or_stop(space, data, params, effect, settings,
+                                           progress=progress)
+    return p, cost, ext
+
+
+def refit_effect_or_stop(space: ParameterSpace, data: FitData, params: ValveParameters,
+                         effect: str, settings: SearchSettings,
+                         progress: Callable[[str], None] | None = None,
+                         bar_cost: float | None = None
+                         ) -> tuple[ValveParameters, float, ParameterSpace, bool]:
+    """:func:`refit_effect` that may stop after its coarse profile.
+
+    When ``bar_cost`` is given (the baseline's own cost on ``data``) and none of the coarse
+    profile's trial amounts brings the cost below it, the effect cannot pay and the fine
+    profile is skipped (records through the electronics, where each simulation is dear).
+
+    Returns
+    -------
+    params, cost, space, stopped
+    """
     ext = effect_space(space, effect)
     u_base = ext.to_unit(params)
     first = ext.names.index(EFFECTS[effect].fields[0])
@@ -208,6 +228,8 @@ def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, 
     coarse = replace(settings, restarts=0)
     res = direct_search(fun, np.array(starts), coarse, progress=progress,
                         label=f'refit {effect}', fixed=np.array([first]))
+    if bar_cost is not None and not res.cost < bar_cost:
+        return ext.params(res.u), res.cost, ext, True
     # Fine profile around the best trial amount, between its neighbours on the grid, from
     # the baseline parameters that amount found; then restarts that free everything
     # (without this second look the free restarts rarely leave the grid value: the effect
@@ -228,7 +250,7 @@ def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, 
                          progress=progress, label=f'refit {effect} (fine)',
                          fixed=np.array([first]))
     best = res2 if res2.cost <= res.cost else res
-    return ext.params(best.u), best.cost, ext
+    return ext.params(best.u), best.cost, ext, False
 
 
 #: Error floor of the BIC comparison, relative to each file's current range: below it

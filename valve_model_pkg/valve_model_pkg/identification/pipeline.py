@@ -9,7 +9,7 @@ import logging
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 
@@ -19,9 +19,9 @@ import numpy as np
 
 from ..model.parameters import EFFECTS, ValveParameters
 from .diagnosis import (
-    _PROFILE_FRACTIONS as PROFILE_FRACTIONS, DBIC_THRESHOLD, CandidateResult, Diagnosis,
-    _dbic, _effective_counts, _floors, describe_remaining, refit_effect, score_signatures,
-    second_effect, select,
+    DBIC_THRESHOLD, CandidateResult, Diagnosis, _dbic, _effective_counts, _floors,
+    describe_remaining, refit_effect, refit_effect_or_stop, score_signatures, second_effect,
+    select,
 )
 from .drive import DriveReport, fit_drive
 from .measurements import Measurement, hold_out
@@ -182,52 +182,6 @@ def _two_starts(u: np.ndarray, others: np.ndarray | None) -> np.ndarray:
             near = min(far, key=lambda x: float(np.max(np.abs(x - u))))
             return np.vstack([u, u + 0.25 * (near - u)])
     return np.vstack([u, np.clip(u + 0.02, 0.0, 1.0)])
-
-
-def refit_early_stop(space: ParameterSpace, data: 'FitData', params: ValveParameters,
-                     effect: str, settings: SearchSettings, bar_cost: float
-                     ) -> tuple[ValveParameters, float, ParameterSpace, bool]:
-    """:func:`.diagnosis.refit_effect` with an early stop, for records through the
-    electronics (each simulation of the search window costs ~5 ms).
-
-    The coarse profile (one simplex per trial amount of the effect, the baseline
-    parameters adapting) runs first; when none of the amounts brings the cost below
-    ``bar_cost`` (the baseline's own cost on ``data``) the effect cannot pay and the fine
-    profile is skipped. Otherwise the same fine profile as ``refit_effect``.
-
-    Returns
-    -------
-    params, cost, space, stopped
-    """
-    ext = effect_space(space, effect)
-    u_base = ext.to_unit(params)
-    first = ext.names.index(EFFECTS[effect].fields[0])
-    starts = []
-    for frac in PROFILE_FRACTIONS:
-        u = u_base.copy()
-        u[first] = frac
-        starts.append(u)
-    fun = unit_objective(ext, data)
-    res = direct_search(fun, np.array(starts), replace(settings, restarts=0),
-                        label=f'refit {effect}', fixed=np.array([first]))
-    if not res.cost < bar_cost:
-        return ext.params(res.u), res.cost, ext, True
-    grid = np.array(PROFILE_FRACTIONS)
-    k = int(np.argmin(np.abs(grid - res.u[first])))
-    lo = grid[k - 1] if k > 0 else 0.0
-    hi = grid[k + 1] if k + 1 < grid.size else 1.0
-    fine = []
-    for frac in (lo + 0.5 * (grid[k] - lo), grid[k] - 0.25 * (grid[k] - lo),
-                 grid[k] + 0.25 * (hi - grid[k]), grid[k] + 0.5 * (hi - grid[k])):
-        u = res.u.copy()
-        u[first] = frac
-        fine.append(u)
-    fine.append(res.u.copy())
-    res2 = direct_search(fun, np.array(fine), replace(settings,
-                                                      initial_step=0.5 * settings.initial_step),
-                         label=f'refit {effect} (fine)', fixed=np.array([first]))
-    best = res2 if res2.cost <= res.cost else res
-    return ext.params(best.u), best.cost, ext, False
 
 
 def polish_candidate(ext: ParameterSpace, data: 'FitData', params: ValveParameters,
@@ -632,9 +586,9 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
                 p_aug, cost, ext = refit_effect(space, search.serial(), baseline_params,
                                                 c.effect, refit_settings, progress=None)
             else:
-                p_aug, cost, ext, stopped = refit_early_stop(
+                p_aug, cost, ext, stopped = refit_effect_or_stop(
                     space, search.serial(), baseline_params, c.effect, refit_settings,
-                    c_search)
+                    bar_cost=c_search)
                 if stopped:
                     how = (f' (stopped after the coarse profile: no trial amount brought the '
                            f'search window cost below the baseline\'s {c_search:.4g} A)')
