@@ -17,7 +17,6 @@ worker pool's start-up and the numba cache loading counted) with ``--workers 1``
 """
 from __future__ import annotations
 
-import json
 import os
 import resource
 import subprocess
@@ -25,6 +24,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from common import record as _record, write_results  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -36,13 +36,6 @@ WORKLOADS = {
     'baseline': {'valves': 8, 'options': ['--quick', '--no-diagnosis'], 'target': 1.6},
     'close_the_loop': {'valves': 4, 'options': ['--quick'], 'target': None},
 }
-
-
-def _record(name, value, unit, ref_name, ref_value, target, passed, notes):
-    return {'name': name, 'value': value, 'unit': unit, 'reference_name': ref_name,
-            'reference_value': ref_value,
-            'ratio': (value / ref_value) if ref_value else None,
-            'target': target, 'passed': passed, 'notes': notes}
 
 
 def _manifest(root: Path, n: int) -> Path:
@@ -102,9 +95,7 @@ def main() -> int:
                 f'>= {target}' if target else 'informative',
                 (speedup >= target) if target else None,
                 f'1 worker {t1:.1f} s, 2 workers {t2:.1f} s; {notes}'))
-    out = HERE / 'results' / 'fleet.json'
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(records, indent=1), encoding='utf-8')
+    write_results('fleet', records)
     return 0
 
 

@@ -33,6 +33,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from common import record as _record, write_results  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -56,13 +57,6 @@ _DRIVE_TRUTH = {'holding_current_a': 'hold_current_a',
 NOISE_A = 3e-3
 SPREAD = 0.15
 TARGET_PCT = 5.0
-
-
-def _record(name, value, unit, ref_name, ref_value, target, passed, notes):
-    return {'name': name, 'value': value, 'unit': unit, 'reference_name': ref_name,
-            'reference_value': ref_value,
-            'ratio': (value / ref_value) if (ref_value and value is not None) else None,
-            'target': target, 'passed': passed, 'notes': notes}
 
 
 def _truth_value(name: str, valve: dict) -> float:
@@ -156,9 +150,7 @@ def main(argv: list[str] | None = None) -> int:
         'ops_param_error_wall_time', t_ident, 's', None, None, 'informative', True,
         f'valve_identify --quick --no-diagnosis on {args.records} records of '
         f'{args.duration:g} s; generating them took {t_gen:.1f} s; {load}'))
-    out_file = HERE / 'results' / 'ident_param_errors.json'
-    out_file.parent.mkdir(exist_ok=True)
-    out_file.write_text(json.dumps(records, indent=1), encoding='utf-8')
+    write_results('ident_param_errors', records)
     for r in records:
         v = 'flag (not pinned)' if r['value'] is None else f"{r['value']:.4g} {r['unit']}"
         print(f"{r['name']}: {v} (target {r['target']})", file=sys.stderr)

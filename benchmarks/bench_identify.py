@@ -24,12 +24,12 @@ folder. The first simulation compiles the numba kernels; that is timed separatel
 """
 from __future__ import annotations
 
-import json
 import os
 import sys
 import tempfile
 import time
 from pathlib import Path
+from common import record as _record, write_results  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -44,13 +44,6 @@ from valve_model_pkg.model.parameters import load_parameters  # noqa: E402
 
 _TRUTH = {'coil_resistance_ohm': 'resistance_ohm', 'stroke_m': 'stroke_m',
           'core_area_m2': 'flux_area_m2', 'spring_pretension_m': 'pretension_m'}
-
-
-def _record(name, value, unit, ref_name, ref_value, target, passed, notes):
-    return {'name': name, 'value': value, 'unit': unit, 'reference_name': ref_name,
-            'reference_value': ref_value,
-            'ratio': (value / ref_value) if ref_value else None,
-            'target': target, 'passed': passed, 'notes': notes}
 
 
 def _write_operation(path: Path, params, duration_s: float, noise_a: float, seed: int,
@@ -200,9 +193,7 @@ def main() -> int:
             'close_the_loop_diagnosis_correct', float(n_ok), 'cases', 'cases', float(len(right)),
             'informative', n_ok == len(right), '; '.join(right)))
         records += _operation_records(tmp, base, load)
-    out = HERE / 'results' / 'identify.json'
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(records, indent=1), encoding='utf-8')
+    write_results('identify', records)
     for r in records:
         print(f"{r['name']}: {r['value']:.4g} {r['unit']} (target {r['target']}) "
               f"{'ok' if r['passed'] else 'MISSED'}", file=sys.stderr)

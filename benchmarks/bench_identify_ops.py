@@ -20,7 +20,6 @@ load: timings on a shared machine are pessimistic, the ratio (1)/(2) less so.
 """
 from __future__ import annotations
 
-import json
 import os
 import sys
 import tempfile
@@ -33,7 +32,8 @@ sys.path.insert(0, str(ROOT / 'valve_model_pkg'))
 sys.path.insert(0, str(ROOT / 'tests'))
 sys.path.insert(0, str(HERE))
 
-from bench_identify import _record, _write_operation  # noqa: E402
+from bench_identify import _write_operation  # noqa: E402
+from common import record as _record, write_results  # noqa: E402
 from datagen.generate import generate_case  # noqa: E402
 from valve_model_pkg.identification.measurements import read_csv, read_measurements  # noqa: E402,E501
 from valve_model_pkg.identification.pipeline import IdentifySettings, identify  # noqa: E402
@@ -99,9 +99,7 @@ def main() -> int:
             t_step, 'about 60 s on 2 cores', t_bench <= 60.0,
             f'diagnosis {ident.diagnosis.effect}; {ident.simulations} simulations; '
             f'{_split(ident)}; {load}'))
-    out = HERE / 'results' / 'identify_ops.json'
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(records, indent=1), encoding='utf-8')
+    write_results('identify_ops', records)
     for r in records:
         print(f"{r['name']}: {r['value']:.4g} {r['unit']} (target {r['target']}) "
               f"{'ok' if r['passed'] else 'MISSED'}", file=sys.stderr)

@@ -25,13 +25,13 @@ No timing is asserted in pytest; this script writes benchmarks/results/map.json.
 """
 from __future__ import annotations
 
-import json
 import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from common import record as _record, write_results  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 THREADS = 2
@@ -44,12 +44,6 @@ def _load_avg() -> str:
         return f'machine load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs'
     except OSError:
         return ''
-
-
-def _record(name, value, unit, ref_name, ref_value, ratio, target, passed, notes) -> dict:
-    return {'name': name, 'value': value, 'unit': unit, 'reference_name': ref_name,
-            'reference_value': ref_value, 'ratio': ratio, 'target': target,
-            'passed': passed, 'notes': notes}
 
 
 def bench_grid(records: list[dict]) -> None:
@@ -209,9 +203,7 @@ def main() -> int:
     records: list[dict] = []
     bench_inversion(records)
     bench_grid(records)
-    out = HERE / 'results' / 'map.json'
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(records, indent=1) + '\n')
+    write_results('map', records)
     for r in records:
         print(f"{r['name']}: {r['value']:.4g} {r['unit']} (reference {r['reference_value']:.4g}"
               f", ratio {r['ratio']:.3g}, target {r['target']}, passed {r['passed']})")

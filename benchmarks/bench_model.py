@@ -10,7 +10,6 @@ Run: ``.venv/bin/python benchmarks/bench_model.py`` (about a minute).
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import subprocess
@@ -20,6 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from common import record as _record, write_results  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'valve_model_pkg'))
@@ -34,21 +34,10 @@ from valve_model_pkg.model import (  # noqa: E402
 from valve_model_pkg import model as K  # noqa: E402  (public names only)
 from valve_model_pkg.model.magnetics import MU_0  # noqa: E402
 
-OUT = ROOT / 'benchmarks' / 'results' / 'model.json'
 DUTY, FREQ, P_SUP, V_S = 0.4, 50.0, 4.0e5, 24.0
 ACCURACY_WINDOW_S = 0.1   # accuracy compared over 5 PWM periods
 REF_SPEED_WINDOW_S = 0.2  # solve_ivp speed measured over 10 periods (periodic steady state)
 SAMPLE_HZ = 10e3
-
-
-def _record(name: str, value: float, unit: str, reference_name: str | None,
-            reference_value: float | None, target: str, passed: bool, notes: str,
-            ratio: float | None = None) -> dict:
-    if ratio is None and reference_value not in (None, 0.0) and value:
-        ratio = reference_value / value if unit == 's' else value / reference_value
-    return {'name': name, 'value': value, 'unit': unit, 'reference_name': reference_name,
-            'reference_value': reference_value, 'ratio': ratio, 'target': target,
-            'passed': bool(passed), 'notes': notes}
 
 
 # --------------------------------------------------------------------------------------
@@ -349,7 +338,7 @@ def bench_batch(params: ValveParameters) -> list[dict]:
               f'average {os.getloadavg()[0]:.1f}.')
     return [_record('model_step_batch_1000_wall', wall, 's',
                     'loop of 1000 simulate_step calls', loop_wall, '<= 1 s on 2 cores',
-                    wall <= 1.0, notes),
+                    wall <= 1.0, notes, ratio=loop_wall / wall),
             _record('model_step_batch_1000_speedup', loop_wall / wall, 'x',
                     'loop of 1000 simulate_step calls', 1.0, '>= 3 x the loop on 2 cores',
                     loop_wall / wall >= 3.0, 'same runs as model_step_batch_1000_wall; the '
@@ -391,7 +380,8 @@ def bench_startup() -> list[dict]:
     return [_record('model_first_call_cached', cached, 's', 'first call, empty numba cache',
                     cold, 'informative', True,
                     'fresh process: import + first simulate_pwm + first batch call, with '
-                    'the numba on-disk cache (cache=True) vs an empty cache (full compile)')]
+                    'the numba on-disk cache (cache=True) vs an empty cache (full compile)',
+                    ratio=cold / cached)]
 
 
 def main() -> int:
@@ -405,13 +395,13 @@ def main() -> int:
     print('bench_model: (b) batch of 1000 step responses', file=sys.stderr)
     records += bench_batch(params)
     records += bench_stepper(params)
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(records, indent=2) + '\n', encoding='utf-8')
+    write_results('model', records)
     for r in records:
         ratio = f'{r["ratio"]:.3g}' if r['ratio'] is not None else '-'
         print(f'{r["name"]:45s} {r["value"]:10.4g} {r["unit"]:18s} ratio {ratio:>8s}  '
               f'{"PASS" if r["passed"] else "FAIL"}  ({r["target"]})', file=sys.stderr)
-    print(f'bench_model: wrote {OUT} in {time.perf_counter() - t0:.1f} s', file=sys.stderr)
+    print(f'bench_model: wrote results/model.json in {time.perf_counter() - t0:.1f} s',
+          file=sys.stderr)
     return 0 if all(r['passed'] for r in records) else 1
 
 

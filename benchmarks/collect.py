@@ -23,6 +23,16 @@ def _fmt(value: object) -> str:
     return '' if value is None else str(value)
 
 
+def _when(r: dict) -> str:
+    """``2026-11-23 23:10, 0.4/0.6``: when the record was measured and the load then."""
+    at = r.get('measured_at')
+    if not at:
+        return ''
+    load = r.get('load_average') or []
+    return at[:16].replace('T', ' ') + (', ' + '/'.join(f'{v:.1f}' for v in load)
+                                        if load else '')
+
+
 def collect() -> dict:
     records = []
     for path in sorted((HERE / 'results').glob('*.json')):
@@ -43,20 +53,25 @@ def collect() -> dict:
 
 
 def table(summary: dict) -> str:
-    lines = ['| suite | benchmark | value | reference | ratio | target | met |',
-             '|---|---|---|---|---|---|---|']
+    lines = ['| suite | benchmark | value | reference | ratio | target | met '
+             '| measured (UTC), load |',
+             '|---|---|---|---|---|---|---|---|']
     for r in summary['results']:
         ref = ''
         if r.get('reference_name'):
             ref = (f"{_fmt(r.get('reference_value'))} {r.get('unit', '')} "
                    f"({r.get('reference_name', '')})")
         met = {True: 'yes', False: '**no**'}.get(r.get('passed'), '')
+        when = _when(r)
         lines.append(f"| {r['suite']} | {r['name']} | {_fmt(r.get('value'))} {r.get('unit', '')} "
-                     f"| {ref} | {_fmt(r.get('ratio'))} | {r.get('target', '')} | {met} |")
+                     f"| {ref} | {_fmt(r.get('ratio'))} | {r.get('target', '')} | {met} "
+                     f"| {when} |")
     m = summary['machine']
     lines.append('')
-    lines.append(f"Measured {summary['generated']} on {m['cpus']} CPUs, Python {m['python']} "
-                 f"({m['platform']}) by `make bench`; raw figures in `benchmarks/results.json`.")
+    lines.append(f"Collected {summary['generated']} on {m['cpus']} CPUs, Python {m['python']} "
+                 f"({m['platform']}) by `make bench` (each suite stamped when it ran, with "
+                 f"the 1/5-min load average of the machine then; suites run by an older "
+                 f"version carry no stamp); raw figures in `benchmarks/results.json`.")
     return '\n'.join(lines)
 
 
