@@ -104,7 +104,8 @@ def _operation_records(tmp: str, base, load: str) -> list[dict]:
     out.append(_record(
         'close_the_loop_60ms_pair_plus_3s_record', t_loop, 's', 'target', 60.0,
         '<= 60 s on 2 cores', t_loop <= 60.0, f'diagnosis {ident.diagnosis.effect} '
-        f'({ident.diagnosis.confidence}); {ident.simulations} simulations; {load}'))
+        f'({ident.diagnosis.confidence}); {ident.simulations} simulations; time split: '
+        + ', '.join(f'{k} {v:.1f} s' for k, v in ident.timings_s.items()) + f'; {load}'))
     errs: dict[str, list[float]] = {}
     names = ('coil_resistance_ohm', 'stroke_m', 'core_area_m2', 'spring_pretension_m',
              'damping_n_s_per_m')
