@@ -5,7 +5,9 @@ of one core) and peak resident memory (VmHWM) are measured over a window after s
 The reference, measured in the same run, is a bare rclpy process that publishes the same
 messages (every field ``state_message`` fills, fixed values, one ``valve_msgs/ValveState``
 per valve and tick, same QoS) from a 1 kHz timer: what rclpy + DDS cost before any valve
-code (it imports nothing of valve_model_pkg, whose model loads numba).
+code (it imports nothing of valve_model_pkg). The nodes run the ahead-of-time kernel
+when ``make setup`` built it (model/aot.py: no numba in the process), else the numba jit;
+the records say which.
 
 1. ``valve_bank_simulator`` with 16 valves (target: real time within one core, peak
    memory <= 250 MB) and each valve's rate as seen by a subscriber in this process.
@@ -35,7 +37,7 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)
 
 BARE_PUBLISHER = '''
-# No valve_model_pkg import: that would load numba (the package's model imports it).
+# No valve_model_pkg import: the reference is rclpy + DDS and the messages alone.
 import sys, rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from valve_msgs.msg import ValveState
@@ -203,6 +205,16 @@ def _quietest(runs: list[dict]) -> dict:
     return min(runs, key=lambda r: r['load1'])
 
 
+def _kernel() -> str:
+    """Which kernel the nodes started from this environment run: 'aot' or 'jit' (numba).
+
+    The same choice a node makes (model/aot.py: the module of the current kernel key in
+    the same directory); importing model.aot loads no numba.
+    """
+    from valve_model_pkg.model.aot import backend
+    return backend().name
+
+
 def _record(name, value, unit, ref_name, ref_value, target, passed, notes) -> dict:
     ratio = value / ref_value if ref_value else None
     return {'name': name, 'value': value, 'unit': unit, 'reference_name': ref_name,
@@ -271,13 +283,15 @@ def main() -> int:
     records.append(_record(
         'valve_simulator at 1 kHz: peak memory (VmHWM)', peak1, 'MB',
         'bare rclpy publisher of one valve', max(r['peak_mb'] for r in runs['bare1']),
-        '<= 120 MB', peak1 <= 120.0, 'whole run incl. start-up; numba + llvmlite and the '
-        'loaded kernel are about 140 MB of it'))
+        '<= 120 MB', peak1 <= 120.0, f'whole run incl. start-up; kernel: {_kernel()} '
+        '(the ahead-of-time module imports no numba; on the numba jit, numba + llvmlite '
+        'and the loaded kernel add about 125 MB, docs/model.md)'))
     cpu_b1 = _quietest(runs['bank1'])['cpu_per_khz']
     records.append(_record(
         'bank simulator, 1 valve at 1 kHz: CPU per 1 kHz of ticks', cpu_b1, 'core',
         'bare rclpy publisher of the same 1 kHz messages', bare1, 'informative', None,
-        f"peak memory {max(r['peak_mb'] for r in runs['bank1']):.0f} MB; windows: "
+        f"peak memory {max(r['peak_mb'] for r in runs['bank1']):.0f} MB; kernel "
+        f"{_kernel()}; windows: "
         + windows('bank1')))
     (HERE / 'results').mkdir(exist_ok=True)
     (HERE / 'results' / 'bank.json').write_text(json.dumps(records, indent=1) + '\n')

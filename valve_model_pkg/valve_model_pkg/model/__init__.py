@@ -20,26 +20,63 @@ Public API (see docs/architecture.md, "Model core API"):
 
 Everything else (``kernel``, names starting with ``_``) is internal: code outside this
 package uses only the names above (a test checks it).
+
+The streaming model (``ValveStepper``, ``ValveBank``) runs on the kernel compiled ahead of
+time when it is built, else on the numba jit, with the same numbers;
+``valve_model_pkg.model.aot.backend()`` tells which (the nodes report it).
 """
-from .averaging import PeriodAverager, last_period_mean, moving_average, period_averages
-from .bank import ValveBank
-from .electronics import ElectronicsConfig
-from .magnetics import inductance, magnetic_force
-from .kernel import DEFAULT_H_FREE_S, DEFAULT_H_STOP_S
-from .orifice import orifice_mass_flow, orifice_mass_flow_scalar
-from .parameters import (
-    EFFECTS, PARAMETER_FIELDS, EffectSpec, ParameterError, ValveParameters,
-    default_parameters_path, load_parameters,
-)
-from .simulation import (
-    DEFAULT_SUPPLY_PRESSURE_PA, PwmBatchResult, SimulationResult, StepBatchResult,
-    StepMetrics, closing_time, simulate_pwm, simulate_pwm_batch, simulate_step,
-    simulate_step_batch, step_metrics,
-)
-from .stepper import ValveSample, ValveStepper
-from .trace import (
-    PARALLEL_MIN_BATCH, SAMPLING_MODES, InputTrace, TraceBatchResult, simulate_trace_batch,
-)
+from __future__ import annotations
+
+import importlib
+
+# The names are loaded on first use (PEP 562): the submodules with numba code (kernel,
+# magnetics, orifice, simulation, trace) are imported only when one of their names is
+# used, so a process that runs the streaming model on the ahead-of-time kernel
+# (model/aot.py; the simulator nodes) never imports numba or llvmlite (~130 MB).
+_HOME = {
+    'PeriodAverager': 'averaging', 'last_period_mean': 'averaging',
+    'moving_average': 'averaging', 'period_averages': 'averaging',
+    'ValveBank': 'bank',
+    'ElectronicsConfig': 'electronics',
+    'inductance': 'magnetics', 'magnetic_force': 'magnetics',
+    'DEFAULT_H_FREE_S': 'kernel', 'DEFAULT_H_STOP_S': 'kernel',
+    'orifice_mass_flow': 'orifice', 'orifice_mass_flow_scalar': 'orifice',
+    'EFFECTS': 'parameters', 'PARAMETER_FIELDS': 'parameters', 'EffectSpec': 'parameters',
+    'ParameterError': 'parameters', 'ValveParameters': 'parameters',
+    'default_parameters_path': 'parameters', 'load_parameters': 'parameters',
+    'DEFAULT_SUPPLY_PRESSURE_PA': 'simulation', 'PwmBatchResult': 'simulation',
+    'SimulationResult': 'simulation', 'StepBatchResult': 'simulation',
+    'StepMetrics': 'simulation', 'closing_time': 'simulation', 'simulate_pwm': 'simulation',
+    'simulate_pwm_batch': 'simulation', 'simulate_step': 'simulation',
+    'simulate_step_batch': 'simulation', 'step_metrics': 'simulation',
+    'ValveSample': 'stepper', 'ValveStepper': 'stepper',
+    'PARALLEL_MIN_BATCH': 'trace', 'SAMPLING_MODES': 'trace', 'InputTrace': 'trace',
+    'TraceBatchResult': 'trace', 'simulate_trace_batch': 'trace',
+}
+# the step defaults are plain numbers: served from kernel.py's source, without numba
+_LAYOUT_NAMES = ('DEFAULT_H_FREE_S', 'DEFAULT_H_STOP_S')
+_SUBMODULES = frozenset(_HOME.values()) | {'constants', 'electrical', 'mechanics', 'sample'}
+
+
+def __getattr__(name: str):
+    """Load a public name from its submodule on first use (then it is a plain global)."""
+    home = _HOME.get(name)
+    if home is None:
+        if name in _SUBMODULES:  # ``model.kernel`` etc., as when __init__ imported them all
+            return importlib.import_module(f'{__name__}.{name}')
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    if name in _LAYOUT_NAMES:
+        from .aot import layout
+        value = layout()[name]
+    else:
+        value = getattr(importlib.import_module(f'{__name__}.{home}'), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     'DEFAULT_H_FREE_S',

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from . import kernel as _k
+from .aot import backend as _backend, constants as _constants
 from .constants import ATMOSPHERIC_PRESSURE_PA
 from .electronics import ElectronicsConfig
 from .parameters import ParameterError, ValveParameters
@@ -27,6 +27,10 @@ from .sample import ValveSample
 from .stepper import _check_command, _check_pressures
 
 __all__ = ['ValveBank', 'SAMPLE_COLUMNS', 'sample_of']
+
+# The kernel's layout constants, read without importing numba; the compiled functions
+# come from _backend(): the ahead-of-time module or the jit (model/aot.py).
+_k = _constants()
 
 #: Columns of :meth:`ValveBank.sample_array`, in order (SI units, gauge pressures).
 SAMPLE_COLUMNS: tuple[str, ...] = (
@@ -106,8 +110,10 @@ class ValveBank:
         self._init = [(vs[k], float(duty_l[k]), float(freq_l[k]), float(sup_l[k]),
                        float(out_l[k])) for k in range(n)]
         self._h = (float(h_free_s), float(h_stop_s))
+        self._kb = _backend()
         self._p = np.ascontiguousarray(
-            [_k.derive_parameters(p.to_vector()) for p in self._params], dtype=np.float64)
+            [self._kb.derive_parameters(np.ascontiguousarray(p.to_vector(), dtype=np.float64))
+             for p in self._params], dtype=np.float64)
         self._e = np.ascontiguousarray([c.to_vector() for c in elec], dtype=np.float64)
         self._orifice = np.array(
             [(p.discharge_coefficient, p.orifice_area_gradient_m, p.supply_temperature_k,
@@ -121,6 +127,17 @@ class ValveBank:
         # running interval, the last means and whether one has ended (kernel IV_* columns)
         self._iv = np.zeros((n, _k.N_IV))
         self.reset()
+
+    def __getstate__(self) -> dict:
+        # the AOT module's functions do not pickle (its name is per kernel key): the
+        # receiving process picks its own backend
+        state = dict(self.__dict__)
+        del state['_kb']
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._kb = _backend()
 
     def __len__(self) -> int:
         return self._p.shape[0]
@@ -145,7 +162,8 @@ class ValveBank:
         for k in range(len(self)) if index is None else (self._index(index),):
             vs, duty, freq, p_sup, p_out = self._init[k]
             self._y[k] = 0.0
-            self._d[k] = _k.new_drive_state(vs, duty, 1.0 / freq, 0.0, p_sup, p_out)
+            self._d[k] = self._kb.new_drive_state(vs, duty, 1.0 / freq, 0.0, p_sup, p_out,
+                                                  math.inf, 0.0)
             self._d[k, _k.D_DUTY] = duty
             self._iv[k] = 0.0
 
@@ -169,7 +187,8 @@ class ValveBank:
         """
         _check_command(duty, pwm_frequency_hz)
         k = self._index(index)
-        _k.command(self._d[k], self._e[k], float(duty), 1.0 / float(pwm_frequency_hz))
+        self._kb.command(float(self._d[k, _k.D_T]), self._d[k], self._e[k], float(duty),
+                         1.0 / float(pwm_frequency_hz))
 
     def set_pressures(self, index: int, supply_pa: float, output_pa: float = 0.0) -> None:
         """Set valve ``index``'s supply and output gauge pressures in Pa (at once)."""
@@ -200,8 +219,8 @@ class ValveBank:
                 raise ParameterError(f't_s must be finite with shape {self._t_end.shape}, '
                                      f'got {t_s!r}')
             self._t_end[:] = t_arr
-        _k.bank_advance(self._p, self._e, self._y, self._d, self._t_end, self._h[0],
-                        self._h[1])
+        self._kb.bank_advance(self._p, self._e, self._y, self._d, self._t_end, self._h[0],
+                              self._h[1])
 
     def sample_array(self) -> np.ndarray:
         """The state of every valve now, shape (n, len(:data:`SAMPLE_COLUMNS`)).
@@ -212,8 +231,8 @@ class ValveBank:
         has not advanced keeps its means; before its first interval ends, the
         instantaneous values.
         """
-        _k.bank_sample(self._p, self._e, self._y, self._d, self._orifice,
-                       ATMOSPHERIC_PRESSURE_PA, self._iv, self._rows)
+        self._kb.bank_sample(self._p, self._e, self._y, self._d, self._orifice,
+                             float(ATMOSPHERIC_PRESSURE_PA), self._iv, self._rows)
         return self._rows
 
     def position_avg_m(self) -> np.ndarray:

@@ -39,13 +39,17 @@ import math
 
 import numpy as np
 
-from . import kernel as _k
+from .aot import backend as _backend, constants as _constants
+from .constants import ATMOSPHERIC_PRESSURE_PA
 from .electronics import ElectronicsConfig
-from .orifice import orifice_mass_flow_scalar
 from .parameters import ParameterError, ValveParameters
 from .sample import ValveSample
 
 __all__ = ['ValveSample', 'ValveStepper']
+
+# The kernel's layout constants (D_*, Y_*, N_*), read without importing numba; the
+# compiled functions come from _backend(): the ahead-of-time module or the jit (aot.py).
+_k = _constants()
 
 
 class ValveStepper:
@@ -90,11 +94,24 @@ class ValveStepper:
         self._init = (float(duty), float(pwm_frequency_hz), float(supply_pressure_pa),
                       float(output_pressure_pa))
         self._h = (float(h_free_s), float(h_stop_s))
-        self._p = _k.derive_parameters(params.to_vector())
+        self._kb = _backend()
+        self._p = self._kb.derive_parameters(
+            np.ascontiguousarray(params.to_vector(), dtype=np.float64))
         self._e = self._electronics.to_vector()
         self._out = np.zeros((0, _k.N_OUT))
         self._avg = np.zeros(0)
         self.reset()
+
+    def __getstate__(self) -> dict:
+        # the AOT module's functions do not pickle (its name is per kernel key): the
+        # receiving process picks its own backend
+        state = dict(self.__dict__)
+        del state['_kb']
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._kb = _backend()
 
     @property
     def params(self) -> ValveParameters:
@@ -115,8 +132,8 @@ class ValveStepper:
         """Back to t = 0, valve closed at rest, initial command and pressures."""
         duty, freq, p_sup, p_out = self._init
         self._y = np.zeros(_k.N_Y)
-        self._d = _k.new_drive_state(self._supply_voltage, duty, 1.0 / freq, 0.0, p_sup,
-                                     p_out)
+        self._d = self._kb.new_drive_state(self._supply_voltage, duty, 1.0 / freq, 0.0,
+                                           p_sup, p_out, math.inf, 0.0)
         self._d[_k.D_DUTY] = duty
         self._pending = (duty, freq)
         # interval means: (t, integral of i, integral of v) at the start of the running
@@ -137,7 +154,8 @@ class ValveStepper:
             Duty outside [0, 1] or non-positive/non-finite frequency.
         """
         _check_command(duty, pwm_frequency_hz)
-        _k.command(self._d, self._e, float(duty), 1.0 / float(pwm_frequency_hz))
+        self._kb.command(float(self._d[_k.D_T]), self._d, self._e, float(duty),
+                         1.0 / float(pwm_frequency_hz))
         self._pending = (float(duty), float(pwm_frequency_hz))
 
     @property
@@ -160,7 +178,7 @@ class ValveStepper:
         d = self._d
         if d[_k.D_MAIN_ON] != 0.0:
             vc_on, t_on = d[_k.D_VC_ON], d[_k.D_T_ON]
-            _k._rising_edge(float(d[_k.D_T]), self._y, self._p, d, self._e)
+            self._kb.rising_edge(float(d[_k.D_T]), self._y, self._p, d, self._e)
             d[_k.D_VC_ON], d[_k.D_T_ON] = vc_on, t_on
 
     def set_pressures(self, supply_pa: float, output_pa: float = 0.0) -> None:
@@ -181,8 +199,8 @@ class ValveStepper:
             raise ParameterError(f't_s must be finite, got {t_s!r}')
         if t_s <= self._d[_k.D_T]:
             return
-        _k.advance(self._p, self._e, self._y, self._d, float(t_s), self._h[0], self._h[1],
-                   self._out, self._avg)
+        self._kb.advance(self._p, self._e, self._y, self._d, float(t_s), self._h[0],
+                         self._h[1], self._out, self._avg)
 
     def interval_means(self) -> tuple[float, float]:
         """Mean coil current (A) and voltage (V) since the previous sampling instant.
@@ -208,8 +226,8 @@ class ValveStepper:
             self._iv_start = (t, float(d[_k.D_QI]), float(d[_k.D_QV]))
         if self._iv_last is None:
             phase = int(d[_k.D_PHASE])
-            return (float(_k._terminal_current(t, self._y, phase, self._p, d, self._e)),
-                    float(_k._voltage(t, phase, d, self._e)))
+            return (float(self._kb.terminal_current(t, self._y, phase, self._p, d, self._e)),
+                    float(self._kb.voltage(t, phase, d, self._e)))
         return self._iv_last
 
     def sample(self) -> ValveSample:
@@ -222,12 +240,12 @@ class ValveStepper:
         d, y = self._d, self._y
         t = float(d[_k.D_T])
         phase = int(d[_k.D_PHASE])
-        volt = float(_k._voltage(t, phase, d, self._e))
-        cur = float(_k._terminal_current(t, y, phase, self._p, d, self._e))
+        volt = float(self._kb.voltage(t, phase, d, self._e))
+        cur = float(self._kb.terminal_current(t, y, phase, self._p, d, self._e))
         x_avg = float(d[_k.D_XAVG])
         p_sup = float(d[_k.D_PSUP])
         p_out = float(d[_k.D_POUT])
-        flow = orifice_mass_flow_scalar(x_avg, p_sup, p_out, self._params)
+        flow = _mass_flow_scalar(self._kb, x_avg, p_sup, p_out, self._params)
         return ValveSample(
             t_s=t, coil_voltage_v=volt, coil_current_a=cur,
             spool_position_m=float(y[_k.Y_X]), spool_velocity_m_s=float(y[_k.Y_V]),
@@ -235,6 +253,25 @@ class ValveStepper:
             pwm_frequency_hz=float(1.0 / d[_k.D_PERIOD]), supply_pressure_pa=p_sup,
             output_pressure_pa=p_out, coil_temperature_rise_k=float(y[_k.Y_DT]),
             coil_current_mean_a=i_mean, coil_voltage_mean_v=v_mean)
+
+
+def _mass_flow_scalar(kb, position_m: float, supply_pressure_pa: float,
+                      output_pressure_pa: float, params: ValveParameters) -> float:
+    """``orifice.orifice_mass_flow_scalar`` on the backend's compiled eq. (12), kg/s.
+
+    The same arithmetic and the same compiled ``_mass_flow``, so the same number; here
+    because orifice.py imports numba at module level.
+    """
+    up = supply_pressure_pa + ATMOSPHERIC_PRESSURE_PA
+    down = output_pressure_pa + ATMOSPHERIC_PRESSURE_PA
+    sign = 1.0
+    if down > up:
+        up, down, sign = down, up, -1.0
+    return sign * float(kb.mass_flow(position_m, up, down, params.discharge_coefficient,
+                                     params.orifice_area_gradient_m,
+                                     params.supply_temperature_k,
+                                     params.gas_constant_j_per_kg_k,
+                                     params.heat_capacity_ratio))
 
 
 def _check_command(duty: float, pwm_frequency_hz: float) -> None:

@@ -41,6 +41,7 @@ from valve_msgs.msg import DutyCommand, ValveState
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
 from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS, forward_logging, state_message
 from valve_model_pkg.model import ElectronicsConfig, default_parameters_path, load_parameters
+from valve_model_pkg.model.aot import backend as kernel_backend
 from valve_model_pkg.model.bank import ValveBank, sample_of
 from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, PRESSURE_QOS,
                                           STATE_QOS, TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
@@ -174,6 +175,9 @@ class ValveBankSimulatorNode(Node):
             f'simulating {len(names)} valves ({", ".join(names)}) at {self._rate_hz:g} Hz; '
             f'duty {duty:g} at {pwm_hz:g} Hz, supply {supply_pa:g} Pa gauge, current '
             f'control {current_control}, capacitor {capacitor}')
+        # which compiled kernel runs: the ahead-of-time module (no numba in the process)
+        # or the numba jit (model/aot.py, docs/model.md)
+        self.get_logger().info(f'valve kernel: {kernel_backend().origin}')
 
     @staticmethod
     def _parameter_paths(names: list[str], files: list[str]) -> list[str]:
@@ -363,6 +367,7 @@ class ValveBankSimulatorNode(Node):
                 **v.inputs.diagnostic_values(), model_time_s=s.t_s,
                 duty=s.duty, pwm_frequency_hz=s.pwm_frequency_hz,
                 supply_pressure_pa=s.supply_pressure_pa, params_file=v.params_path,
+                kernel=kernel_backend().name,
                 valves_in_process=len(self._valves))
             statuses.append(status)
         array = DiagnosticArray()

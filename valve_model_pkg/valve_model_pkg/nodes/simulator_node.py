@@ -36,6 +36,7 @@ from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_model_pkg.model import ElectronicsConfig, ValveStepper, default_parameters_path, \
     load_parameters
+from valve_model_pkg.model.aot import backend as kernel_backend
 from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS, forward_logging, state_message
 # The accepted PWM frequencies: one pair for simulator, CAN driver and DBC.
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
@@ -144,6 +145,9 @@ class ValveSimulatorNode(Node):
             f'simulating {path} at {self._rate_hz:g} Hz; duty {duty:g} at {pwm_hz:g} Hz, '
             f'supply {supply_pa:g} Pa gauge, current control {current_control}, '
             f'capacitor {capacitor}')
+        # which compiled kernel runs: the ahead-of-time module (no numba in the process)
+        # or the numba jit (model/aot.py, docs/model.md)
+        self.get_logger().info(f'valve kernel: {kernel_backend().origin}')
 
     # --- inputs ---------------------------------------------------------------------------
     def _on_duty(self, msg: DutyCommand) -> None:
@@ -331,7 +335,8 @@ class ValveSimulatorNode(Node):
             duty_commands_rejected=self._inputs.count('duty_command'),
             **self._inputs.diagnostic_values(), model_time_s=s.t_s,
             duty=s.duty, pwm_frequency_hz=s.pwm_frequency_hz,
-            supply_pressure_pa=s.supply_pressure_pa, params_file=self._params_path)
+            supply_pressure_pa=s.supply_pressure_pa, params_file=self._params_path,
+            kernel=kernel_backend().name)
         array = DiagnosticArray()
         array.header.stamp = self.get_clock().now().to_msg()
         array.status = [status]
