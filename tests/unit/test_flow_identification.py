@@ -267,3 +267,50 @@ def test_cli_out_dir_refuses_flow_fraction_file(tmp_path: Path, capsys) -> None:
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and 'mass_flow' in err and 'Traceback' not in err
     assert not (tmp_path / 'o' / 'params.yaml').exists()
+
+
+def test_cli_chamber_mode_identifies_from_a_bag_and_names_the_defaults(
+        tmp_path: Path, capsys, prior) -> None:
+    """``valve_flow_check BAG --chamber --out DIR``: the constant from the chamber's mass
+    balance, written where the flow-map mode writes it; the cylinder geometry the bag lacks
+    is the suite cylinder's unless given, and the output says which defaults were used."""
+    import json as _json
+
+    from valve_model_pkg.cli.flow_check import main
+    true = prior.replace(orifice_area_gradient_m=prior.orifice_area_gradient_m * 1.2)
+    cyl = CylinderParameters()
+    rec = _chamber_run(true, cyl)
+    area = np.pi * cyl.bore_diameter_m ** 2 / 4.0
+    _write_chamber_bag(tmp_path / 'bag', rec, (rec.volume_m3 - cyl.dead_volume_m3) / area)
+    out = tmp_path / 'cal'
+    assert main([str(tmp_path / 'bag'), '--chamber', '--out', str(out)]) == 0
+    said = capsys.readouterr().out
+    assert 'defaults were used for --bore-m, --dead-volume-m3' in said
+    data = _json.loads((out / 'flow_identified.json').read_text())
+    true_product = true.discharge_coefficient * true.orifice_area_gradient_m
+    assert data['source'] == 'chamber'
+    assert data['product_m'] == pytest.approx(true_product, rel=0.03)
+    assert (out / 'params.yaml').is_file() and (out / 'map.json').is_file()
+    # a wrong bore (twice the real one) gives a different constant: the geometry matters
+    assert main([str(tmp_path / 'bag'), '--chamber', '--bore-m',
+                 str(2 * cyl.bore_diameter_m), '--out', str(tmp_path / 'wrong')]) == 0
+    wrong = _json.loads((tmp_path / 'wrong' / 'flow_identified.json').read_text())
+    assert abs(wrong['product_m'] / true_product - 1.0) > 0.5
+
+
+def test_cli_chamber_mode_refuses_bad_input_in_one_line(tmp_path: Path, capsys) -> None:
+    from valve_model_pkg.cli.flow_check import main
+    with pytest.raises(SystemExit) as exc:
+        main([str(tmp_path), '--chamber', '--bore-m', 'nan', '--out', str(tmp_path / 'o')])
+    assert exc.value.code == 2
+    assert '--bore-m nan' in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main([str(tmp_path), '--chamber'])   # no --out
+    assert exc.value.code == 2
+    assert '--chamber needs -o/--out DIR' in capsys.readouterr().err
+    garbage = tmp_path / 'garbage'
+    garbage.mkdir()
+    (garbage / 'metadata.yaml').write_text('\x00\x01 not a bag')
+    assert main([str(garbage), '--chamber', '--out', str(tmp_path / 'o')]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(garbage) in err[0] and 'Traceback' not in err[0]
