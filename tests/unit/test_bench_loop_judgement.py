@@ -3,6 +3,9 @@ effect itself; for an emulator form written independently of the candidates, the
 candidate or `unlisted`, never another listed effect; `none` for a valve without effect."""
 from __future__ import annotations
 
+import numpy as np
+import pytest
+
 from valve_bringup.bench_loop import NEAREST_CANDIDATE, expected_answers
 from valve_model_pkg.model.parameters import EFFECTS, EMULATOR_EFFECTS
 
@@ -17,3 +20,67 @@ def test_expected_answers() -> None:
     assert expected_answers('none') == ['none']
     assert expected_answers('saturation_tanh') == ['magnetic_saturation', 'unlisted']
     assert 'eddy_current' not in expected_answers('saturation_tanh')
+
+
+def _write_run_bag(path, goals, setpoints, n_ticks: int = 200) -> None:
+    """A suite bag on simulation time: cylinder/joint_states every 5 ms (piston at 0), the
+    goal and the controller's setpoint (std_msgs/Float64, no header) at given receive
+    times. ``goals``/``setpoints``: (value [m], receive time [ns after the run's start])."""
+    from valve_model_pkg.recording import BagWriter, build_typestore, reliable_qos
+    store = build_typestore()
+    types = store.types
+    wall0 = 1_700_000_000_000_000_000
+    msgs = []
+    for k in range(n_ticks):
+        ns = k * 5_000_000
+        joint = types['sensor_msgs/msg/JointState'](
+            header=types['std_msgs/msg/Header'](
+                stamp=types['builtin_interfaces/msg/Time'](sec=ns // 10**9,
+                                                           nanosec=ns % 10**9),
+                frame_id=''), name=['piston'], position=np.array([0.0]),
+            velocity=np.array([0.0]), effort=np.array([0.0]))
+        # received 10 ms of wall time per 5 ms tick, 1 ms after the tick's start
+        msgs.append(('cylinder/joint_states', 'sensor_msgs/msg/JointState',
+                     wall0 + k * 10_000_000 + 1_000_000, joint))
+    for topic, items in (('cylinder/position_goal', goals),
+                         ('cylinder/position_setpoint', setpoints)):
+        for value, rel_ns in items:
+            msgs.append((topic, 'std_msgs/msg/Float64', wall0 + rel_ns,
+                         types['std_msgs/msg/Float64'](data=float(value))))
+    msgs.sort(key=lambda m: m[2])
+    with BagWriter(path, store) as w:
+        conns = {}
+        for topic, msgtype, log_ns, msg in msgs:
+            if topic not in conns:
+                conns[topic] = w.add_topic(topic, msgtype, [reliable_qos(1000)])
+            w.write(conns[topic], log_ns, bytes(store.serialize_cdr(msg, msgtype)))
+
+
+def test_tracking_error_counts_each_goal_from_the_controllers_acknowledgement(tmp_path):
+    """The goal message may reach the recorder before the joint state of its tick (then it
+    maps one tick early) and after the setpoint that acknowledges it; the error counts from
+    the acknowledgement either way, so the same run always gives the same number."""
+    from valve_bringup.bench_loop import tracking_error
+    tick = 10_000_000   # receive-time spacing of the 5 ms joint-state ticks [ns]
+    # goal 1 received before tick 40's joint state (the goal maps to tick 39), acknowledged
+    # after it (tick 40); goal 2's acknowledgement received BEFORE the goal itself, both
+    # after tick 120's joint state (tick 120)
+    goals = [(0.02, 40 * tick + 500_000), (0.06, 120 * tick + 3_000_000)]
+    setpoints = [(0.0, 10 * tick + 2_000_000), (0.02, 40 * tick + 2_000_000),
+                 (0.06, 120 * tick + 2_000_000)]
+    _write_run_bag(tmp_path / 'bag', goals, setpoints)
+    tr = tracking_error(tmp_path / 'bag')
+    assert tr['goals_from'] == 'controller acknowledgement'
+    # 80 ticks at 20 mm (40..119), 80 ticks at 60 mm (120..199), piston at 0
+    assert tr['samples'] == 160
+    assert tr['rms_mm'] == pytest.approx(np.sqrt((80 * 20.0 ** 2 + 80 * 60.0 ** 2) / 160))
+    assert tr['max_abs_mm'] == pytest.approx(60.0)
+
+
+def test_tracking_error_falls_back_to_the_goal_message_without_setpoints(tmp_path):
+    from valve_bringup.bench_loop import tracking_error
+    tick = 10_000_000
+    _write_run_bag(tmp_path / 'bag', [(0.02, 40 * tick + 500_000)], [])
+    tr = tracking_error(tmp_path / 'bag')
+    assert tr['samples'] == 161   # from tick 39, where the goal message maps
+    assert tr['goals_from'].startswith('0 of 1 goals acknowledged')

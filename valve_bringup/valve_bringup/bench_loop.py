@@ -30,9 +30,12 @@ loop from the suite's own operation instead (docs/loop.md):
 2. ``valve_identify --fit <bag>``: the bag's ``valve/state`` carries the interval-mean coil
    current and the duty commands, read as an operational record through the drive
    electronics (the last 30 % held out for validation);
-3. ``valve_map --params`` rebuilds the static map from the identified parameters,
-   ``valve_simulator`` starts with them (briefly), and the same position sequence runs
-   again with ``flow_to_duty`` on the identified parameters and map (``DIR/after/``);
+3. ``valve_map --params`` rebuilds the static map from the identified parameters, whose
+   flow scale (C_d C_A) is then calibrated on the before run's chamber mass balance
+   (:func:`calibrate_flow_scale`: the current pins the stroke down only weakly, and a map
+   that promises more opening than the valve gives slows the position loop);
+   ``valve_simulator`` starts with that set (briefly), and the same position sequence runs
+   again with ``flow_to_duty`` on it and the map (``DIR/after/``);
 4. the position-tracking error (RMS of goal - position) and the flow prediction error (the
    model with nominal and with identified parameters, driven by the recorded duty commands,
    against the recorded ``mass_flow``) before and after go to ``DIR/loop.json`` and
@@ -233,10 +236,15 @@ def _run_suite(label: str, run_dir: Path, effect_args: tuple[str, ...],
 def tracking_error(bag: Path) -> dict:
     """Position-tracking error of a run: goal in force - piston position, from the bag.
 
-    The goals (``cylinder/position_goal``, std_msgs/Float64 without a header) are placed on
-    the joint states' simulation time as the run report places the setpoints (the stamp of
-    the last joint state received before each goal). The error is taken at every joint
-    state from the first goal on.
+    Each goal counts from the controller's acknowledgement: the change of
+    ``cylinder/position_setpoint`` to it (the demo holds the simulation until then, so
+    the goal takes effect there in every run). Both topics are std_msgs/Float64 without a
+    header and are placed on the joint states' simulation time as the run report places the
+    setpoints (the stamp of the last joint state received before each message); the goal
+    message itself (the fallback when no setpoint acknowledges it) can land one joint-state
+    tick early when the recorder receives it before that tick's joint state, which would
+    count a step's full size for an extra 5 ms. The error is taken at every joint state
+    from the first goal on.
 
     Returns
     -------
@@ -246,9 +254,11 @@ def tracking_error(bag: Path) -> dict:
     import numpy as np
 
     from valve_model_pkg.cli.report import _sim_time_map  # the report's time base
-    from valve_model_pkg.interface import TOPIC_JOINT_STATES, TOPIC_POSITION_GOAL
+    from valve_model_pkg.interface import (TOPIC_JOINT_STATES, TOPIC_POSITION_GOAL,
+                                           TOPIC_POSITION_SETPOINT)
     from valve_model_pkg.recording import load_bag
-    data = load_bag(bag, ['/' + TOPIC_JOINT_STATES, '/' + TOPIC_POSITION_GOAL])
+    data = load_bag(bag, ['/' + TOPIC_JOINT_STATES, '/' + TOPIC_POSITION_GOAL,
+                          '/' + TOPIC_POSITION_SETPOINT])
     joints = data.get('/' + TOPIC_JOINT_STATES)
     goals = data.get('/' + TOPIC_POSITION_GOAL)
     if joints is None or goals is None or not len(joints) or not len(goals):
@@ -258,9 +268,29 @@ def tracking_error(bag: Path) -> dict:
     tj = (np.asarray(stamps, dtype=np.int64) - origin) * 1e-9
     pos = np.array([p[0] for p in joints['position']], dtype=float)
     to_stamp = _sim_time_map(data, origin)
-    tg = to_stamp(goals) if to_stamp is not None else \
-        (np.asarray(goals.log_time_ns, dtype=np.int64) - origin) * 1e-9
+
+    def times(topic: object) -> np.ndarray:
+        return to_stamp(topic) if to_stamp is not None else \
+            (np.asarray(topic.log_time_ns, dtype=np.int64) - origin) * 1e-9
+    tg = times(goals)
     goal = np.asarray(goals['data'], dtype=float)
+    setp = data.get('/' + TOPIC_POSITION_SETPOINT)
+    acknowledged = 0
+    if setp is not None and len(setp):
+        # the setpoint's changes, matched to the goals in order (the recorder may receive
+        # the acknowledgement before the goal message itself)
+        ts, sv = times(setp), np.asarray(setp['data'], dtype=float)
+        changes = np.flatnonzero(np.diff(sv) != 0.0) + 1
+        c = 0
+        for i, value in enumerate(goal):
+            while c < changes.size and sv[changes[c]] != value:
+                c += 1
+            if c == changes.size:
+                break
+            tg[i] = ts[changes[c]]
+            acknowledged += 1
+            c += 1
+        tg = np.maximum.accumulate(tg)
     k = np.searchsorted(tg, tj, side='right') - 1
     sel = k >= 0
     err = goal[k[sel]] - pos[sel]
@@ -268,7 +298,127 @@ def tracking_error(bag: Path) -> dict:
             'mean_abs_mm': float(np.mean(np.abs(err)) * 1e3),
             'max_abs_mm': float(np.max(np.abs(err)) * 1e3),
             'duration_s': float(tj[sel][-1] - tj[sel][0]), 'samples': int(err.size),
+            'goals_from': 'controller acknowledgement' if acknowledged == goal.size
+            else f'{acknowledged} of {goal.size} goals acknowledged, others at the goal message',
             'bag': str(bag)}
+
+
+#: Integration window of the chamber mass balance [s]: several 50 Hz PWM periods, so that
+#: the static map's period-mean opening stands for the spool's motion within each window.
+FLOW_CALIBRATION_WINDOW_S = 0.25
+
+
+def _strictly_increasing(t: np.ndarray) -> np.ndarray:
+    """Mask keeping the last of each run of equal stamps (a strictly ascending time base)."""
+    import numpy as np
+    return np.concatenate((np.diff(t) > 0.0, [True]))
+
+
+def calibrate_flow_scale(bag: Path, map_file: Path, params_file: Path, out_params: Path,
+                         out_map: Path) -> dict:
+    """Calibrate the flow scale of the identified set on the suite's own bag (issue item 3).
+
+    The coil current sees the spool's stroke and spring pretension only weakly, so the
+    identified ``stroke_m`` and ``spring_pretension_m`` (hence the map's absolute opening
+    x_avg(d)) can be off by tens of percent while the current fits well; ``flow_to_duty``
+    would then command a flow scale that the valve does not deliver. The chamber's mass
+    balance (C2) measures the flow the valve delivers: with the opening the identified map
+    gives at the recorded duty commands, ``identify_from_chamber`` fits C_d C_A (C_d kept,
+    C_A scaled), so the product C_d C_A x_map(d) -- what ``flow_to_duty`` inverts -- matches
+    the valve. The map's curves are unchanged (they do not depend on C_d, C_A).
+
+    The bag does not carry the cylinder: its geometry, bleed and polytropic exponent are the
+    suite's cylinder as the demo runs it (``CylinderParameters`` defaults).
+
+    Parameters
+    ----------
+    bag : pathlib.Path
+        A bag of the suite (``cylinder/joint_states``, ``valve/output_pressure``,
+        ``valve/duty_command``, ``valve/state``).
+    map_file, params_file : pathlib.Path
+        The map rebuilt from the identified parameters, and those parameters.
+    out_params, out_map : pathlib.Path
+        Where the calibrated parameter set and map go (``out_map`` may be ``map_file``).
+
+    Returns
+    -------
+    dict
+        ``product_m`` (C_d C_A [m]), ``prior_product_m``, ``ratio``, ``interval_m``,
+        ``discharge_coefficient``, ``orifice_area_gradient_m``, ``window_s``, the mass
+        balance error before/after [% of the largest windowed valve flow], the files.
+
+    Raises
+    ------
+    ValueError
+        (``FlowIdentificationError``) the bag lacks a topic, or the valve never opens.
+    """
+    import numpy as np
+
+    from valve_model_pkg.interface import (TOPIC_DUTY_COMMAND, TOPIC_JOINT_STATES,
+                                           TOPIC_OUTPUT_PRESSURE, TOPIC_STATE)
+    from valve_model_pkg.maps import load_map
+    from valve_model_pkg.maps.flow_check import map_flow_position
+    from valve_model_pkg.maps.flow_identification import (
+        ChamberRecord, FlowIdentificationError, chamber_volume_m3, identify_from_chamber,
+        recalibrated_map, write_parameters)
+    from valve_model_pkg.interface import ATMOSPHERIC_PRESSURE_PA
+    from valve_model_pkg.model import load_parameters
+    from valve_model_pkg.pneumatics.cylinder import CylinderParameters
+    from valve_model_pkg.recording import load_bag
+    topics = [TOPIC_JOINT_STATES, TOPIC_OUTPUT_PRESSURE, TOPIC_DUTY_COMMAND, TOPIC_STATE]
+    data = load_bag(bag, ['/' + t for t in topics])
+    missing = [t for t in topics if data.get('/' + t) is None or not len(data['/' + t])]
+    if missing:
+        raise FlowIdentificationError(f'{bag}: no {", ".join(missing)} messages')
+    joints, pres, duty_cmd, state = (data['/' + t] for t in topics)
+    # header stamps on simulation time (the CAN driver's valve/state stamps are not used:
+    # they may repeat, docs/loop.md); the first stamps of a run can repeat too
+    tj = np.asarray(joints.stamp_ns, dtype=np.int64) * 1e-9
+    y = np.array([p[0] for p in joints['position']], dtype=float)
+    keep = _strictly_increasing(tj)
+    tj, y = tj[keep], y[keep]
+    tp = np.asarray(pres.stamp_ns, dtype=np.int64) * 1e-9
+    kp = _strictly_increasing(tp)
+    p_gauge = np.interp(tj, tp[kp], np.asarray(pres['fluid_pressure'], float)[kp]) \
+        - ATMOSPHERIC_PRESSURE_PA
+    td = np.asarray(duty_cmd.stamp_ns, dtype=np.int64) * 1e-9
+    k = np.clip(np.searchsorted(td, tj, side='right') - 1, 0, None)
+    duty = np.asarray(duty_cmd['duty'], float)[k]
+    freq = float(np.median(np.asarray(duty_cmd['pwm_frequency'], float)))
+    p_sup = float(np.median(np.asarray(state['supply_pressure'], float)))
+    params = load_parameters(str(params_file))
+    dmap = load_map(map_file)
+    grid = np.linspace(0.0, 1.0, 401)
+    x_grid = params.stroke_m * np.array([map_flow_position(dmap, float(g), freq, p_sup)
+                                         for g in grid])
+    cyl = CylinderParameters()
+    rec = ChamberRecord(tj - tj[0], p_gauge,
+                        chamber_volume_m3(y, cyl.bore_diameter_m, cyl.dead_volume_m3),
+                        np.interp(duty, grid, x_grid), np.full_like(tj, p_sup))
+    res = identify_from_chamber(rec, params, polytropic_exponent=cyl.polytropic_exponent,
+                                bleed_discharge_area_m2=cyl.bleed_discharge_area_m2,
+                                window_s=FLOW_CALIBRATION_WINDOW_S)
+    est = res.estimate
+    write_parameters(res.params, out_params, header=(
+        f'The identified set ({params_file}) with the flow scale calibrated on the chamber '
+        f'mass balance of {bag}\n(valve_bench_loop --mode operation): C_d C_A = '
+        f'{est.product_m:.6g} m (was {est.prior_product_m:.6g} m), C_d kept, C_A scaled.'))
+    recalibrated_map(dmap, res.params, f'the chamber of {bag.name}').save(out_map)
+    return {'source': 'chamber mass balance of the before run (eq. C2), opening from the '
+                      'identified map at the recorded duty commands',
+            'product_m': est.product_m, 'prior_product_m': est.prior_product_m,
+            'ratio': est.product_m / est.prior_product_m,
+            'interval_m': list(est.interval_m),
+            'discharge_coefficient': res.params.discharge_coefficient,
+            'orifice_area_gradient_m': res.params.orifice_area_gradient_m,
+            'window_s': res.window_s, 'windows': int(est.n_points),
+            'balance_error_pct': {'before': res.error_before_pct,
+                                  'after': res.error_after_pct},
+            'cylinder': {'bore_diameter_m': cyl.bore_diameter_m,
+                         'dead_volume_m3': cyl.dead_volume_m3,
+                         'bleed_discharge_area_m2': cyl.bleed_discharge_area_m2,
+                         'polytropic_exponent': cyl.polytropic_exponent},
+            'params': str(out_params), 'map': str(out_map)}
 
 
 def _held_period_means(t: np.ndarray, x: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -413,25 +563,48 @@ def run_operation_loop(out: Path, effect: str, effect_args: tuple[str, ...],
     _run(['valve_map', '--params', str(params), '-o', str(map_file), '--frequencies', '50',
           '--pressures-bar', '0', '2', '4', '6', '--fig-dir', str(out / 'map'), '-q'])
     stage('map', t0)
+
     t0 = time.monotonic()
-    sim_ok = _simulator_check(params)
+    # The flow scale of the identified set, calibrated on the before run's chamber (the
+    # current sees the stroke and the spring pretension only weakly: docs/loop.md); the map
+    # keeps its curves and gets the calibrated C_A, so flow_to_duty restarts with both.
+    params_loop = (out / 'params_identified.yaml').resolve()
+    try:
+        flow_cal = calibrate_flow_scale(bag_before, map_file, params, params_loop, map_file)
+        _say(f'flow scale calibrated on the chamber of the before run: C_d C_A '
+             f'{flow_cal["prior_product_m"] * 1e3:.4g} -> {flow_cal["product_m"] * 1e3:.4g} '
+             f'mm (x {flow_cal["ratio"]:.3f}), mass balance error '
+             f'{flow_cal["balance_error_pct"]["before"]:.1f} -> '
+             f'{flow_cal["balance_error_pct"]["after"]:.1f} %')
+    except ValueError as err:  # FlowIdentificationError: the identified set as it is
+        _say(f'flow scale not calibrated ({err}): flow_to_duty gets the identified set')
+        flow_cal = {'error': str(err)}
+        params_loop = params
+    stage('flow_calibration', t0)
+    t0 = time.monotonic()
+    sim_ok = _simulator_check(params_loop)
     stage('simulator_check', t0)
     if not sim_ok:
         return 1
 
     t0 = time.monotonic()
     bag_after = _run_suite('after', out / 'after', effect_args, goals, flow_to_duty_args=(
-        '-p', f'map_file:={map_file}', '-p', f'params_file:={params}'))
+        '-p', f'map_file:={map_file}', '-p', f'params_file:={params_loop}'))
     stage('run_after', t0)
 
     t0 = time.monotonic()
     tracking = {'before': tracking_error(bag_before), 'after': tracking_error(bag_after)}
-    flow_runs = {name: flow_prediction_error(bag, {'nominal': None, 'identified': params})
+    sets: dict[str, Path | None] = {'nominal': None, 'identified': params}
+    if params_loop != params:
+        sets['calibrated'] = params_loop
+    flow_runs = {name: flow_prediction_error(bag, sets)
                  for name, bag in (('before_run', bag_before), ('after_run', bag_after))}
     stage('evaluation', t0)
-    # The headline flow error is on the after run: a record the identification never saw.
+    # The headline flow error is on the after run (a record the identification never saw),
+    # with the set the loop hands on (the identified one, flow scale calibrated).
+    in_force = 'calibrated' if 'calibrated' in sets else 'identified'
     flow = {'before': {'params': 'nominal', **flow_runs['after_run']['nominal']},
-            'after': {'params': 'identified', **flow_runs['after_run']['identified']},
+            'after': {'params': in_force, **flow_runs['after_run'][in_force]},
             'record': 'after_run', 'full_flow_kg_s': flow_runs['after_run']['full_flow_kg_s'],
             'runs': flow_runs}
     stages['total'] = round(time.monotonic() - t_start, 2)
@@ -445,7 +618,8 @@ def run_operation_loop(out: Path, effect: str, effect_args: tuple[str, ...],
         'baseline': _figures(base), 'augmented': _figures(aug),
         'identification': {'report': str(ident / 'report.md'), 'params': str(params),
                            'timings_s': report.get('timings_s', {})},
-        'map': str(map_file), 'simulator_started': sim_ok,
+        'map': str(map_file), 'params_in_force': str(params_loop),
+        'flow_calibration': flow_cal, 'simulator_started': sim_ok,
         'tracking': tracking, 'flow': flow, 'stages_s': stages,
         'units': {'iae': 'A s', 'rmse': 'A', 'rms_mm': 'mm', 'rms_kg_s': 'kg/s',
                   'rms_pct': '% of full flow', 'stages_s': 's (wall time)'},
@@ -469,6 +643,8 @@ def _loop_markdown(loop: dict, out: Path) -> str:
     def fig(block: dict, part: str, key: str, scale: float = 1.0, fmt: str = '.4g') -> str:
         v = (block.get(part) or {}).get(key)
         return 'n/a' if v is None else format(v * scale, fmt)
+    cal = loop.get('flow_calibration') or {}
+    cal_note = ' (flow scale calibrated)' if 'product_m' in cal else ''
     lines = [
         '# The loop in service', '',
         f'Effect carried by the emulator\'s valve: **{loop["effect_injected"]}**; named by '
@@ -488,19 +664,35 @@ def _loop_markdown(loop: dict, out: Path) -> str:
         '|---|---|---|---|---|',
         f'| before | nominal parameters and map | {tr["before"]["rms_mm"]:.3f} | '
         f'{tr["before"]["mean_abs_mm"]:.3f} | {tr["before"]["max_abs_mm"]:.2f} |',
-        f'| after | identified parameters and map | {tr["after"]["rms_mm"]:.3f} | '
+        f'| after | identified parameters and map{cal_note} | {tr["after"]["rms_mm"]:.3f} | '
         f'{tr["after"]["mean_abs_mm"]:.3f} | {tr["after"]["max_abs_mm"]:.2f} |',
-        '', 'Plots: [before/report/report.md](before/report/report.md) '
+        '', 'Goals count from the controller\'s acknowledgement (the change of '
+        '`cylinder/position_setpoint`); the RMS includes the step transients.', '']
+    if 'product_m' in cal:
+        lines += [
+            f'Flow scale of the identified set, calibrated on the before run\'s chamber mass '
+            f'balance (opening from the identified map at the recorded duties): C_d C_A '
+            f'{cal["prior_product_m"] * 1e3:.4g} -> {cal["product_m"] * 1e3:.4g} mm '
+            f'(x {cal["ratio"]:.3f}; balance error {cal["balance_error_pct"]["before"]:.1f} '
+            f'-> {cal["balance_error_pct"]["after"]:.1f} %). flow_to_duty ran with '
+            '`params_identified.yaml` and `map_identified.json`.', '']
+    elif cal:
+        lines += [f'Flow scale not calibrated: {cal.get("error")}', '']
+    lines += [
+        'Plots: [before/report/report.md](before/report/report.md) '
         '(before/report/overview.png), [after/report/report.md](after/report/report.md) '
         '(after/report/overview.png).', '',
         '## Flow prediction (model driven by the recorded duty commands vs valve/state '
         'mass_flow)', '',
         f'RMS error in % of full flow ({fl["full_flow_kg_s"] * 1e3:.2f} g/s: spool open, '
         'supply into the atmosphere):', '',
-        '| record | nominal parameters | identified parameters |', '|---|---|---|']
+        '| record | nominal parameters | identified parameters | identified, flow scale '
+        'calibrated |', '|---|---|---|---|']
     for name, run in fl['runs'].items():
+        calibrated = run.get('calibrated', {}).get('rms_pct')
         lines.append(f'| {name.replace("_", " ")} | {run["nominal"]["rms_pct"]:.2f} % | '
-                     f'{run["identified"]["rms_pct"]:.2f} % |')
+                     f'{run["identified"]["rms_pct"]:.2f} % | '
+                     f'{"n/a" if calibrated is None else format(calibrated, ".2f") + " %"} |')
     lines += ['', 'The after run was not used by the identification. The static map from the '
               'identified parameters: `map_identified.json` (figures in `map/`).', '',
               '## Time of each stage (wall time)', '',
