@@ -13,7 +13,9 @@ BACKEND ?= sim
 CYLINDER ?= single
 LIVE ?= 0
 DEMO_ARGS ?=
-PYTEST_ARGS ?=
+# Two pytest-xdist workers (tests/conftest.py: work units, `serial` tests run alone);
+# `make test PYTEST_ARGS=...` replaces this (without -n: one process, as before).
+PYTEST_ARGS ?= -n 2 --dist loadgroup --no-loadscope-reorder
 
 .PHONY: help setup demo test bench lint clean distclean
 

@@ -33,6 +33,8 @@ def _processes_with(token: str) -> list[int]:
     return pids
 
 
+# One worker at a time: each `make demo` runs `make setup` (pip, colcon) in this tree.
+@pytest.mark.xdist_group('make_demo')
 @pytest.mark.parametrize('backend', ['sim', 'can'])
 def test_make_demo_runs_records_reports_and_leaves_nothing(tmp_path, backend):
     token = f'VALVE_DEMO_TEST_{uuid.uuid4().hex}'
@@ -89,6 +91,7 @@ def test_make_demo_runs_records_reports_and_leaves_nothing(tmp_path, backend):
             '/valve/output_pressure'} <= topics
 
 
+@pytest.mark.xdist_group('make_demo')
 def test_make_demo_double_cylinder_moves_both_valves(tmp_path):
     """`make demo CYLINDER=double`: two valve namespaces, one flow_to_duty each, one
     controller commanding both; short (CI budget): three goals held 1 s each."""

@@ -16,6 +16,7 @@ pytestmark = pytest.mark.node
 X_MAX_M = 0.33e-3
 
 
+@pytest.mark.serial   # a rate in wall time (1 kHz +-20 %)
 @pytest.mark.parametrize('backend, source', [('sim', ValveState.SOURCE_SIMULATOR),
                                              ('can', ValveState.SOURCE_CAN)])
 def test_controller_view_is_the_same_with_either_backend(start_node, ros, backend, source):

@@ -11,6 +11,7 @@ pytestmark = pytest.mark.node
 NAMES = ['left_a', 'left_b', 'right_a', 'right_b']
 
 
+@pytest.mark.serial   # a rate in wall time (+-20 %) and no gap at 4 x 500 Hz
 def test_four_valves_each_at_rate_and_commands_reach_only_their_valve(start_node, ros):
     sim = start_node('valve_bank_simulator', '--ros-args', '-p',
                      f'valve_names:=[{",".join(NAMES)}]', '-p', 'publish_rate_hz:=500.0')

@@ -29,7 +29,9 @@ from valve_driver_pkg.canbus import TcpLoopbackBus
 from valve_driver_pkg.emulator import EmulatorFault, EmulatorRemote
 from valve_driver_pkg.protocol import COMMAND, ValveCodec
 
-pytestmark = pytest.mark.node
+# serial: 1 kHz telemetry in wall time with a 100 ms silence limit and gap-free state
+# streams; a CPU-bound test beside them starves them (seen with pytest-xdist).
+pytestmark = [pytest.mark.node, pytest.mark.serial]
 
 TELEMETRY_PERIOD_S = 0.001
 TELEMETRY_TIMEOUT_S = 0.1   # DriverConfig: 50 periods, at least 100 ms

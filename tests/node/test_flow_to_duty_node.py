@@ -208,6 +208,7 @@ def test_bad_map_is_refused_at_start(start_node, tmp_path: Path, case: str) -> N
 # Throughput depends on how loaded the machine is (a starved node can fall more than its
 # queue depth behind): rerun before calling it a failure.
 @pytest.mark.flaky(reruns=2)
+@pytest.mark.serial   # a throughput in wall time
 def test_keeps_up_with_1khz_flow_and_pressure_streams(start_node, ros, inverter) -> None:
     """The demo drives it with pressures at 1 kHz and flow commands at 100-1000 Hz.
 

@@ -23,6 +23,7 @@ def _demo(out: Path) -> dict:
     return json.loads((out / 'report' / 'report.json').read_text())
 
 
+@pytest.mark.slow   # two demo runs: 40-70 s
 def test_two_lockstep_runs_give_the_same_step_metrics(tmp_path: Path) -> None:
     first, second = _demo(tmp_path / 'a'), _demo(tmp_path / 'b')
     for run in (first, second):

@@ -34,6 +34,7 @@ def _handshake(port: int) -> str:
         return sock.recv(4096).decode(errors='replace').split('\r\n', 1)[0]
 
 
+@pytest.mark.slow
 def test_live_view_answers_a_websocket_handshake_while_the_demo_runs(tmp_path: Path) -> None:
     port = _free_port()
     log = open(tmp_path / 'demo.log', 'w')

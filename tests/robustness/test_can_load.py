@@ -20,7 +20,8 @@ from valve_driver_pkg.driver import CanDriverCore, DriverConfig, Level
 from valve_driver_pkg.emulator import ControllerEmulator, EmulatorConfig
 from valve_model_pkg.model import ElectronicsConfig, ValveStepper, load_parameters
 
-pytestmark = pytest.mark.slow
+# serial: its CPU hogs would starve a test beside it, and that test would load it more.
+pytestmark = [pytest.mark.slow, pytest.mark.serial]
 
 RUN_S = float(os.environ.get("VALVE_LOAD_TEST_S", "20"))  # 60 for the figure
 

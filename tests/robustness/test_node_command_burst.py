@@ -41,6 +41,9 @@ def _burst(harness, diag: Diagnostics, pub, make, prefix: str, what: str) -> tup
     return processed, lost
 
 
+# serial: the test's own subscriber must keep up with the node's answer to the burst
+# (beside a CPU-bound test under pytest-xdist it saw duty commands up to 3594 of 4263).
+@pytest.mark.serial
 def test_flow_to_duty_accounts_for_every_flow_command(start_node, ros):  # noqa: F811
     from rclpy.node import Node
     from valve_msgs.msg import DutyCommand, FlowCommand

@@ -29,7 +29,7 @@ ROSDEP_PYTHON_KEYS = frozenset({
     'python3-numpy', 'python3-scipy', 'python3-yaml', 'python3-matplotlib', 'python3-numba',
     'python3-can', 'python3-cantools-pip', 'python3-rosbags-pip', 'python-crccheck-pip',
     'mcap-ros2-support', 'python3-pytest', 'python3-hypothesis', 'python3-setuptools',
-    'python3-tqdm',
+    'python3-tqdm', 'python3-pytest-xdist',
 })
 #: rosdistro jazzy/distribution.yaml (commit 8468e88c): released ROS packages.
 JAZZY_PACKAGES = frozenset({
