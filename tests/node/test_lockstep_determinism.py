@@ -24,6 +24,12 @@ def _demo(out: Path) -> dict:
 
 
 @pytest.mark.slow   # two demo runs: 40-70 s
+# serial: the simulation is deterministic, but the run report places the controller's
+# setpoint (std_msgs/Float64, no header) at the last joint state the recorder RECEIVED
+# before it; with a CPU-bound test beside it the recorder's joint states lag and a step
+# start moved by 22 ms (0.499 vs 0.477 s, CI 2026-11-24 on 2 xdist workers). Known
+# limit of that placement (README), not of the lockstep.
+@pytest.mark.serial
 def test_two_lockstep_runs_give_the_same_step_metrics(tmp_path: Path) -> None:
     first, second = _demo(tmp_path / 'a'), _demo(tmp_path / 'b')
     for run in (first, second):
