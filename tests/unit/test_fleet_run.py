@@ -164,7 +164,11 @@ def test_an_interrupted_run_resumes_with_the_same_command(manifest: Path, tmp_pa
     else:
         os.kill(proc.pid, signal.SIGKILL)                  # the main process only
     _, err = proc.communicate(timeout=60)   # returns once the workers let go of stderr too
-    finished = sorted(p.parent.name for p in out.glob('valves/*/report.json'))
+    # a finished valve as the store defines it: renamed into place; a SIGKILL during a
+    # save leaves a hidden valves/.<id>.tmp-* folder (with its report.json) that the next
+    # run removes (pathlib's '*' matches hidden names: seen counting 2 where 1 was kept)
+    finished = sorted(p.parent.name for p in out.glob('valves/*/report.json')
+                      if not p.parent.name.startswith('.'))
     if sig == 'SIGINT':
         assert proc.returncode == 130, err
         assert 'Traceback' not in err and 'interrupted' in err.splitlines()[-1]
