@@ -14,19 +14,26 @@ the records say which.
 2. ``valve_simulator`` (one valve; target: CPU <= 1.3 x the bare publisher of one valve,
    peak memory <= 120 MB), and ``valve_bank_simulator`` with one valve for comparison.
 
+The simulators spin on rclpy's EventsExecutor (``nodes/common.py`` ``make_executor``);
+the reference is the bare publisher as rclpy runs it by default (``rclpy.spin``: the
+SingleThreadedExecutor). Informative rows measure the other two pairings in the same run:
+the bare publisher on the EventsExecutor (what the model and node code add on that
+executor) and the simulators on the Python executor (``VALVE_EXECUTOR=single``).
+
 The CPU window runs without a subscriber (a Python subscriber of 16 kHz of messages would
 take a core of this 2-CPU machine itself); the rates are then measured valve after valve,
 one subscriber of 1 kHz at a time, with sequence gaps. Writes benchmarks/results/bank.json.
 """
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from common import record as _record, write_results  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 WARM_S = 4.0       # after the first message: start-up transients settle
@@ -72,8 +79,12 @@ def tick():
         pub.publish(msg)
     seq[0] += 1
 node.create_timer(1e-3, tick)
+executor = None
+if len(sys.argv) > 2 and sys.argv[2] == 'events':   # the executor the simulators use
+    from rclpy.experimental import EventsExecutor
+    executor = EventsExecutor()
 try:
-    rclpy.spin(node)
+    rclpy.spin(node, executor=executor)
 except KeyboardInterrupt:
     pass
 '''
@@ -117,7 +128,8 @@ def _sequence_now(node, ex, topic: str) -> tuple[int, float]:
     return got[0]
 
 
-def _measure(argv: list[str], names: list[str], with_rates: bool) -> dict:
+def _measure(argv: list[str], names: list[str], with_rates: bool,
+             env: dict[str, str] | None = None) -> dict:
     """Start ``argv``, wait for its first state, measure CPU, then (optionally) rates."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -125,7 +137,7 @@ def _measure(argv: list[str], names: list[str], with_rates: bool) -> dict:
 
     from valve_model_pkg.interface.ros import STATE_QOS
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)
+                            start_new_session=True, env={**os.environ, **(env or {})})
     rclpy.init()
     node = rclpy.create_node('bench_bank_probe')
     ex = SingleThreadedExecutor()
@@ -215,28 +227,29 @@ def _kernel() -> str:
     return backend().name
 
 
-def _record(name, value, unit, ref_name, ref_value, target, passed, notes) -> dict:
-    ratio = value / ref_value if ref_value else None
-    return {'name': name, 'value': value, 'unit': unit, 'reference_name': ref_name,
-            'reference_value': ref_value, 'ratio': ratio, 'target': target, 'passed': passed,
-            'notes': notes}
-
-
 def main() -> int:
     records: list[dict] = []
     names16 = [f'v{k:02d}' for k in range(16)]
     bare = [sys.executable, '-c', BARE_PUBLISHER]
     runs: dict[str, list[dict]] = {
-        k: [] for k in ('bare16', 'bank16', 'bare1', 'sim1', 'bank1')}
+        k: [] for k in ('bare16', 'bank16', 'bare1', 'sim1', 'bank1', 'bare1_events',
+                        'bare16_events', 'sim1_single', 'bank16_single')}
+    sim1 = ['valve_simulator', '--ros-args', '-r', '__ns:=/valve', '-p',
+            'publish_rate_hz:=1000.0', '-p', 'duty:=0.4']
+    single = {'VALVE_EXECUTOR': 'single'}   # the nodes on rclpy's Python executor
     # interleaved repeats: the machine's load (other jobs) changes over minutes
     for _ in range(REPEATS):
         runs['bare16'].append(_measure(bare + [','.join(names16)], names16, False))
         runs['bank16'].append(_measure(_bank_argv(names16), names16, True))
         runs['bare1'].append(_measure(bare + ['valve'], ['valve'], False))
-        runs['sim1'].append(_measure(['valve_simulator', '--ros-args', '-r', '__ns:=/valve',
-                                      '-p', 'publish_rate_hz:=1000.0', '-p', 'duty:=0.4'],
-                                     ['valve'], False))
+        runs['sim1'].append(_measure(sim1, ['valve'], False))
         runs['bank1'].append(_measure(_bank_argv(['valve']), ['valve'], False))
+        runs['bare1_events'].append(_measure(bare + ['valve', 'events'], ['valve'], False))
+        runs['bare16_events'].append(_measure(bare + [','.join(names16), 'events'], names16,
+                                              False))
+        runs['sim1_single'].append(_measure(sim1, ['valve'], False, env=single))
+        runs['bank16_single'].append(_measure(_bank_argv(names16), names16, False,
+                                              env=single))
     for key, rs in runs.items():
         print(key, [{k: v for k, v in r.items() if k not in ('rates_hz', 'gaps')}
                     for r in rs], flush=True)
@@ -286,6 +299,30 @@ def main() -> int:
         '<= 120 MB', peak1 <= 120.0, f'whole run incl. start-up; kernel: {_kernel()} '
         '(the ahead-of-time module imports no numba; on the numba jit, numba + llvmlite '
         'and the loaded kernel add about 125 MB, docs/model.md)'))
+    bare1_ev = _quietest(runs['bare1_events'])['cpu_per_khz']
+    bare16_ev = _quietest(runs['bare16_events'])['cpu_per_khz']
+    records.append(_record(
+        'valve_simulator at 1 kHz: CPU vs a bare publisher on the same executor', cpu1,
+        'core', 'bare rclpy publisher of the same 1 kHz messages on the EventsExecutor',
+        bare1_ev, 'informative', None,
+        'the simulators spin on rclpy.experimental.EventsExecutor (nodes/common.py '
+        'make_executor); this is what the valve model and the node add to rclpy + DDS on '
+        'that executor; reference windows: ' + windows('bare1_events')))
+    cpu1_single = _quietest(runs['sim1_single'])['cpu_per_khz']
+    records.append(_record(
+        'valve_simulator at 1 kHz on the Python executor (VALVE_EXECUTOR=single)',
+        cpu1_single, 'core', 'bare rclpy publisher of the same 1 kHz messages', bare1,
+        'informative', None, 'the fallback executor: windows ' + windows('sim1_single')))
+    cpu16_ev = cpu16
+    records.append(_record(
+        'bank simulator, 16 valves: CPU vs a bare publisher on the same executor', cpu16_ev,
+        'core', 'bare rclpy publisher of the same 16 x 1 kHz messages on the EventsExecutor',
+        bare16_ev, 'informative', None, 'reference windows: ' + windows('bare16_events')))
+    cpu16_single = _quietest(runs['bank16_single'])['cpu_per_khz']
+    records.append(_record(
+        'bank simulator, 16 valves on the Python executor (VALVE_EXECUTOR=single)',
+        cpu16_single, 'core', 'bare rclpy publisher of the same 16 x 1 kHz messages', bare16,
+        'informative', None, 'the fallback executor: windows ' + windows('bank16_single')))
     cpu_b1 = _quietest(runs['bank1'])['cpu_per_khz']
     records.append(_record(
         'bank simulator, 1 valve at 1 kHz: CPU per 1 kHz of ticks', cpu_b1, 'core',
@@ -293,8 +330,7 @@ def main() -> int:
         f"peak memory {max(r['peak_mb'] for r in runs['bank1']):.0f} MB; kernel "
         f"{_kernel()}; windows: "
         + windows('bank1')))
-    (HERE / 'results').mkdir(exist_ok=True)
-    (HERE / 'results' / 'bank.json').write_text(json.dumps(records, indent=1) + '\n')
+    write_results('bank', records)
     for r in records:
         print(f"{r['name']}: {r['value']:.4g} {r['unit']} (reference {r['reference_value']:.4g}"
               f", target {r['target']}, passed {r['passed']})")

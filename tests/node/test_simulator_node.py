@@ -101,3 +101,32 @@ def test_a_bad_parameter_file_is_refused_at_start(start_node, tmp_path):
     assert sim.proc.returncode != 0
     assert 'cannot start' in sim.output
     assert str(bad) in sim.output or 'missing' in sim.output
+
+
+@pytest.mark.parametrize('env, sim_time, expected', [
+    ({}, False, 'events'),                          # the default of the 1 kHz simulators
+    ({'VALVE_EXECUTOR': 'single'}, False, 'single'),  # the fallback, asked for
+    ({}, True, 'single'),                           # on simulated time: the Python executor
+])
+def test_executor_choice_and_the_stream_on_it(start_node, ros, env, sim_time, expected):
+    """The node says which executor spins it, and publishes and follows commands on it."""
+    extra = ('-p', 'use_sim_time:=true') if sim_time else ()
+    sim = start_node('valve_simulator', '--ros-args', '-p', 'publish_rate_hz:=500.0', *extra,
+                     env=env)
+    ros.wait_for(lambda: f'executor: {expected}' in sim.output, 60.0,
+                 f'the log line "executor: {expected}"')
+    assert f'executor: {"single" if expected == "events" else "events"}' not in sim.output
+    if sim_time:
+        assert sim.stop() == 0   # no /clock here: nothing to publish, a clean stop
+        return
+    probe = ros.add(StateProbe('test_probe_executor'))
+    ros.wait_for(lambda: probe.count > 10, 30.0, 'the first valve/state messages')
+    probe.command(0.6, 50.0)
+
+    def duty_now() -> float | None:
+        last = probe.window().last
+        return None if last is None else last.duty
+    ros.wait_for(lambda: duty_now() == pytest.approx(0.6), 10.0, 'the duty command in force')
+    probe.command(0.0, 50.0)
+    ros.wait_for(lambda: duty_now() == 0.0, 10.0, 'duty 0 in force')
+    assert sim.stop() == 0

@@ -392,7 +392,7 @@ class ValveBankSimulatorNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C or an external shutdown."""
-    run_node(ValveBankSimulatorNode, 'valve_bank_simulator', args)
+    run_node(ValveBankSimulatorNode, 'valve_bank_simulator', args, events_executor=True)
 
 
 if __name__ == '__main__':

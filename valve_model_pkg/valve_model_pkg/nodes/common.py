@@ -266,11 +266,39 @@ def init_with_signal_handling(args: list[str] | None) -> threading.Event:
     return stop
 
 
-def spin_until_stopped(node: Node, stop: threading.Event) -> None:
-    """Spin ``node`` until SIGINT/SIGTERM set ``stop`` or the context is shut down."""
+def make_executor(node: Node, events: bool = False):
+    """The executor that spins ``node``, and its kind (``'events'`` or ``'single'``).
+
+    ``events=True`` asks for rclpy's EventsExecutor (``rclpy.experimental``, C++): a
+    1 kHz node pays about half the CPU per tick of the SingleThreadedExecutor, which
+    rebuilds its wait set in Python every time (benchmarks/bench_bank.py measures both).
+    It is used only on the wall clock (``use_sim_time`` false: its timers on a simulated
+    clock are not what this suite tests) and only where the rclpy build has it; otherwise
+    the SingleThreadedExecutor, as every other node. ``VALVE_EXECUTOR=single`` forces the
+    latter (a fallback, should the experimental executor misbehave somewhere).
+    """
+    import os
+    if events and os.environ.get('VALVE_EXECUTOR', '') != 'single' and \
+            not node.get_parameter('use_sim_time').value:
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:   # an rclpy without it: the Python executor
+            pass
+        else:
+            return EventsExecutor(context=node.context), 'events'
+    return SingleThreadedExecutor(context=node.context), 'single'
+
+
+def spin_until_stopped(node: Node, stop: threading.Event, events: bool = False) -> None:
+    """Spin ``node`` until SIGINT/SIGTERM set ``stop`` or the context is shut down.
+
+    ``events``: see :func:`make_executor`.
+    """
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
-    executor = SingleThreadedExecutor()
+    executor, kind = make_executor(node, events)
+    if events:
+        node.get_logger().info(f'executor: {kind}')
     executor.add_node(node)
     try:
         # The signal handler runs when a wait returns: the timeout bounds the stop latency.
@@ -282,7 +310,8 @@ def spin_until_stopped(node: Node, stop: threading.Event) -> None:
 
 
 def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None,
-             startup_errors: tuple[type[BaseException], ...] = STARTUP_ERRORS) -> None:
+             startup_errors: tuple[type[BaseException], ...] = STARTUP_ERRORS,
+             events_executor: bool = False) -> None:
     """Spin a node until Ctrl-C, SIGTERM or an external shutdown (the main of every node).
 
     ``-h``/``--help`` prints the node's parameters (:func:`print_node_help`) and exits 0.
@@ -290,7 +319,8 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
     parameter or map file) is logged as one fatal line with its reason and ends the process
     with :data:`EXIT_REFUSED` (2): a node never runs on defaults it was not asked for. A
     failure while running propagates (exit 1). SIGINT and SIGTERM end it with exit 0 and no
-    traceback (:func:`init_with_signal_handling`).
+    traceback (:func:`init_with_signal_handling`). ``events_executor``: spin with rclpy's
+    EventsExecutor where :func:`make_executor` allows it (the 1 kHz simulators).
     """
     if help_requested(args):
         sys.exit(print_node_help(make_node, name, args))
@@ -305,7 +335,7 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
         # logger and /rosout (docs/architecture.md).
         from valve_model_pkg.interface.ros import forward_logging
         forward_logging(node, 'valve_model_pkg', 'valve_driver_pkg')
-        spin_until_stopped(node, stop)
+        spin_until_stopped(node, stop, events_executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -345,7 +345,7 @@ class ValveSimulatorNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C or an external shutdown."""
-    run_node(ValveSimulatorNode, 'valve_simulator', args)
+    run_node(ValveSimulatorNode, 'valve_simulator', args, events_executor=True)
 
 
 if __name__ == '__main__':
