@@ -79,14 +79,20 @@ def tick():
         pub.publish(msg)
     seq[0] += 1
 node.create_timer(1e-3, tick)
-executor = None
-if len(sys.argv) > 2 and sys.argv[2] == 'events':   # the executor the simulators use
-    from rclpy.experimental import EventsExecutor
-    executor = EventsExecutor()
-try:
-    rclpy.spin(node, executor=executor)
-except KeyboardInterrupt:
-    pass
+if len(sys.argv) > 2 and sys.argv[2] == 'events':   # the executor the simulators use,
+    from rclpy.experimental import EventsExecutor    # spun as nodes/common.py spins it
+    executor = EventsExecutor(context=node.context)
+    executor.add_node(node)
+    try:
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    except KeyboardInterrupt:
+        pass
+else:
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
 '''
 
 
