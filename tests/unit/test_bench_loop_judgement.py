@@ -84,3 +84,31 @@ def test_tracking_error_falls_back_to_the_goal_message_without_setpoints(tmp_pat
     tr = tracking_error(tmp_path / 'bag')
     assert tr['samples'] == 161   # from tick 39, where the goal message maps
     assert tr['goals_from'].startswith('0 of 1 goals acknowledged')
+
+
+def test_tracking_error_on_the_demo_schedule_ignores_receive_order(tmp_path):
+    """With the demo's schedule each goal counts from its hold point, wherever the
+    recorder received the goal and its acknowledgement (here both one tick early)."""
+    from valve_bringup.bench_loop import tracking_error
+    tick = 10_000_000
+    goals = [(0.02, 39 * tick + 1_500_000), (0.06, 120 * tick + 3_000_000)]
+    setpoints = [(0.0, 10 * tick + 2_000_000), (0.02, 39 * tick + 2_000_000),
+                 (0.06, 120 * tick + 2_000_000)]
+    _write_run_bag(tmp_path / 'bag', goals, setpoints)
+    by_ack = tracking_error(tmp_path / 'bag')
+    assert by_ack['samples'] == 161          # the early acknowledgement: from tick 39
+    tr = tracking_error(tmp_path / 'bag', [(0.02, 0.200), (0.06, 0.600)])
+    assert tr['samples'] == 160              # ticks 40..199, as the run was driven
+    assert tr['rms_mm'] == pytest.approx(np.sqrt((80 * 20.0 ** 2 + 80 * 60.0 ** 2) / 160))
+    assert tr['goals_from'].startswith('demo schedule')
+    with pytest.raises(ValueError, match='not the schedule'):
+        tracking_error(tmp_path / 'bag', [(0.02, 0.200), (0.05, 0.600)])
+    with pytest.raises(ValueError, match='took effect'):
+        tracking_error(tmp_path / 'bag', [(0.02, 0.200), (0.06, 0.700)])
+
+
+def test_goal_schedule_starts_after_the_pre_roll() -> None:
+    from valve_bringup.bench_loop import goal_schedule
+    from valve_bringup.demo import PRE_ROLL_S
+    assert goal_schedule(((0.02, 1.5), (0.06, 2.0))) == [(0.02, PRE_ROLL_S),
+                                                         (0.06, round(PRE_ROLL_S + 1.5, 3))]

@@ -233,8 +233,29 @@ def _run_suite(label: str, run_dir: Path, effect_args: tuple[str, ...],
     return bags[0]
 
 
-def tracking_error(bag: Path) -> dict:
+def goal_schedule(goals: tuple[tuple[float, float], ...]) -> list[tuple[float, float]]:
+    """(goal [m], simulated time it takes effect [s]) of a demo run with these goals.
+
+    The demo holds the simulation at each hold point (PRE_ROLL_S, then after each hold),
+    sends the goal and lets the simulation go on only after the controller acknowledged it:
+    every goal takes effect at its hold point, exactly, whatever the machine's load.
+    """
+    from valve_bringup.demo import PRE_ROLL_S
+    out, t = [], PRE_ROLL_S
+    for goal_m, hold_s in goals:
+        out.append((float(goal_m), round(t, 3)))
+        t += hold_s
+    return out
+
+
+def tracking_error(bag: Path, schedule: list[tuple[float, float]] | None = None) -> dict:
     """Position-tracking error of a run: goal in force - piston position, from the bag.
+
+    With ``schedule`` (:func:`goal_schedule`: each goal and the simulated time it takes
+    effect) the goals are placed on the joint states' simulation stamps by it: the same run
+    gives the same number to the last digit. The bag's goals must be the schedule's, and
+    the acknowledgement-based placement below must agree within one control tick, else
+    ValueError (the bag is not the run the schedule describes).
 
     Each goal counts from the controller's acknowledgement: the change of
     ``cylinder/position_setpoint`` to it (the demo holds the simulation until then, so
@@ -291,6 +312,23 @@ def tracking_error(bag: Path) -> dict:
             acknowledged += 1
             c += 1
         tg = np.maximum.accumulate(tg)
+    goals_from = 'controller acknowledgement' if acknowledged == goal.size \
+        else f'{acknowledged} of {goal.size} goals acknowledged, others at the goal message'
+    if schedule is not None:
+        want = np.array([g for g, _ in schedule], dtype=float)
+        if want.size != goal.size or not np.allclose(want, goal, rtol=0.0, atol=1e-9):
+            raise ValueError(f'{bag}: goals {goal.tolist()} are not the schedule\'s '
+                             f'{want.tolist()}')
+        # the schedule in the bag's time base (seconds from the first joint state's stamp)
+        t_sched = np.array([t for _, t in schedule], dtype=float) - origin * 1e-9
+        tick = float(np.median(np.diff(tj))) if tj.size > 1 else 0.0
+        off = np.abs(t_sched - tg)
+        if np.any(off > 1.5 * tick):
+            raise ValueError(f'{bag}: goals took effect at {tg.round(4).tolist()} s, not at '
+                             f'the schedule\'s {t_sched.round(4).tolist()} s')
+        tg = t_sched
+        goals_from = ('demo schedule (each goal at its hold point, simulated time); the '
+                      f'acknowledgements agree within {off.max() * 1e3:.1f} ms')
     k = np.searchsorted(tg, tj, side='right') - 1
     sel = k >= 0
     err = goal[k[sel]] - pos[sel]
@@ -298,9 +336,7 @@ def tracking_error(bag: Path) -> dict:
             'mean_abs_mm': float(np.mean(np.abs(err)) * 1e3),
             'max_abs_mm': float(np.max(np.abs(err)) * 1e3),
             'duration_s': float(tj[sel][-1] - tj[sel][0]), 'samples': int(err.size),
-            'goals_from': 'controller acknowledgement' if acknowledged == goal.size
-            else f'{acknowledged} of {goal.size} goals acknowledged, others at the goal message',
-            'bag': str(bag)}
+            'goals_from': goals_from, 'bag': str(bag)}
 
 
 #: Integration window of the chamber mass balance [s]: several 50 Hz PWM periods, so that
@@ -593,7 +629,9 @@ def run_operation_loop(out: Path, effect: str, effect_args: tuple[str, ...],
     stage('run_after', t0)
 
     t0 = time.monotonic()
-    tracking = {'before': tracking_error(bag_before), 'after': tracking_error(bag_after)}
+    schedule = goal_schedule(goals)
+    tracking = {'before': tracking_error(bag_before, schedule),
+                'after': tracking_error(bag_after, schedule)}
     sets: dict[str, Path | None] = {'nominal': None, 'identified': params}
     if params_loop != params:
         sets['calibrated'] = params_loop
