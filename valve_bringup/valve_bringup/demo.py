@@ -261,7 +261,11 @@ class _Watcher:
         self._run_until_pub.publish(Float64(data=float(t_s)))
 
     def subscribers(self, topic: str) -> int:
+        """Subscriptions to ``topic`` in the graph, this watcher's own included."""
         return self.probe.count_subscribers(topic)
+
+    def publishers(self, topic: str) -> int:
+        return self.probe.count_publishers(topic)
 
     def goal(self, position_m: float) -> None:
         from std_msgs.msg import Float64
@@ -318,18 +322,27 @@ def _drive_lockstep(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
             needs += [('/' + _topic(ns, itf.TOPIC_FLOW_COMMAND), 2),  # flow_to_duty + recorder
                       ('/' + _topic(ns, itf.TOPIC_OUTPUT_PRESSURE), 2),
                       ('/' + _topic(ns, itf.TOPIC_DUTY_COMMAND), 2)]  # simulation + recorder
+        publishers = []
         if cfg.backend == 'can':
             # the valve is the emulator's, on /clock: the simulation reads its state (and
-            # the recorder); the driver and the emulator's clock bridge take duty commands
-            needs += [(state_topic, 2), ('/' + itf.TOPIC_DUTY_COMMAND, 4),
+            # the recorder); the driver and the emulator's clock bridge take duty commands.
+            # The counts include this watcher's own subscriptions (duty: simulation,
+            # recorder, emulator, driver, watcher), and the driver's /clock subscription
+            # exists before it is configured: without its state publisher (made when it
+            # is configured, then it activates) the run could start before the driver was
+            # on the bus and lose the first step's state (a 10 s lockstep timeout).
+            needs += [(state_topic, 2), ('/' + itf.TOPIC_DUTY_COMMAND, 5),
                       (itf.TOPIC_CLOCK, 5)]  # emulator, driver, controller, f2d, demo
+            publishers.append((state_topic, 1))                       # the driver
         else:
             needs.append((state_topic, 1))                            # recorder
         deadline = time.monotonic() + 120.0
-        while w.clock_ns < 0 or any(w.subscribers(t) < n for t, n in needs):
+        while w.clock_ns < 0 or any(w.subscribers(t) < n for t, n in needs) \
+                or any(w.publishers(t) < n for t, n in publishers):
             w.spin_for(0.1, sup)
             if time.monotonic() > deadline:
-                missing = [t for t, n in needs if w.subscribers(t) < n]
+                missing = [t for t, n in needs if w.subscribers(t) < n] + \
+                    [f'{t} (publisher)' for t, n in publishers if w.publishers(t) < n]
                 sup.say(f'the suite did not come up within 120 s (waiting for {missing}): '
                         'giving up')
                 return 1, info

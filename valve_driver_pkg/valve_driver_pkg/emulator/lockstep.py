@@ -2,7 +2,7 @@
 
 With the CAN backend in lockstep (``valve_demo --backend can``, the default clock), the
 valve model runs in the emulator, the cylinder in ``valve_lockstep_sim`` with
-``valve_source:=can``, and the emulator's model advances on the simulation clock instead
+``valve_source:=external``, and the emulator's model advances on the simulation clock instead
 of the wall clock:
 
 1. ``valve_lockstep_sim`` publishes ``/clock`` = t, the end of the next valve step.
@@ -23,6 +23,20 @@ of the wall clock:
    past T until that frame's pressure is the one stamped T. Without this the pressure
    reached the valve one or two steps early or late depending on the computer's load
    (step settling times of the CAN demo varied by up to 30 ms between runs).
+
+Start handshake. The emulator sends its t = 0 frames (the valve at rest) not when it
+starts but once, when the whole chain can carry them: a frame from the host (the CAN driver
+sends ``ValveCommand``/``ValvePressure`` only while active, so it is on the bus and
+publishes what it receives) and then a ``/clock`` from the simulation (which publishes it
+only once its ``valve/state`` subscription has matched the driver's publisher) arrived. The
+model does not advance before that. The simulation in turn does not ask for the first step
+until that t = 0 ``valve/state`` has reached it (``valve_lockstep_sim``,
+:class:`valve_model_pkg.pneumatics.lockstep.StartHandshake`). Before this, the first step's
+telemetry frame could reach a driver still compiling or opening its bus (the demo saw
+"the suite is up" before the driver was): the frame was lost, ``/clock`` re-sends could not
+bring it back (the model had already advanced to that time), and the run waited the
+10 s lockstep timeout at t = 0.001 s. The t = 0 frames are sent exactly once, so
+no state the simulation did not ask for can arrive once it asked for a step.
 
 A tick whose command does not arrive within ``timeout_s`` of wall time is a *lockstep
 timeout*: the model goes on with the command in force, the bridge logs it and counts it
@@ -68,6 +82,22 @@ class LockstepGateState:
         self.waiting_since: float | None = None
         self.timeouts = 0
         self.last_timeout = ''
+        self.host_seen = False    # a ValveCommand/ValvePressure from the (active) driver came
+        self.clock_seen = False   # a /clock from the simulation came after the host was seen
+        self.started = False      # the t = 0 frames went out (the start handshake)
+
+    def start_due(self) -> bool:
+        """Whether the t = 0 frames are to be sent now (True once, then never again).
+
+        They go once the driver is on the bus (a host frame arrived) and then a ``/clock``
+        of the simulation arrived: sent earlier, the driver may not receive them (or drop
+        them while inactive), or the driver's ``valve/state`` may not reach the simulation
+        yet, which waits for that t = 0 state before its first step.
+        """
+        if self.started or not (self.host_seen and self.clock_seen):
+            return False
+        self.started = True
+        return True
 
     def tick_of(self, model_ns: int) -> int:
         """The control tick whose command governs the step that starts at ``model_ns``."""
@@ -138,6 +168,12 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
 
     def advance() -> None:
         with lock:
+            if gate.start_due():
+                emulator.step(0.0, 0)   # the t = 0 frames: the simulation's start handshake
+                logger.info('start handshake: the driver is on the bus and the simulation\'s '
+                            'clock arrived; t = 0 frames sent')
+            if not gate.started:
+                return   # the model does not advance before the t = 0 frames went out
             while model_ns[0] < gate.target_ns:
                 if not gate.may_step(model_ns[0], time.monotonic()):
                     return
@@ -172,6 +208,7 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
                     continue
                 with lock:
                     gate.bus_duty = float(signals['Duty']) if signals['Enable'] else 0.0
+                    gate.host_seen = True
                     advance()
             elif found is not None and found[0] == PRESSURE:
                 try:
@@ -180,6 +217,7 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
                     continue
                 with lock:
                     gate.bus_output_pa = float(signals['OutputPressure'])
+                    gate.host_seen = True
                     advance()
 
     from rclpy.signals import SignalHandlerOptions
@@ -192,6 +230,7 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
     def on_clock(msg: Clock) -> None:
         t = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
         with lock:
+            gate.clock_seen = gate.clock_seen or gate.host_seen
             if t > gate.target_ns:
                 gate.target_ns = t
             advance()
@@ -218,8 +257,6 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
     node.create_subscription(DutyCommand, duty_topic, on_duty, COMMAND_QOS)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    with lock:
-        emulator.step(0.0, 0)   # the t = 0 frames now, before the simulation runs
     bus_thread = threading.Thread(target=bus_loop, name='emulator_bus', daemon=True)
     bus_thread.start()
     logger.info('on the simulation clock: step %g ms, control tick %g ms, lockstep timeout '

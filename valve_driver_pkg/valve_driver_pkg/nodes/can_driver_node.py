@@ -180,9 +180,15 @@ class CanDriverNode(Node):
         if self._core is None or not self._core.is_open:
             self.get_logger().error('activate failed: the bus is not open')
             return TransitionCallbackReturn.FAILURE
+        # The state publisher first, then the commands: a controller answers the first
+        # command frame with telemetry, and a state published by an inactive lifecycle
+        # publisher is dropped (the CAN lockstep start handshake counts on that first one).
+        result = super().on_activate(state)
+        if result != TransitionCallbackReturn.SUCCESS:
+            return result
         self._core.activate()
         self.get_logger().info('active: sending commands (duty 0 until a command arrives)')
-        return super().on_activate(state)
+        return result
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         if self._core is not None and not self._core.deactivate():

@@ -27,7 +27,10 @@ the CAN driver): every step the node publishes ``/clock`` = the end of the step,
 one ``valve/state`` (the valve advanced to that time), and integrates the cylinder over
 the step with its spool position; it publishes no ``valve/state`` itself. A step whose
 valve state does not come within ``lockstep_timeout_s`` is a lockstep timeout too (the
-last opening is held).
+last opening is held). Before the first step it waits for one ``valve/state`` per valve
+at t = 0 (the start handshake, :class:`~valve_model_pkg.pneumatics.lockstep.StartHandshake`:
+the emulator sends its t = 0 frames once the driver is on the bus), re-publishing
+``/clock`` = 0 meanwhile; only then is the first step's state sure to find the chain up.
 
 A duty command that is not finite or has an impossible frequency is rejected and counted
 (the last valid command stays); a duty outside [0, 1] is clamped and counted.
@@ -61,7 +64,8 @@ from valve_model_pkg.nodes.common import (DiagnosticLevel, declare_bool, declare
 from valve_model_pkg.nodes.inputs import InputGuard, SequenceTracker, stamp_reason
 from valve_model_pkg.pneumatics.axis import CYLINDER_KINDS, SimulatedAxis
 from valve_model_pkg.pneumatics.cylinder import PARAMETER_INFO, CylinderParameters
-from valve_model_pkg.pneumatics.lockstep import LockstepGate, Pacer, RealTimeFactor
+from valve_model_pkg.pneumatics.lockstep import (LockstepGate, Pacer, RealTimeFactor,
+                                                 StartHandshake)
 
 #: Longest a timer callback keeps stepping before the executor gets its turn [s].
 _BUDGET_S = 0.02
@@ -151,6 +155,9 @@ class LockstepSimulationNode(Node):
                                    initial_position_m=y0)
         self._names = self._axis.names
         self._gate = LockstepGate(self._names, timeout)
+        # External valve: no first step before its t = 0 state came (protocol: the module
+        # docstring of pneumatics/lockstep).
+        self._handshake = StartHandshake(self._names, timeout) if self._external else None
         self._pacer = Pacer(rtf_max)
         self._rtf = RealTimeFactor()
         self._run_until_ns: int | None = 0 if self._start_paused else None
@@ -164,10 +171,9 @@ class LockstepSimulationNode(Node):
         self._state_pubs = {} if self._external else {
             n: self.create_publisher(ValveState, valve_topic(n, TOPIC_STATE), STATE_QOS)
             for n in self._names}
-        if self._external:
-            for n in self._names:
-                self.create_subscription(ValveState, valve_topic(n, TOPIC_STATE),
-                                         lambda msg, n=n: self._on_state(n, msg), STATE_QOS)
+        self._state_subs = {n: self.create_subscription(
+            ValveState, valve_topic(n, TOPIC_STATE), lambda msg, n=n: self._on_state(n, msg),
+            STATE_QOS) for n in self._names} if self._external else {}
         self._pressure_pubs = {n: self.create_publisher(
             FluidPressure, valve_topic(n, TOPIC_OUTPUT_PRESSURE), PRESSURE_QOS)
             for n in self._names}
@@ -274,7 +280,20 @@ class LockstepSimulationNode(Node):
                 if wall - self._last_resend > 0.25:
                     # the clock of the hold, for a node that started (or matched) late
                     self._last_resend = wall
-                    self._clock_pub.publish(ClockMsg(clock=_stamp(self._axis.t_ns)))
+                    self._publish_clock(self._axis.t_ns)
+                return
+            if self._handshake is not None and not self._handshake.ready:
+                if self._handshake.check_timeout(wall):
+                    self._gate.timeouts += 1
+                    self._gate.last_timeout = self._handshake.last_timeout
+                    self.get_logger().warning(f'lockstep timeout: {self._gate.last_timeout}; '
+                                              'asking for the first step anyway')
+                    self._pacer.restart(wall, self._axis.t_ns)
+                    continue
+                if wall - self._last_resend > 0.25:
+                    # the t = 0 clock, for an emulator that started (or matched) late
+                    self._last_resend = wall
+                    self._publish_clock(self._axis.t_ns)
                 return
             if not self._pacer.may_step(wall, self._axis.t_ns):
                 return
@@ -288,8 +307,17 @@ class LockstepSimulationNode(Node):
             self._inputs.reject(valve_topic(name, 'state'), 'not_finite',
                                 f'valve/state spool_position {msg.spool_position!r} rejected')
             return
-        if not self._step_pending or name in self._openings:
-            return  # not asked for (e.g. the t = 0 state before the run)
+        if not self._step_pending:
+            handshake = self._handshake
+            if handshake is not None and self._axis.t_ns == 0 and handshake.state(name):
+                self.get_logger().info('start handshake: valve/state at t = 0 from every '
+                                       'valve; the chain emulator -> CAN -> driver -> '
+                                       'valve/state is up')
+                self._pacer.restart(time.monotonic(), self._axis.t_ns)
+                self._advance()
+            return  # not a step's state (the t = 0 state of the start handshake)
+        if name in self._openings:
+            return  # not asked for
         self._openings[name] = max(0.0, float(msg.spool_position))
         if all(n in self._openings for n in self._names):
             self._finish_step()
@@ -354,7 +382,22 @@ class LockstepSimulationNode(Node):
                 joint.velocity.append(0.0)
                 joint.effort.append(0.0)
         self._joint_pub.publish(joint)
-        self._clock_pub.publish(ClockMsg(clock=stamp))
+        self._publish_clock(t_ns)
+
+    def _publish_clock(self, t_ns: int) -> None:
+        """``/clock`` = ``t_ns``; during the start handshake only once the valve chain shows.
+
+        The emulator sends its t = 0 frames once: on the first ``/clock`` after the driver
+        is on the bus. Held back until this node's ``valve/state`` subscription has matched
+        a publisher (the driver's, made when it is configured), they are not published
+        before the driver's publisher can reach this node, so the one t = 0 state is
+        not lost on the way.
+        """
+        handshake = self._handshake
+        if handshake is not None and not handshake.ready and not all(
+                sub.get_publisher_count() > 0 for sub in self._state_subs.values()):
+            return
+        self._clock_pub.publish(ClockMsg(clock=_stamp(t_ns)))
 
     # --- diagnostics ----------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
@@ -364,6 +407,8 @@ class LockstepSimulationNode(Node):
         level, text = DiagnosticLevel.OK, 'in lockstep' if self._lockstep else 'free running'
         if self._holding:
             text = f'held at t = {self._axis.t_ns * 1e-9:.3f} s'
+        elif self._handshake is not None and not self._handshake.ready:
+            text = 'waiting for valve/state at t = 0 (start handshake)'
         elif self._gate.waiting and wall - self._gate.waiting_since_s > 0.25:
             text = (f'waiting {wall - self._gate.waiting_since_s:.1f} s for the duty '
                     f'command(s) of t = {self._gate.tick_ns * 1e-9:.3f} s')
@@ -387,6 +432,9 @@ class LockstepSimulationNode(Node):
             lockstep_timeouts=self._gate.timeouts,
             lockstep_max_wait_s=self._gate.max_wait_s,
             last_lockstep_timeout=self._gate.last_timeout, held=self._holding,
+            start_handshake=('none' if self._handshake is None else 'gave up'
+                             if self._handshake.gave_up else 'done'
+                             if self._handshake.ready else 'waiting'),
             rejected_messages=self._inputs.total, **lost,
             **self._inputs.diagnostic_values())
         array = DiagnosticArray()

@@ -19,6 +19,14 @@ protocol over topics, for a step of ``step_ns`` and a control tick every
 4. While it waits longer than ``resend_s`` it publishes tick T's messages again (a node
    that started late gets them; the controller ignores a tick it already answered).
 
+With an external valve (``valve_source:=external``: the CAN controller emulator on the
+simulation clock, read through the CAN driver) the simulation first holds a *start
+handshake* (:class:`StartHandshake`): it asks for the first step only after one
+``valve/state`` of every valve reached it at t = 0 -- the emulator sends its t = 0 frames
+once, when the driver is on the bus and the simulation's clock reaches it -- so the whole
+chain emulator -> CAN -> driver -> ``valve/state`` is known to carry the first step's
+state. No t = 0 state can then arrive while a step waits (there is only one).
+
 ``simulation/run_until`` (std_msgs/Float64, seconds of simulation time) holds the
 simulation at that time (a driver such as the demo sends goals while it is held, so they
 take effect at a known tick); ``start_paused`` holds it at t = 0 until the first one.
@@ -33,7 +41,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-__all__ = ['Pacer', 'LockstepGate', 'RealTimeFactor']
+__all__ = ['Pacer', 'LockstepGate', 'RealTimeFactor', 'StartHandshake']
 
 
 @dataclass
@@ -130,6 +138,55 @@ class LockstepGate:
             self.owed.clear()
             return True
         return False
+
+
+@dataclass
+class StartHandshake:
+    """External valves: which still owe their t = 0 state before the first step.
+
+    Parameters
+    ----------
+    names : tuple of str
+        The valves whose state must arrive.
+    timeout_s : float
+        Wall time the simulation waits for the states, once it wants to run, before it
+        gives up, counts a lockstep timeout and asks for the first step anyway [s].
+    """
+
+    names: tuple[str, ...]
+    timeout_s: float = 10.0
+    seen: set[str] = field(default_factory=set)
+    gave_up: bool = False
+    waiting_since_s: float | None = None
+    last_timeout: str = ''
+
+    @property
+    def ready(self) -> bool:
+        """Whether the first step may be asked for (every state came, or it gave up)."""
+        return self.gave_up or self.seen >= set(self.names)
+
+    def state(self, name: str) -> bool:
+        """Valve ``name``'s state arrived before the first step; True if that made it ready."""
+        before = self.ready
+        if name in self.names:
+            self.seen.add(name)
+        return self.ready and not before
+
+    def check_timeout(self, wall_s: float) -> bool:
+        """The simulation wants to run at ``wall_s`` and is not ready: give up if it waited
+        ``timeout_s`` (returns True then, once)."""
+        if self.ready:
+            return False
+        if self.waiting_since_s is None:
+            self.waiting_since_s = wall_s
+            return False
+        if wall_s - self.waiting_since_s <= self.timeout_s:
+            return False
+        missing = ', '.join(repr(n) for n in sorted(set(self.names) - self.seen))
+        self.last_timeout = (f'no valve/state at t = 0 from valve(s) {missing} within '
+                             f'{self.timeout_s:g} s (start handshake)')
+        self.gave_up = True
+        return True
 
 
 @dataclass
