@@ -172,7 +172,12 @@ def test_lifecycle_commands_and_clamping(start_node, ros) -> None:
                      'clamped duty on the bus')
         assert all(0.0 <= c['Duty'] <= 1.0 for c in sniffer.commands)
         ros.wait_for(lambda: client.level('commands') == 1, 5.0, 'commands WARN')
-        assert 'clamped' in client.diagnostics['commands'].message
+        # counted; the status message names the most pressing problem, which on a loaded
+        # machine can be a command that reached the bus late (CI, 2026-11-25)
+        ros.wait_for(lambda: client.value('commands', 'commands_clamped') == '1', 5.0,
+                     'the clamped command counted')
+        message = client.diagnostics['commands'].message
+        assert 'clamped' in message or 'stale' in message, message
         client.command(float('nan'), 50.0)
         ros.wait_for(lambda: 'rejected' in client.diagnostics['commands'].message, 5.0,
                      'NaN rejected')
