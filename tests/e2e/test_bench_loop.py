@@ -80,6 +80,9 @@ def test_operation_loop_names_the_effect_and_improves_the_error(tmp_path):
     assert 0.5 < cal['ratio'] < 2.0, cal
     assert cal['balance_error_pct']['after'] <= cal['balance_error_pct']['before'] + 1e-9
     assert f'params_file:={(out / "params_identified.yaml").resolve()}' in text
-    assert loop['tracking']['before']['goals_from'] == 'controller acknowledgement'
+    # each goal at the demo's hold point; the acknowledgements in the bag agree within a
+    # control tick (else tracking_error refuses the bag)
+    for run in ('before', 'after'):
+        assert loop['tracking'][run]['goals_from'].startswith('demo schedule'), loop['tracking']
     md = (out / 'loop.md').read_text()
     assert OPERATION_EFFECT in md and 'identification/report.md' in md
