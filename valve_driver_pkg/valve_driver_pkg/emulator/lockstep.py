@@ -82,7 +82,7 @@ class LockstepGateState:
         self.waiting_since: float | None = None
         self.timeouts = 0
         self.last_timeout = ''
-        self.host_seen = False    # a ValveCommand/ValvePressure from the (active) driver came
+        self.host_seen = False    # an enabling ValveCommand or a ValvePressure: driver active
         self.clock_seen = False   # a /clock from the simulation came after the host was seen
         self.started = False      # the t = 0 frames went out (the start handshake)
 
@@ -208,7 +208,11 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
                     continue
                 with lock:
                     gate.bus_duty = float(signals['Duty']) if signals['Enable'] else 0.0
-                    gate.host_seen = True
+                    # Only an enabling command shows an active driver: an inactive one
+                    # sends ClearFaults frames (Enable 0) too, and would drop the t = 0
+                    # telemetry the start handshake sends once (CI run 12: lost twice).
+                    if signals['Enable']:
+                        gate.host_seen = True
                     advance()
             elif found is not None and found[0] == PRESSURE:
                 try:
