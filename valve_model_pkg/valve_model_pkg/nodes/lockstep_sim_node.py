@@ -69,6 +69,9 @@ from valve_model_pkg.pneumatics.lockstep import (LockstepGate, Pacer, RealTimeFa
 
 #: Longest a timer callback keeps stepping before the executor gets its turn [s].
 _BUDGET_S = 0.02
+#: Wall time between this node's valve/state reader matching a writer and the start
+#: handshake's first /clock: the writer's side of the match may come later [s].
+_MATCH_SETTLE_S = 0.5
 
 
 def _stamp(ns: int) -> TimeMsg:
@@ -158,6 +161,7 @@ class LockstepSimulationNode(Node):
         # External valve: no first step before its t = 0 state came (protocol: the module
         # docstring of pneumatics/lockstep).
         self._handshake = StartHandshake(self._names, timeout) if self._external else None
+        self._chain_matched_s: float | None = None   # when valve/state first had a writer
         self._pacer = Pacer(rtf_max)
         self._rtf = RealTimeFactor()
         self._run_until_ns: int | None = 0 if self._start_paused else None
@@ -394,9 +398,19 @@ class LockstepSimulationNode(Node):
         not lost on the way.
         """
         handshake = self._handshake
-        if handshake is not None and not handshake.ready and not all(
-                sub.get_publisher_count() > 0 for sub in self._state_subs.values()):
-            return
+        if handshake is not None and not handshake.ready:
+            if not all(sub.get_publisher_count() > 0 for sub in self._state_subs.values()):
+                self._chain_matched_s = None
+                return
+            # This reader has matched the writer; the writer's side of the match (its
+            # discovery of this reader) can come later, and a state it publishes before
+            # then is lost (fresh-clone CI, under load: 1.8 s after the driver came up).
+            # Settle a moment, as valve_demo does after its subscription counts.
+            now = time.monotonic()
+            if self._chain_matched_s is None:
+                self._chain_matched_s = now
+            if now - self._chain_matched_s < _MATCH_SETTLE_S:
+                return
         self._clock_pub.publish(ClockMsg(clock=_stamp(t_ns)))
 
     # --- diagnostics ----------------------------------------------------------------------
