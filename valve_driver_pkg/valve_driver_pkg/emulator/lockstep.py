@@ -25,9 +25,10 @@ of the wall clock:
    (step settling times of the CAN demo varied by up to 30 ms between runs).
 
 Start handshake. The emulator sends its t = 0 frames (the valve at rest) not when it
-starts but once, when the whole chain can carry them: a frame from the host (the CAN driver
-sends ``ValveCommand``/``ValvePressure`` only while active, so it is on the bus and
-publishes what it receives) and then a ``/clock`` from the simulation (which publishes it
+starts but once, when the whole chain can carry them: an enabling ``ValveCommand`` or a
+``ValvePressure`` from the host (the CAN driver sends these only while active, so it is on
+the bus and publishes what it receives; an inactive one may send ``Enable`` 0 frames,
+which do not count) and then a ``/clock`` from the simulation (which publishes it
 only once its ``valve/state`` subscription has matched the driver's publisher) arrived. The
 model does not advance before that. The simulation in turn does not ask for the first step
 until that t = 0 ``valve/state`` has reached it (``valve_lockstep_sim``,

@@ -416,7 +416,8 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
     # Structure: clearly more residual than noise, or a residual far from white -- the
     # latter only when the residual is above the resolution floor (a noise-free record's
     # residual of numerics is smooth, hence "not white", and means nothing).
-    floor_rms = float(np.median(list(_floors(judge).values()) or [0.0]))
+    floors_judge = floors_val if val is not None else floors_fit
+    floor_rms = float(np.median(list(floors_judge.values()) or [0.0]))
     base_rms = math.sqrt(float(np.mean([np.mean(r[np.isfinite(r)] ** 2) for r in base_res])))
     sizeable = math.sqrt(struct_base) > STRUCTURE_FRACTION * sigma
     structured = sizeable or (math.isfinite(lb_p) and lb_p < WHITENESS_P

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import signal
 import sys
 import threading
@@ -277,7 +278,6 @@ def make_executor(node: Node, events: bool = False):
     the SingleThreadedExecutor, as every other node. ``VALVE_EXECUTOR=single`` forces the
     latter (a fallback, should the experimental executor misbehave somewhere).
     """
-    import os
     if events and os.environ.get('VALVE_EXECUTOR', '') != 'single' and \
             not node.get_parameter('use_sim_time').value:
         try:
