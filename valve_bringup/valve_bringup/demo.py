@@ -361,8 +361,14 @@ def _drive_lockstep(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
                     '(simulated)')
             w.goal(goal_m)
             deadline = time.monotonic() + 30.0
+            last_sent = time.monotonic()
             while w.setpoint_m != goal_m:  # the controller's acknowledgement
                 w.spin_for(0.02, sup)
+                if time.monotonic() - last_sent > 1.0:
+                    # lost or not yet matched (the readiness counts can be met by other
+                    # subscribers, e.g. the live view): say it again (the same goal)
+                    w.goal(goal_m)
+                    last_sent = time.monotonic()
                 if time.monotonic() > deadline:
                     sup.say('the controller did not acknowledge the goal within 30 s')
                     return 1, info
