@@ -34,15 +34,6 @@ def test_bench_loop_names_the_injected_effect_and_improves_the_error(tmp_path):
 #: The operation loop's effect: one the identification names from an operational record
 #: (docs/loop.md says why this one).
 OPERATION_EFFECT = 'eddy_current'
-#: How much worse the tracking may get after the loop [mm RMS]. The identified map's flow
-#: scale is calibrated on the before run's chamber (docs/loop.md), so flow_to_duty delivers
-#: the flow the position controller asks for; the nominal map of the before run promises
-#: about 20 % less opening than the eddy-current valve gives at mid duty, which lends the
-#: before run a little extra loop gain (faster transients). With an accurate map the after
-#: run tracks within about 0.1 mm RMS of the before run either way (2026-11-23: -0.24,
-#: -0.07, +0.02 mm; the emulated valve's true map: +0.10 mm); an uncalibrated map whose
-#: stroke was identified 23 % long gave +1.33 mm.
-TRACKING_TOLERANCE_MM = 0.5
 
 
 def test_operation_loop_names_the_effect_and_improves_the_error(tmp_path):
@@ -58,10 +49,13 @@ def test_operation_loop_names_the_effect_and_improves_the_error(tmp_path):
     assert aug['iae'] < base['iae'], (base, aug)
     before, after = loop['tracking']['before']['rms_mm'], loop['tracking']['after']['rms_mm']
     assert 0.0 < before and 0.0 < after
-    assert after <= before + TRACKING_TOLERANCE_MM, (before, after)
+    # The valve in service discharges with C_d 0.62 where the suite's set says 0.8: the
+    # before run's flow commands are 1.29x too high a scale, the after run's calibrated
+    # (docs/loop.md; 2026-11-25: 10.37 -> 8.90 mm).
+    assert after < before, (before, after)
     for side in ('before', 'after'):
         assert loop['flow'][side]['rms_pct'] >= 0.0
-    assert loop['flow']['after']['rms_pct'] <= loop['flow']['before']['rms_pct'] + 0.1
+    assert loop['flow']['after']['rms_pct'] < loop['flow']['before']['rms_pct']
     for stage in ('run_before', 'identification', 'map', 'flow_calibration', 'run_after',
                   'evaluation', 'total'):
         assert loop['stages_s'][stage] > 0.0
@@ -77,7 +71,12 @@ def test_operation_loop_names_the_effect_and_improves_the_error(tmp_path):
     # flow_to_duty ran with that set (docs/loop.md: the map's absolute opening follows the
     # identified stroke, which the current pins down only weakly).
     cal = loop['flow_calibration']
-    assert 0.5 < cal['ratio'] < 2.0, cal
+    assert 0.3 < cal['ratio'] < 2.0, cal
+    # the flow area at full opening of the set in force is the valve in service's, within
+    # a few per cent (the suite's own set is 29 % off it)
+    assert loop['plant']['discharge_coefficient'] == 0.62
+    assert abs(cal['suite_full_opening_error_pct'] - 29.03) < 0.1, cal
+    assert abs(cal['full_opening_error_pct']) < 10.0, cal
     assert cal['balance_error_pct']['after'] <= cal['balance_error_pct']['before'] + 1e-9
     assert f'params_file:={(out / "params_identified.yaml").resolve()}' in text
     # each goal at the demo's hold point; the acknowledgements in the bag agree within a

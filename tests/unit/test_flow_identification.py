@@ -12,8 +12,8 @@ from valve_model_pkg.maps import load_map
 from valve_model_pkg.maps.flow_check import map_flow_position, read_flow_map, write_flow_map
 from valve_model_pkg.maps.inversion import FlowToDutyInverter
 from valve_model_pkg.maps.flow_identification import (
-    ChamberRecord, FlowIdentificationError, chamber_record_from_bag, chamber_volume_m3,
-    flow_edges,
+    ChamberRecord, FlowIdentificationError, chamber_record_from_bag, chamber_valve_flow,
+    chamber_volume_m3, flow_edges,
     identify_from_chamber, identify_from_flow_map, write_parameters)
 from valve_model_pkg.model import ValveParameters, load_parameters, orifice_mass_flow
 from valve_model_pkg.pneumatics.cylinder import Cylinder, CylinderParameters
@@ -314,3 +314,34 @@ def test_cli_chamber_mode_refuses_bad_input_in_one_line(tmp_path: Path, capsys) 
     assert main([str(garbage), '--chamber', '--out', str(tmp_path / 'o')]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(garbage) in err[0] and 'Traceback' not in err[0]
+
+
+def test_chamber_valve_flow_is_the_flow_the_valve_delivered(prior) -> None:
+    """The chamber as a flow meter (the loop's flow prediction error is measured by it):
+    window means of the plant's own valve flow, from pressure and position alone."""
+    cyl = CylinderParameters()
+    plant = Cylinder(cyl, valve_params=prior)
+    dt, n, period = 1e-3, 1200, 0.05
+    t = np.arange(n + 1) * dt
+    duty = np.where(t < 0.6, 0.6, 0.25)
+    opening = np.where((t % period) < duty * period, prior.stroke_m, 0.0)
+    p, y, q = np.empty(n + 1), np.empty(n + 1), np.zeros(n + 1)
+    p[0], y[0] = plant.state.pressure_pa, plant.state.position_m
+    for k in range(n):
+        st = plant.step_with_valve(dt, float(opening[k]), 4e5)
+        p[k + 1], y[k + 1], q[k + 1] = st.pressure_pa, st.position_m, \
+            plant.last_valve_flow_kg_s
+    rec = ChamberRecord(t, p - 101325.0, chamber_volume_m3(y, cyl.bore_diameter_m,
+                                                           cyl.dead_volume_m3),
+                        np.zeros_like(t), np.full(t.size, 4e5))
+    starts, flow = chamber_valve_flow(rec, prior, polytropic_exponent=cyl.polytropic_exponent,
+                                      bleed_discharge_area_m2=cyl.bleed_discharge_area_m2,
+                                      window_s=0.1)
+    assert starts.size == 12 and starts[0] == 0.0
+    true = np.array([q[(t > s) & (t <= s + 0.1 + 1e-9)].mean() for s in starts])
+    assert np.max(true) > 1e-4                        # the valve did deliver
+    np.testing.assert_allclose(flow, true, atol=0.03 * np.max(true))
+    # without the bleed the meter reads only what stayed in the chamber: less
+    _, stored = chamber_valve_flow(rec, prior, polytropic_exponent=cyl.polytropic_exponent,
+                                   bleed_discharge_area_m2=0.0, window_s=0.1)
+    assert np.all(stored[2:] < flow[2:])

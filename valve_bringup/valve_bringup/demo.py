@@ -62,6 +62,12 @@ class DemoConfig:
     #: Extra ``--ros-args`` of every flow_to_duty (e.g. ``-p map_file:=M -p params_file:=P``:
     #: the loop in service restarts it with an identified map); empty = its defaults.
     flow_to_duty_args: tuple[str, ...] = ()
+    #: The physical valve's parameter set (YAML) where it differs from the suite's
+    #: (config/valve.yaml): the CAN backend's emulated valve (``--params-file``) and the
+    #: lockstep simulation's plant (``params_file``: the orifice the cylinder is filled
+    #: through) carry it; flow_to_duty and the controller keep theirs. None = the suite's.
+    #: Lockstep clock only.
+    plant_params_file: Path | None = None
 
     @property
     def lockstep(self) -> bool:
@@ -86,6 +92,11 @@ def backend_processes(backend: str, *, rate_hz: float = 1000.0,
     raise ValueError(f'unknown backend {backend!r}: expected "sim" or "can"')
 
 
+def _plant_emulator_args(cfg: DemoConfig) -> tuple[str, ...]:
+    """The emulator's ``--params-file`` when the physical valve is not the suite's."""
+    return ('--params-file', str(cfg.plant_params_file)) if cfg.plant_params_file else ()
+
+
 def _topic(ns: str, topic: str) -> str:
     return f'{ns}/{topic}' if ns else topic
 
@@ -107,6 +118,9 @@ def suite_processes(cfg: DemoConfig, bag: Path) -> list[ProcessSpec]:
     recorder = ProcessSpec('valve_recorder', ['valve_recorder', '-o', str(bag),
                                               *recorded_topics(cfg)])
     if not cfg.lockstep:
+        if cfg.plant_params_file:
+            raise ValueError('a plant parameter set other than the suite\'s needs the '
+                             'lockstep clock (its simulation carries the plant)')
         if cfg.backend == 'sim':
             backend = backend_processes('sim', rate_hz=cfg.rate_hz)
         else:
@@ -129,7 +143,7 @@ def suite_processes(cfg: DemoConfig, bag: Path) -> list[ProcessSpec]:
         procs += can_backend_processes(
             rate_hz=cfg.rate_hz,
             emulator_args=('--clock', 'sim', '--step-s', f'{1.0 / cfg.rate_hz:g}',
-                           *cfg.effect_args),
+                           *_plant_emulator_args(cfg), *cfg.effect_args),
             # The simulation stands still while the demo holds it and waits for the
             # controller on a busy computer: telemetry silence on the wall clock is then
             # no loss (the lockstep timeouts report a real one), so the driver's silence
@@ -139,7 +153,8 @@ def suite_processes(cfg: DemoConfig, bag: Path) -> list[ProcessSpec]:
     procs.append(ProcessSpec('valve_lockstep_sim', [
         'valve_lockstep_sim', '--ros-args', '-p', 'start_paused:=true',
         '-p', f'real_time_factor_max:={float(cfg.real_time_factor_max)}',
-        '-p', f'step_s:={1.0 / cfg.rate_hz}', '-p', f'cylinder:={cfg.cylinder}', *external]))
+        '-p', f'step_s:={1.0 / cfg.rate_hz}', '-p', f'cylinder:={cfg.cylinder}', *external,
+        *(('-p', f'params_file:={cfg.plant_params_file}') if cfg.plant_params_file else ())]))
     for ns in cfg.valves:
         remap = ['-r', f'__ns:=/{ns}'] if ns else []
         procs.append(ProcessSpec(f'flow_to_duty{"_" + ns if ns else ""}', [

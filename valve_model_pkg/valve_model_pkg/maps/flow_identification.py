@@ -58,7 +58,7 @@ __all__ = ['FlowIdentificationError', 'OrificeEstimate', 'EdgeCheck', 'FlowIdent
            'ChamberRecord', 'ChamberEstimate', 'identify_from_flow_map',
            'identify_from_chamber', 'chamber_record_from_bag', 'chamber_volume_m3',
            'opening_from_duty', 'flow_edges', 'with_orifice_product', 'write_parameters',
-           'recalibrated_map',
+           'recalibrated_map', 'chamber_valve_flow',
            'START_THRESHOLD', 'SATURATION_THRESHOLD']
 
 #: Flow fraction [1] above which the flow has "started" (end of the dead band).
@@ -515,6 +515,80 @@ def _orifice_unit(p_up: np.ndarray, p_down: np.ndarray, temp: float, r_gas: floa
     return out
 
 
+def _window_sums(record: ChamberRecord, params: ValveParameters, temp: float,
+                 polytropic_exponent: float, window_s: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Window sums of the mass balance (C2): the stored mass change 1/(R T) sum(V dp / n +
+    p dV) [kg], the valve's sum(x phi_v dt) per unit C_d C_A and the bleed's sum(phi_b dt)
+    per unit C_d A, with midpoint values on each sample interval; and each window's length
+    [s]. Checks the record (FlowIdentificationError)."""
+    arrays = [np.asarray(a, dtype=float) for a in (
+        record.t_s, record.chamber_pressure_pa, record.volume_m3, record.opening_m,
+        record.supply_pressure_pa)]
+    names = ('t_s', 'chamber_pressure_pa', 'volume_m3', 'opening_m', 'supply_pressure_pa')
+    n = arrays[0].size
+    for name, a in zip(names, arrays):
+        if a.shape != (n,):
+            raise FlowIdentificationError(f'{name} has shape {a.shape}, expected ({n},)')
+        if not np.all(np.isfinite(a)):
+            raise FlowIdentificationError(f'{name} has non-finite values')
+    t, pg, vol, x, psg = arrays
+    if n < 3 or np.any(np.diff(t) <= 0.0):
+        raise FlowIdentificationError('t_s must hold at least 3 strictly ascending times')
+    r_gas, gamma = params.gas_constant_j_per_kg_k, params.heat_capacity_ratio
+    p = pg + ATMOSPHERIC_PRESSURE_PA
+    ps = psg + ATMOSPHERIC_PRESSURE_PA
+    # midpoint values on each sample interval
+    pm, vm = 0.5 * (p[1:] + p[:-1]), 0.5 * (vol[1:] + vol[:-1])
+    xm, psm = 0.5 * (x[1:] + x[:-1]), 0.5 * (ps[1:] + ps[:-1])
+    dt = np.diff(t)
+    lhs = (vm * np.diff(p) / polytropic_exponent + pm * np.diff(vol)) / (r_gas * temp)
+    phi_v = np.maximum(xm, 0.0) * _orifice_unit(psm, pm, temp, r_gas, gamma) * dt
+    phi_b = np.maximum(_orifice_unit(pm, np.full_like(pm, ATMOSPHERIC_PRESSURE_PA), temp,
+                                     r_gas, gamma), 0.0) * dt
+    # sum over windows
+    edges = np.floor((0.5 * (t[1:] + t[:-1]) - t[0]) / window_s).astype(int)
+    n_win = int(edges[-1]) + 1
+    y_w = np.bincount(edges, lhs, n_win)
+    v_w = np.bincount(edges, phi_v, n_win)
+    b_w = np.bincount(edges, phi_b, n_win)
+    return y_w, v_w, b_w, np.bincount(edges, dt, n_win)
+
+
+def chamber_valve_flow(record: ChamberRecord, params: ValveParameters, *,
+                       bleed_discharge_area_m2: float, temperature_k: float | None = None,
+                       polytropic_exponent: float = 1.0, window_s: float = 0.05
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """The mass flow the valve delivered into the chamber, window by window [kg/s].
+
+    The chamber as a flow meter: the stored mass change plus what the bleed let out (C2,
+    C3), over each window, divided by its length::
+
+        m_valve = (1/(R T) sum(V dp / n + p dV) + B sum(phi_b dt)) / window
+
+    (the same sums :func:`identify_from_chamber` fits; ``record.opening_m`` is not used).
+    ``params`` gives R, T (default) and gamma.
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        Start time of each window [s] and the window's mean valve flow [kg/s].
+
+    Raises
+    ------
+    FlowIdentificationError
+        Arrays of unequal length, non-finite values or fewer than 3 ascending times.
+    """
+    temp = float(params.supply_temperature_k if temperature_k is None else temperature_k)
+    y_w, _, b_w, length = _window_sums(record, params, temp, polytropic_exponent, window_s)
+    t0 = float(np.asarray(record.t_s, dtype=float)[0])
+    starts = t0 + window_s * np.arange(y_w.size)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        flow = (y_w + float(bleed_discharge_area_m2) * b_w) / length
+    keep = length > 0.0
+    return starts[keep], flow[keep]
+
+
 def identify_from_chamber(record: ChamberRecord, params: ValveParameters, *,
                           temperature_k: float | None = None,
                           polytropic_exponent: float = 1.0,
@@ -556,37 +630,9 @@ def identify_from_chamber(record: ChamberRecord, params: ValveParameters, *,
     FlowIdentificationError
         Arrays of unequal length, non-finite values, too few windows or no valve flow.
     """
-    arrays = [np.asarray(a, dtype=float) for a in (
-        record.t_s, record.chamber_pressure_pa, record.volume_m3, record.opening_m,
-        record.supply_pressure_pa)]
-    names = ('t_s', 'chamber_pressure_pa', 'volume_m3', 'opening_m', 'supply_pressure_pa')
-    n = arrays[0].size
-    for name, a in zip(names, arrays):
-        if a.shape != (n,):
-            raise FlowIdentificationError(f'{name} has shape {a.shape}, expected ({n},)')
-        if not np.all(np.isfinite(a)):
-            raise FlowIdentificationError(f'{name} has non-finite values')
-    t, pg, vol, x, psg = arrays
-    if n < 3 or np.any(np.diff(t) <= 0.0):
-        raise FlowIdentificationError('t_s must hold at least 3 strictly ascending times')
     temp = float(params.supply_temperature_k if temperature_k is None else temperature_k)
-    r_gas, gamma = params.gas_constant_j_per_kg_k, params.heat_capacity_ratio
-    p = pg + ATMOSPHERIC_PRESSURE_PA
-    ps = psg + ATMOSPHERIC_PRESSURE_PA
-    # midpoint values on each sample interval
-    pm, vm = 0.5 * (p[1:] + p[:-1]), 0.5 * (vol[1:] + vol[:-1])
-    xm, psm = 0.5 * (x[1:] + x[:-1]), 0.5 * (ps[1:] + ps[:-1])
-    dt = np.diff(t)
-    lhs = (vm * np.diff(p) / polytropic_exponent + pm * np.diff(vol)) / (r_gas * temp)
-    phi_v = np.maximum(xm, 0.0) * _orifice_unit(psm, pm, temp, r_gas, gamma) * dt
-    phi_b = np.maximum(_orifice_unit(pm, np.full_like(pm, ATMOSPHERIC_PRESSURE_PA), temp,
-                                     r_gas, gamma), 0.0) * dt
-    # sum over windows
-    edges = np.floor((0.5 * (t[1:] + t[:-1]) - t[0]) / window_s).astype(int)
-    n_win = int(edges[-1]) + 1
-    y_w = np.bincount(edges, lhs, n_win)
-    v_w = np.bincount(edges, phi_v, n_win)
-    b_w = np.bincount(edges, phi_b, n_win)
+    y_w, v_w, b_w, _ = _window_sums(record, params, temp, polytropic_exponent, window_s)
+    n_win = y_w.size
     if not np.any(v_w != 0.0):
         raise FlowIdentificationError('the valve never opens against a pressure difference '
                                       'in the record: nothing to identify')

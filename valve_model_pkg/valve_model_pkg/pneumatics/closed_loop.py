@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from valve_model_pkg.maps.dutymap import load_map
+from valve_model_pkg.maps.dutymap import DutyMap, load_map
 from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
 from valve_model_pkg.maps.inversion import FlowToDutyInverter
 from valve_model_pkg.model import ValveParameters, load_parameters
@@ -44,8 +44,13 @@ def simulate_closed_loop(goals: list[tuple[float, float]], *, supply_pressure_pa
                          gains: ControllerGains | None = None,
                          plant: CylinderParameters | None = None,
                          valve: ValveParameters | None = None,
-                         feedback_delay_s: float = 0.0) -> LoopResult:
+                         feedback_delay_s: float = 0.0,
+                         duty_map: DutyMap | None = None) -> LoopResult:
     """Run the loop through ``goals`` = [(position [m], hold [s]), ...].
+
+    ``duty_map`` is the map ``flow_to_duty`` inverts (default: the package's map of the
+    nominal valve); ``valve`` the valve the plant carries (default: the nominal one): a
+    map of another valve shows what a miscalibrated map does to the loop.
 
     The valve model advances in ``1/valve_rate_hz`` ticks; the plant integrates each tick
     with the valve's instantaneous opening (as the cylinder node does with valve/state).
@@ -55,7 +60,7 @@ def simulate_closed_loop(goals: list[tuple[float, float]], *, supply_pressure_pa
     valve = valve or load_parameters()
     plant = plant or CylinderParameters()
     ctl = PositionController(gains, plant)
-    inverter = FlowToDutyInverter(load_map(), pwm_frequency_hz)
+    inverter = FlowToDutyInverter(duty_map or load_map(), pwm_frequency_hz)
     axis = SimulatedAxis('single', step_ns=int(round(1e9 / valve_rate_hz)), valve=valve,
                          plant=plant, supply_pressure_pa=supply_pressure_pa,
                          pwm_frequency_hz=pwm_frequency_hz)
