@@ -801,7 +801,16 @@ def _loop_markdown(loop: dict, out: Path) -> str:
         '# The loop in service', '',
         f'Effect carried by the emulator\'s valve: **{loop["effect_injected"]}**; named by '
         f'the identification: **{diag.get("effect")}** (confidence '
-        f'{diag.get("confidence", "n/a")}).', '',
+        f'{diag.get("confidence", "n/a")}).', '']
+    plant = loop.get('plant') or {}
+    if plant:
+        lines += [
+            f'The valve in service discharges with C_d {plant["discharge_coefficient"]:g} '
+            f'(the suite\'s set says {plant["suite_discharge_coefficient"]:g}): its flow area '
+            f'at full opening is {plant["full_opening_area_m2"] * 1e6:.4g} mm^2, the suite '
+            f'assumes {plant["suite_full_opening_area_m2"] * 1e6:.4g} mm^2. The suite does '
+            f'not know it (`plant_valve.yaml`).', '']
+    lines += [
         '## Coil current (identification from the before run\'s bag)', '',
         '| model | fit IAE [A s] | validation IAE [A s] | validation RMSE [mA] |',
         '|---|---|---|---|',
@@ -818,8 +827,8 @@ def _loop_markdown(loop: dict, out: Path) -> str:
         f'{tr["before"]["mean_abs_mm"]:.3f} | {tr["before"]["max_abs_mm"]:.2f} |',
         f'| after | identified parameters and map{cal_note} | {tr["after"]["rms_mm"]:.3f} | '
         f'{tr["after"]["mean_abs_mm"]:.3f} | {tr["after"]["max_abs_mm"]:.2f} |',
-        '', 'Goals count from the controller\'s acknowledgement (the change of '
-        '`cylinder/position_setpoint`); the RMS includes the step transients.', '']
+        '', 'Each goal counts from its hold point (the demo holds the simulation until the '
+        'controller acknowledged it); the RMS includes the step transients.', '']
     if 'product_m' in cal:
         lines += [
             f'Flow scale of the identified set, calibrated on the before run\'s chamber mass '
@@ -827,17 +836,25 @@ def _loop_markdown(loop: dict, out: Path) -> str:
             f'{cal["prior_product_m"] * 1e3:.4g} -> {cal["product_m"] * 1e3:.4g} mm '
             f'(x {cal["ratio"]:.3f}; balance error {cal["balance_error_pct"]["before"]:.1f} '
             f'-> {cal["balance_error_pct"]["after"]:.1f} %). flow_to_duty ran with '
-            '`params_identified.yaml` and `map_identified.json`.', '']
+            '`params_identified.yaml` and `map_identified.json`.'
+            + (f' Flow area at full opening (C_d C_A x stroke of that set) '
+               f'{cal["full_opening_area_m2"] * 1e6:.4g} mm^2: '
+               f'{cal["full_opening_error_pct"]:+.1f} % off the valve in service (the '
+               f'suite\'s set: {cal["suite_full_opening_error_pct"]:+.1f} %).'
+               if 'full_opening_error_pct' in cal else ''), '']
     elif cal:
         lines += [f'Flow scale not calibrated: {cal.get("error")}', '']
     lines += [
         'Plots: [before/report/report.md](before/report/report.md) '
         '(before/report/overview.png), [after/report/report.md](after/report/report.md) '
         '(after/report/overview.png).', '',
-        '## Flow prediction (model driven by the recorded duty commands vs valve/state '
-        'mass_flow)', '',
-        f'RMS error in % of full flow ({fl["full_flow_kg_s"] * 1e3:.2f} g/s: spool open, '
-        'supply into the atmosphere):', '',
+        '## Flow prediction (model driven by the recorded duty commands vs the flow the '
+        'chamber received)', '',
+        f'RMS error over {FLOW_PREDICTION_WINDOW_S:g} s windows in % of full flow '
+        f'({fl["full_flow_kg_s"] * 1e3:.2f} g/s: spool open, supply into the atmosphere). '
+        'Measured by the chamber\'s mass balance (C2, C3: pressure, piston position, the '
+        'suite\'s cylinder); valve/state mass_flow is not a measurement (the CAN driver '
+        'derives it with the suite\'s orifice constants).', '',
         '| record | nominal parameters | identified parameters | identified, flow scale '
         'calibrated |', '|---|---|---|---|']
     for name, run in fl['runs'].items():
