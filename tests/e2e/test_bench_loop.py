@@ -49,8 +49,8 @@ def test_operation_loop_names_the_effect_and_improves_the_error(tmp_path):
     assert aug['iae'] < base['iae'], (base, aug)
     before, after = loop['tracking']['before']['rms_mm'], loop['tracking']['after']['rms_mm']
     assert 0.0 < before and 0.0 < after
-    # The valve in service discharges with C_d 0.62 where the suite's set says 0.8: the
-    # before run's flow commands are 1.29x too high a scale, the after run's calibrated
+    # The valve in service discharges with C_d 0.62 where the suite's set says 0.8: in the
+    # before run it delivers 0.78 of the commanded flow, in the after run (calibrated) all
     # (docs/loop.md; 2026-11-25: 10.37 -> 8.90 mm).
     assert after < before, (before, after)
     for side in ('before', 'after'):

@@ -2,7 +2,7 @@
 
 The ROS-free closed loop (controller -> flow_to_duty's inverter -> valve model -> cylinder)
 on a valve that discharges with C_d = 0.62 where the suite's set says 0.8: with the
-suite's map the commands are on a scale 1.29x too high, the position loop stalls short of
+suite's map the valve delivers 0.78 of the commanded flow, the position loop stalls short of
 the goal until its integral zone is reached; with the map recalibrated to the valve's
 orifice (curves unchanged, the loop's ``recalibrated_map``) it tracks the same goals
 closer. And on the suite's own valve the recalibrated map is the suite's map: the same

@@ -1,6 +1,7 @@
 """valve_bench_loop: close the loop through the bench, over CAN, from recorded bags.
 
     valve_bench_loop [--mode bench|operation] [--effect coil_heating] [-o/--out DIR] [--quick]
+                     [--plant-discharge-coefficient C_D]
 
 1. Bench experiments on the CAN backend: the controller emulator runs a valve that carries
    a physical effect the nominal model lacks (``--effect``); the driver publishes
@@ -26,7 +27,9 @@ loop from the suite's own operation instead (docs/loop.md):
 1. the suite runs as ``make demo`` does (:mod:`valve_bringup.demo`, CAN backend, lockstep
    clock, as fast as possible), the emulator's valve carrying the effect, the position
    controller moving the cylinder through a sequence of steps; the bag goes to
-   ``DIR/before/``;
+   ``DIR/before/``. The valve in service (emulated valve and plant orifice) discharges
+   with its own C_d (``--plant-discharge-coefficient``, default 0.62), which the suite's
+   set (0.8) does not know;
 2. ``valve_identify --fit <bag>``: the bag's ``valve/state`` carries the interval-mean coil
    current and the duty commands, read as an operational record through the drive
    electronics (the last 30 % held out for validation);
@@ -38,8 +41,8 @@ loop from the suite's own operation instead (docs/loop.md):
    again with ``flow_to_duty`` on it and the map (``DIR/after/``);
 4. the position-tracking error (RMS of goal - position) and the flow prediction error (the
    model with nominal and with identified parameters, driven by the recorded duty commands,
-   against the recorded ``mass_flow``) before and after go to ``DIR/loop.json`` and
-   ``DIR/loop.md``.
+   against the flow the chamber's mass balance measured) before and after go to
+   ``DIR/loop.json`` and ``DIR/loop.md``.
 """
 from __future__ import annotations
 
