@@ -11,7 +11,9 @@ Runs ``valve_bench_loop`` in a fresh process per configuration, one after the ot
   cores) and at full length (no ``--quick``: informative);
 * the wall time of the whole command, the time split (bench: the identification's
   ``timings_s``; operation: ``loop.json`` ``stages_s``) and the answers (effect named,
-  validation error before/after, tracking before/after) in the notes.
+  validation error before/after, tracking before/after) in the notes; for the operation
+  loop also records of the tracking and flow prediction error after vs before and of the
+  calibrated flow area at full opening vs the valve in service.
 
 Usage: python benchmarks/bench_loop.py [--configs quick full] [--modes bench operation]
 (all four: about 15 minutes on 2 quiet cores).
@@ -82,6 +84,32 @@ def run_one(mode: str, quick: bool, tmp: Path) -> dict:
                   f'split: {split}; {load_before} before, {load_text()} after')
 
 
+def operation_answers(quick: bool, out: Path) -> list[dict]:
+    """The operation loop's results as records: tracking and flow error after vs before
+    (issue 13: tracking not worse), the flow area at full opening vs the valve in service."""
+    loop = json.loads((out / 'loop.json').read_text(encoding='utf-8'))
+    tag = 'quick' if quick else 'full'
+    tr, fl = loop['tracking'], loop['flow']
+    cal = loop.get('flow_calibration') or {}
+    why = (f"effect {loop['effect_injected']} named {loop['diagnosis'].get('effect')}; "
+           f"valve in service C_d {loop['plant']['discharge_coefficient']:g} (suite 0.8)")
+    recs = [
+        record(f'loop_operation_{tag}_tracking_rms', tr['after']['rms_mm'], 'mm',
+               'before', tr['before']['rms_mm'], 'after < before', None, why),
+        record(f'loop_operation_{tag}_flow_error', fl['after']['rms_pct'], '% of full flow',
+               'before', fl['before']['rms_pct'], 'after < before', None,
+               why + '; measured by the chamber mass balance, 0.1 s windows, after run')]
+    for r in recs:
+        r['passed'] = r['value'] < r['reference_value']
+    if 'full_opening_error_pct' in cal:
+        recs.append(record(f'loop_operation_{tag}_full_opening_area_error',
+                           cal['full_opening_error_pct'], '%', 'suite\'s set',
+                           cal['suite_full_opening_error_pct'], 'informative', None,
+                           why + '; C_d C_A x stroke of the set in force vs the valve in '
+                           'service'))
+    return recs
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--configs', nargs='+', choices=('quick', 'full'),
@@ -97,6 +125,9 @@ def main(argv: list[str] | None = None) -> int:
                 r = run_one(mode, config == 'quick', Path(tmp))
                 print(f"  {r['value']:.0f} s: {r['notes']}", file=sys.stderr, flush=True)
                 records.append(r)
+                out = Path(tmp) / f'operation_{config}'
+                if mode == 'operation' and (out / 'loop.json').exists():
+                    records += operation_answers(config == 'quick', out)
     write_results('loop', records)
     return 0 if all(r['passed'] is not False or 'FAILED' not in r['notes']
                     for r in records) else 1
