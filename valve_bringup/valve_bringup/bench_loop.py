@@ -76,9 +76,12 @@ DEFAULT_EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
 OPERATION_DEFAULT_EFFECT = 'eddy_current'
 
 #: Effect parameters of the emulated valve in ``--mode operation`` (default: the
-#: emulator's, half of the identification range of the switching field).
+#: emulator's, half of the identification range of the switching field). Coil heating: a
+#: small coil that heats within the run, with its time constant inside the
+#: identification's range (1-1000 s; until 2026-11-25 it was 0.5 s, which no candidate
+#: could reach).
 OPERATION_EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
-    'coil_heating': ('thermal_resistance_k_per_w=40', 'thermal_time_constant_s=0.5'),
+    'coil_heating': ('thermal_resistance_k_per_w=40', 'thermal_time_constant_s=1.5'),
 }
 
 
