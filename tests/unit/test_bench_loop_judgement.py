@@ -112,3 +112,30 @@ def test_goal_schedule_starts_after_the_pre_roll() -> None:
     from valve_bringup.demo import PRE_ROLL_S
     assert goal_schedule(((0.02, 1.5), (0.06, 2.0))) == [(0.02, PRE_ROLL_S),
                                                          (0.06, round(PRE_ROLL_S + 1.5, 3))]
+
+
+@pytest.mark.parametrize('value', ['nan', '0', '-0.5', '1.2', 'inf'])
+def test_plant_discharge_coefficient_outside_0_1_is_refused_in_one_line(value, capsys,
+                                                                        tmp_path) -> None:
+    from valve_bringup.bench_loop import main
+    with pytest.raises(SystemExit) as exc:
+        main(['--mode', 'operation', '--plant-discharge-coefficient', value,
+              '--out', str(tmp_path / 'out')])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert '--plant-discharge-coefficient' in err[-1] and 'expected a number in (0, 1]' \
+        in err[-1], err
+    assert not (tmp_path / 'out').exists()
+
+
+def test_the_valve_in_service_differs_from_the_suite_only_in_its_discharge_coefficient(
+        tmp_path) -> None:
+    from valve_bringup.bench_loop import write_plant_parameters
+    from valve_model_pkg.model import load_parameters
+    plant = write_plant_parameters(tmp_path / 'plant.yaml', 0.62)
+    suite, loaded = load_parameters(), load_parameters(str(tmp_path / 'plant.yaml'))
+    assert loaded == suite.replace(discharge_coefficient=0.62)
+    assert plant['full_opening_area_m2'] == pytest.approx(
+        0.62 * suite.orifice_area_gradient_m * suite.stroke_m)
+    assert plant['suite_full_opening_area_m2'] / plant['full_opening_area_m2'] == \
+        pytest.approx(0.8 / 0.62)
