@@ -588,7 +588,7 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
             else:
                 p_aug, cost, ext, stopped = refit_effect_or_stop(
                     space, search.serial(), baseline_params, c.effect, refit_settings,
-                    bar_cost=c_search)
+                    bar_cost=c_search, rank_data=fit.serial())
                 if stopped:
                     how = (f' (stopped after the coarse profile: no trial amount brought the '
                            f'search window cost below the baseline\'s {c_search:.4g} A)')
