@@ -515,6 +515,12 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
     c_best = float(fun(u_best[None, :])[0])
     noise0 = float(np.nanmedian([noise_std(r) for r in fit.residuals(space.params(u_best))]))
     others = [space.to_unit(start)]
+    if through:
+        # The prior (packaged set or --params) is a start of the polish too: the refits
+        # scan their effect from it (diagnosis.refit_effect_or_stop), and a baseline that
+        # never looked there would lose to "prior plus a little of any effect" on a valve
+        # that is its prior (a clean record was answered end_stop_bounce).
+        others.append(space.to_unit(space.base))
     if res.starts_u is not None:
         others += [x for x in res.starts_u if np.max(np.abs(x - u_best)) > 0.05][:3]
     u_best, conv = polish(space, fit, u_best, c_best, noise0, say, others=np.array(others),
