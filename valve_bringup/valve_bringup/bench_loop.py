@@ -62,6 +62,8 @@ from valve_bringup.supervisor import ChildExited, ProcessSpec, Supervisor
 if TYPE_CHECKING:
     import numpy as np
 
+    from valve_model_pkg.model import ValveParameters
+
 __all__ = ['main', 'BenchRecord', 'record_bench_step', 'DEFAULT_EFFECT_PARAMS',
            'OPERATION_GOALS', 'run_operation_loop', 'tracking_error', 'flow_prediction_error']
 
@@ -373,14 +375,20 @@ def _strictly_increasing(t: np.ndarray) -> np.ndarray:
     return np.concatenate((np.diff(t) > 0.0, [True]))
 
 
+def full_opening_area_m2(params: ValveParameters) -> float:
+    """C_d C_A x_max [m^2]: the flow area at full opening that flow_to_duty relies on
+    (the product C_d C_A alone absorbs an identified stroke's error)."""
+    return params.discharge_coefficient * params.orifice_area_gradient_m * params.stroke_m
+
+
 def _chamber_data(bag: Path) -> dict:
     """The chamber of a suite bag on the joint states' simulation stamps.
 
     ``t_s`` (absolute simulation time [s]), ``position_m``, ``pressure_pa`` (chamber,
     gauge, from ``valve/output_pressure``), ``duty`` (the command in force), the median
-    ``pwm_frequency_hz`` and supply pressure ``supply_pa`` (gauge), and the suite's
+    ``pwm_frequency_hz`` and supply pressure ``supply_pa`` (gauge), the suite's
     ``cylinder`` (``CylinderParameters`` defaults, as the demo runs it: the bag does not
-    carry them).
+    carry them) and the ``state`` table (``valve/state``).
 
     Raises
     ------
@@ -417,7 +425,7 @@ def _chamber_data(bag: Path) -> dict:
             'duty': np.asarray(duty_cmd['duty'], float)[k],
             'pwm_frequency_hz': float(np.median(np.asarray(duty_cmd['pwm_frequency'], float))),
             'supply_pa': float(np.median(np.asarray(state['supply_pressure'], float))),
-            'cylinder': CylinderParameters()}
+            'cylinder': CylinderParameters(), 'state': state}
 
 
 def calibrate_flow_scale(bag: Path, map_file: Path, params_file: Path, out_params: Path,
@@ -494,6 +502,7 @@ def calibrate_flow_scale(bag: Path, map_file: Path, params_file: Path, out_param
             'interval_m': list(est.interval_m),
             'discharge_coefficient': res.params.discharge_coefficient,
             'orifice_area_gradient_m': res.params.orifice_area_gradient_m,
+            'full_opening_area_m2': full_opening_area_m2(res.params),
             'window_s': res.window_s, 'windows': int(est.n_points),
             'balance_error_pct': {'before': res.error_before_pct,
                                   'after': res.error_after_pct},
@@ -537,23 +546,21 @@ def flow_prediction_error(bag: Path, params_files: dict[str, Path | None]) -> di
     import numpy as np
 
     from valve_model_pkg.identification.measurements import read_bag
-    from valve_model_pkg.interface import TOPIC_STATE
     from valve_model_pkg.maps.flow_identification import (ChamberRecord, chamber_valve_flow,
                                                           chamber_volume_m3)
     from valve_model_pkg.model import (InputTrace, load_parameters, orifice_mass_flow,
                                        simulate_trace_batch)
-    from valve_model_pkg.recording import load_bag
     m = read_bag(bag)
     d = m.drive
     if d is None:
         raise ValueError(f'{bag}: valve/state is not an operational record (no duty commands)')
-    state = load_bag(bag, ['/' + TOPIC_STATE])['/' + TOPIC_STATE]
+    ch = _chamber_data(bag)
+    state = ch['state']
     if len(state) != m.t_s.size:
         raise ValueError(f'{bag}: {len(state)} valve/state messages but {m.t_s.size} samples')
     p_sup = np.asarray(state['supply_pressure'], dtype=float)
     p_out = np.asarray(state['output_pressure'], dtype=float)
     nominal = load_parameters()
-    ch = _chamber_data(bag)
     cyl = ch['cylinder']
     tj = ch['t_s']
     starts_w, measured = chamber_valve_flow(
@@ -658,11 +665,9 @@ def write_plant_parameters(out_file: Path, discharge_coefficient: float) -> dict
     return {'params': str(out_file), 'discharge_coefficient': plant.discharge_coefficient,
             'orifice_area_gradient_m': plant.orifice_area_gradient_m,
             'stroke_m': plant.stroke_m,
-            'full_opening_area_m2': plant.discharge_coefficient
-            * plant.orifice_area_gradient_m * plant.stroke_m,
+            'full_opening_area_m2': full_opening_area_m2(plant),
             'suite_discharge_coefficient': suite.discharge_coefficient,
-            'suite_full_opening_area_m2': suite.discharge_coefficient
-            * suite.orifice_area_gradient_m * suite.stroke_m}
+            'suite_full_opening_area_m2': full_opening_area_m2(suite)}
 
 
 def run_operation_loop(out: Path, effect: str, effect_args: tuple[str, ...],
@@ -718,14 +723,10 @@ def run_operation_loop(out: Path, effect: str, effect_args: tuple[str, ...],
     params_loop = (out / 'params_identified.yaml').resolve()
     try:
         flow_cal = calibrate_flow_scale(bag_before, map_file, params, params_loop, map_file)
-        # The product alone is not the plant's C_d C_A: it absorbs the identified stroke's
-        # error (the current sees the stroke weakly). What flow_to_duty relies on is the
-        # flow area at full opening, C_d C_A x_max, which the plant's set states.
-        from valve_model_pkg.model import load_parameters
-        area = flow_cal['product_m'] * load_parameters(str(params_loop)).stroke_m
-        flow_cal['full_opening_area_m2'] = area
-        flow_cal['full_opening_error_pct'] = 100.0 * (area / plant['full_opening_area_m2']
-                                                      - 1.0)
+        # Compared with the valve in service on the flow area at full opening (the product
+        # C_d C_A absorbs the identified stroke's error: the current sees the stroke weakly).
+        flow_cal['full_opening_error_pct'] = 100.0 * (
+            flow_cal['full_opening_area_m2'] / plant['full_opening_area_m2'] - 1.0)
         flow_cal['suite_full_opening_error_pct'] = 100.0 * (
             plant['suite_full_opening_area_m2'] / plant['full_opening_area_m2'] - 1.0)
         _say(f'flow scale calibrated on the chamber of the before run: C_d C_A '

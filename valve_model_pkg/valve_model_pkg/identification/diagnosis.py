@@ -233,10 +233,6 @@ def refit_effect_or_stop(space: ParameterSpace, data: FitData, params: ValvePara
     # so a joint simplex started at the baseline optimum tends to stall near it). The
     # restarts then free the effect too.
     fun = unit_objective(ext, data)
-    origins = [u_base]
-    u_prior = ext.to_unit(space.base)
-    if float(np.max(np.abs(np.delete(u_prior - u_base, first)))) > 0.05:
-        origins.append(u_prior)   # the prior (packaged set or --params), if elsewhere
     fractions = list(_PROFILE_FRACTIONS)
     starts = []
     for frac in _PROFILE_FRACTIONS:
@@ -247,7 +243,13 @@ def refit_effect_or_stop(space: ParameterSpace, data: FitData, params: ValvePara
     # short; step records keep the profile alone, which names their cases right)
     scan = np.array(_SCAN_FRACTIONS)
     scanned: list[tuple[np.ndarray, float]] = []
-    for origin in (origins if rank_data is not None else []):
+    origins = []
+    if rank_data is not None:
+        origins = [u_base]
+        u_prior = ext.to_unit(space.base)
+        if float(np.max(np.abs(np.delete(u_prior - u_base, first)))) > 0.05:
+            origins.append(u_prior)   # the prior (packaged set or --params), if elsewhere
+    for origin in origins:
         trial = np.repeat(origin[None, :], scan.size, axis=0)
         trial[:, first] = scan
         costs = fun(trial)
