@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from datagen.suite_records import suite_operation_record
 from valve_model_pkg.cli.identify import main as identify_main
 from valve_model_pkg.cli.simulate import main as simulate_main
 from valve_model_pkg.dataformat import read_trace, write_table
-from valve_model_pkg.model import InputTrace, load_parameters, simulate_trace_batch
 
 import os
 
@@ -34,29 +34,6 @@ def _noisy_step(tmp: Path, volts: float, noise_a: float, seed: int,
     cur = rec.current_a + np.random.default_rng(seed).normal(0.0, noise_a, rec.t_s.size)
     return write_table(tmp / f'step{volts:g}.csv', rec.metadata,
                        {'t': rec.t_s, 'voltage': rec.voltage_v, 'current': cur})
-
-
-def _noisy_operation(tmp: Path, noise_a: float, seed: int, duration_s: float = 1.5) -> Path:
-    phase = 0.0073
-    t_cmd, duty, freq = [0.0], [0.0], [1.0 / phase]
-    s = phase
-    while s < duration_s:
-        d = 0.0 if s < 0.04 else [0.2, 0.5, 0.8, 0.35, 0.65][int(s / 0.2) % 5]
-        t_cmd += [s - 1e-6]
-        duty += [d]
-        freq += [50.0]
-        s += 0.02
-    t = np.arange(1, int(round(duration_s * 1000)) + 1) * 1e-3
-    res = simulate_trace_batch(load_parameters(), InputTrace.pwm_commands(
-        t_cmd, duty, freq, 24.0), t, sampling='interval_mean', supply_pressure_pa=4e5)
-    starts = np.array(t_cmd[1:]) + 1e-6
-    k = np.searchsorted(starts, t, side='right') - 1
-    d_in = np.where(k >= 0, np.array(duty[1:])[np.clip(k, 0, None)], 0.0)
-    cur = res.coil_current_a[0] + np.random.default_rng(seed).normal(0.0, noise_a, t.size)
-    return write_table(tmp / 'ops.csv', {
-        'experiment': 'operation', 'supply_voltage_v': 24, 'sample_rate_hz': 1000,
-        'current_averaging': 'interval_mean', 'supply_pressure_pa': 400000},
-        {'t': t, 'duty': d_in, 'pwm_frequency_hz': np.full(t.size, 50.0), 'current': cur})
 
 
 @pytest.mark.slow
@@ -84,7 +61,7 @@ def test_clean_nominal_steps_are_answered_none(tmp_path: Path, noise_ma: float) 
 @pytest.mark.parametrize('noise_ma', NOISE_MA)
 def test_clean_nominal_operation_record_is_answered_none(
         tmp_path: Path, noise_ma: float) -> None:
-    rec = _noisy_operation(tmp_path, 1e-3 * noise_ma, 3)
+    rec = suite_operation_record(tmp_path / 'ops.csv', 1e-3 * noise_ma, 3)
     out = tmp_path / 'rep'
     assert identify_main(['--fit', str(rec), '-o', str(out), '--no-plots', '--quiet',
                           '--quick']) == 0

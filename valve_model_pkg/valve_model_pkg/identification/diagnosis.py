@@ -66,6 +66,34 @@ _PROFILE_FRACTIONS = (0.02, 0.08, 0.2, 0.4, 0.7)
 # chopper: 25 mH fits to 0.6 mA, 20 or 30 mH only to 6 mA) falls between the profile's
 # trial amounts, and the scan finds where to add one.
 _SCAN_FRACTIONS = tuple(float(f) for f in np.linspace(0.02, 0.98, 25))
+# ... and of an effect's further fields (coil heating's time constant), on a grid across
+# their range with the amount (7 x 25 points): the amount and the time constant of a
+# heating coil trade off along a valley (the initial slope R_th P / tau), and with the
+# time constant held at its neutral 60 s no amount reaches it (2026-11-26: the valley at
+# R_th / tau ~ 7 K/(W s) on the loop's record, the scan at tau 60 s ended at 19 K/W).
+_SCAN_FURTHER = tuple(float(f) for f in np.linspace(0.05, 0.95, 7))
+
+
+def slow_effect(effect: str, span_s: float) -> bool:
+    """True if ``effect``'s shortest time constant (the lower bound of a ``*_time_constant_s``
+    field) is longer than ``span_s``: a window that short cannot show it, and its refit
+    searches the whole fit window instead of the search window."""
+    spec = EFFECTS[effect]
+    lows = [spec.bounds[f][0] for f in spec.fields if f.endswith('_time_constant_s')]
+    return bool(lows) and min(lows) > span_s
+
+
+def effect_scan(ext: ParameterSpace, effect: str, origin: np.ndarray) -> np.ndarray:
+    """The scan's points around ``origin`` (unit coordinates of ``ext``): the effect's first
+    field over :data:`_SCAN_FRACTIONS`, times its further fields over :data:`_SCAN_FURTHER`
+    (each held at ``origin`` when the effect has none), every other coordinate at
+    ``origin``. Shape (m, ext.size)."""
+    cols = [ext.names.index(f) for f in EFFECTS[effect].fields]
+    axes = [np.array(_SCAN_FRACTIONS)] + [np.array(_SCAN_FURTHER)] * (len(cols) - 1)
+    grid = np.array(np.meshgrid(*axes, indexing='ij')).reshape(len(cols), -1).T
+    trial = np.repeat(origin[None, :], grid.shape[0], axis=0)
+    trial[:, cols] = grid
+    return trial
 
 
 @dataclass
@@ -241,7 +269,6 @@ def refit_effect_or_stop(space: ParameterSpace, data: FitData, params: ValvePara
         starts.append(u)
     # (only with ``rank_data``: records through the electronics, where the search window is
     # short; step records keep the profile alone, which names their cases right)
-    scan = np.array(_SCAN_FRACTIONS)
     scanned: list[tuple[np.ndarray, float]] = []
     origins = []
     if rank_data is not None:
@@ -250,13 +277,12 @@ def refit_effect_or_stop(space: ParameterSpace, data: FitData, params: ValvePara
         if float(np.max(np.abs(np.delete(u_prior - u_base, first)))) > 0.05:
             origins.append(u_prior)   # the prior (packaged set or --params), if elsewhere
     for origin in origins:
-        trial = np.repeat(origin[None, :], scan.size, axis=0)
-        trial[:, first] = scan
+        trial = effect_scan(ext, effect, origin)
         costs = fun(trial)
         if np.isfinite(costs).any():
             best = int(np.argmin(costs))
             starts.append(trial[best].copy())
-            fractions.append(float(scan[best]))
+            fractions.append(float(trial[best, first]))
             scanned.append((trial[best].copy(), float(costs[best])))
     coarse = replace(settings, restarts=0)
     res = direct_search(fun, np.array(starts), coarse, progress=progress,
