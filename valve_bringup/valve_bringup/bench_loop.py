@@ -81,11 +81,10 @@ OPERATION_DEFAULT_EFFECT = 'eddy_current'
 #: emulator's, half of the identification range of the switching field). Coil heating: a
 #: small coil that heats within the run, with its time constant inside the
 #: identification's range (1-1000 s). Through the chopper the current shows the heating
-#: only in the boost and release phases: with tau 0.5 s (outside the range), 1.5 s, or
-#: 1.5 s and R_th 80 K/W the loop answered `none` (the refit explained a quarter of the
-#: structure); with 3 s it named coil_heating in one run and `none` in the next (the
-#: refit lands in different basins on bags that differ in the last digits: not reliable;
-#: docs/loop.md, 2026-11-26).
+#: only in the boost and release phases, and a time constant of seconds is longer than the
+#: identification's 0.4 s search window: the coil_heating refit scans amount and time
+#: constant jointly on the fit window (identification.diagnosis.slow_effect); before that
+#: the loop answered `none` or named it by chance (docs/loop.md, 2026-11-26).
 OPERATION_EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
     'coil_heating': ('thermal_resistance_k_per_w=40', 'thermal_time_constant_s=3'),
 }
