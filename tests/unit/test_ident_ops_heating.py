@@ -37,3 +37,9 @@ def test_coil_heating_through_the_electronics_is_named(tmp_path: Path) -> None:
     ratio = (found['extra_parameters']['thermal_resistance_k_per_w']
              / found['extra_parameters']['thermal_time_constant_s'])
     assert ratio == pytest.approx(R_TH_K_PER_W / TAU_S, rel=0.33)
+    # ... and the report says so: the effect's intervals, and its weak direction
+    md = (out / 'report.md').read_text()
+    rows = [ln for ln in md.splitlines() if ln.startswith('| thermal_')]
+    assert len(rows) == 2 and all('% (augmented)' in ln for ln in rows), rows
+    assert any('augmented model, weak direction' in ln and 'thermal_time_constant_s' in ln
+               for ln in md.splitlines()), md

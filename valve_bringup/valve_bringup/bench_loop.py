@@ -412,7 +412,11 @@ def _chamber_data(bag: Path) -> dict:
     # they may repeat, docs/loop.md); the first stamps of a run can repeat too
     tj = np.asarray(joints.stamp_ns, dtype=np.int64) * 1e-9
     y = np.array([p[0] for p in joints['position']], dtype=float)
-    keep = _strictly_increasing(tj)
+    # Messages stamped 0 come before the lockstep clock's first step, and only in some
+    # runs (as discovery falls): kept, they shifted the mass balance's windows (which start
+    # at the first stamp) by a step, and two loops on identical before runs calibrated C_A
+    # differently in the 4th digit and tracked 8.97 vs 9.09 mm after (2026-11-26).
+    keep = _strictly_increasing(tj) & (tj > 0.0)
     tj, y = tj[keep], y[keep]
     tp = np.asarray(pres.stamp_ns, dtype=np.int64) * 1e-9
     kp = _strictly_increasing(tp)

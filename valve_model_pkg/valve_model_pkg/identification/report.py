@@ -317,10 +317,17 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
                      f'{_fmt(b["parameters"]["equivalent_gap_m"])} | '
                      f'{_fmt(a["parameters"]["equivalent_gap_m"])} | '
                      f'+-{_fmt(gap["ci95_pct"], 1, 2)} % |')
+    # The effect's own fields: their interval from the augmented model's sensitivity (a
+    # coil heating's R_th and tau are not pinned down apart on a record shorter than tau).
+    sens_a = a.get('sensitivity') or {}
+    effect_fields: list[str] = []
     if d is not None and d['effect'] in EFFECTS:
-        for f in EFFECTS[d['effect']].fields:
+        effect_fields = list(EFFECTS[d['effect']].fields)
+        for f in effect_fields:
+            c = sens_a.get('ci95_pct', {}).get(f)
             lines.append(f'| {f} | ({d["effect"]}) | - | neutral | neutral | '
-                         f'{_fmt(a["parameters"][f])} | |')
+                         f'{_fmt(a["parameters"][f])} | '
+                         f'{"" if c is None else f"+-{c:.2g} % (augmented)"} |')
     lines += _unlisted_section(rep.get('unlisted'))
     lines += ['', '## What the data pin down', '']
     if sens:
@@ -331,6 +338,11 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
             lines.append(f'- weak direction `{w["combination"]}`: '
                          f'{"invisible to the data" if std is None else f"std {std:.3g} %"}')
         lines += [f'- {n}' for n in sens['notes']]
+    for w in sens_a.get('weak_directions', []):
+        if any(f in w['components'] for f in effect_fields):
+            std = w['rel_std_pct']
+            lines.append(f'- augmented model, weak direction `{w["combination"]}`: '
+                         f'{"invisible to the data" if std is None else f"std {std:.3g} %"}')
     lines += ['', '## Residual of the baseline model', '']
     for role in ('fit', 'validation'):
         r = b['residual'][role]
