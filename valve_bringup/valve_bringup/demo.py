@@ -217,9 +217,13 @@ class _Watcher:
         def on_pressure(msg: FluidPressure) -> None:
             self.pressure_pa = gauge_from_absolute(msg.fluid_pressure)
 
+        self.flow_stamp_ns = -1   # of the newest flow command (lockstep: the tick answered)
+
         def on_flow(msg: FlowCommand) -> None:
             self.flow_cmd_sum += msg.mass_flow
             self.flow_cmd_n += 1
+            self.flow_stamp_ns = max(self.flow_stamp_ns, msg.header.stamp.sec * 1_000_000_000
+                                     + msg.header.stamp.nanosec)
 
         def on_duty(msg: DutyCommand) -> None:
             self.duty_sum += msg.duty
@@ -415,6 +419,13 @@ def _run_to(w: _Watcher, sup: Supervisor, t_s: float) -> float:
         if time.monotonic() - last_sent > 1.0:
             w.run_until(t_s)  # lost or not yet matched: say it again (idempotent)
             last_sent = time.monotonic()
+    # ... and until the controller has answered the tick it is held at: a goal sent before
+    # that answer took effect at this tick, one sent after it at the next, as the messages
+    # fell (two loops' after runs parted at the third goal, 2026-11-26). A controller
+    # without feedback never answers: at most 2 s.
+    deadline = time.monotonic() + 2.0
+    while w.flow_stamp_ns < target_ns and time.monotonic() < deadline:
+        w.spin_for(0.01, sup)
     return t_s
 
 
