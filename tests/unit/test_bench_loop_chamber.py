@@ -7,17 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from suite_bags import header, write_bag
 from valve_bringup.bench_loop import _chamber_data
 
 
-def _stamp(types, ns: int):
-    return types['std_msgs/msg/Header'](
-        stamp=types['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9),
-        frame_id='')
-
-
 def _write_bag(path, with_stamp_zero: bool) -> None:
-    from valve_model_pkg.recording import BagWriter, build_typestore, reliable_qos
+    from valve_model_pkg.recording import build_typestore
     store = build_typestore()
     ty = store.types
     wall0 = 1_700_000_000_000_000_000
@@ -25,7 +20,7 @@ def _write_bag(path, with_stamp_zero: bool) -> None:
     ticks = ([0] if with_stamp_zero else []) + [5_000_000 * k for k in range(1, 201)]
     for j, ns in enumerate(ticks):
         t = ns * 1e-9
-        h = _stamp(ty, ns)
+        h = header(ty, ns)
         log = wall0 + 1_000_000 * j
         msgs += [
             ('cylinder/joint_states', 'sensor_msgs/msg/JointState', log, ty[
@@ -45,12 +40,7 @@ def _write_bag(path, with_stamp_zero: bool) -> None:
                 spool_velocity=0.0, spool_position_avg=0.0, mass_flow=0.0, duty=0.5,
                 pwm_frequency=50.0, supply_pressure=4e5, output_pressure=1e5, source=1,
                 position_measured=False))]
-    with BagWriter(path, store) as w:
-        conns = {}
-        for topic, msgtype, log_ns, msg in msgs:
-            if topic not in conns:
-                conns[topic] = w.add_topic(topic, msgtype, [reliable_qos(1000)])
-            w.write(conns[topic], log_ns, bytes(store.serialize_cdr(msg, msgtype)))
+    write_bag(path, store, msgs)
 
 
 def test_messages_stamped_zero_do_not_shift_the_chamber_record(tmp_path) -> None:

@@ -26,7 +26,8 @@ def _write_run_bag(path, goals, setpoints, n_ticks: int = 200) -> None:
     """A suite bag on simulation time: cylinder/joint_states every 5 ms (piston at 0), the
     goal and the controller's setpoint (std_msgs/Float64, no header) at given receive
     times. ``goals``/``setpoints``: (value [m], receive time [ns after the run's start])."""
-    from valve_model_pkg.recording import BagWriter, build_typestore, reliable_qos
+    from suite_bags import header, write_bag
+    from valve_model_pkg.recording import build_typestore
     store = build_typestore()
     types = store.types
     wall0 = 1_700_000_000_000_000_000
@@ -34,10 +35,7 @@ def _write_run_bag(path, goals, setpoints, n_ticks: int = 200) -> None:
     for k in range(n_ticks):
         ns = k * 5_000_000
         joint = types['sensor_msgs/msg/JointState'](
-            header=types['std_msgs/msg/Header'](
-                stamp=types['builtin_interfaces/msg/Time'](sec=ns // 10**9,
-                                                           nanosec=ns % 10**9),
-                frame_id=''), name=['piston'], position=np.array([0.0]),
+            header=header(types, ns), name=['piston'], position=np.array([0.0]),
             velocity=np.array([0.0]), effort=np.array([0.0]))
         # received 10 ms of wall time per 5 ms tick, 1 ms after the tick's start
         msgs.append(('cylinder/joint_states', 'sensor_msgs/msg/JointState',
@@ -48,12 +46,7 @@ def _write_run_bag(path, goals, setpoints, n_ticks: int = 200) -> None:
             msgs.append((topic, 'std_msgs/msg/Float64', wall0 + rel_ns,
                          types['std_msgs/msg/Float64'](data=float(value))))
     msgs.sort(key=lambda m: m[2])
-    with BagWriter(path, store) as w:
-        conns = {}
-        for topic, msgtype, log_ns, msg in msgs:
-            if topic not in conns:
-                conns[topic] = w.add_topic(topic, msgtype, [reliable_qos(1000)])
-            w.write(conns[topic], log_ns, bytes(store.serialize_cdr(msg, msgtype)))
+    write_bag(path, store, msgs)
 
 
 def test_tracking_error_counts_each_goal_from_the_controllers_acknowledgement(tmp_path):

@@ -148,16 +148,14 @@ def test_chamber_mass_balance_recovers_the_orifice(prior, bleed_known: bool) -> 
 def _write_chamber_bag(path: Path, rec: ChamberRecord, position_m: np.ndarray) -> None:
     """The topics the suite records: valve/state at 1 kHz, the cylinder node's
     valve/output_pressure (absolute) and cylinder/joint_states at 200 Hz."""
-    from valve_model_pkg.recording import BagWriter, build_typestore, reliable_qos
+    from suite_bags import header as _header, write_bag
+    from valve_model_pkg.recording import build_typestore
     store = build_typestore()
     types = store.types
     start = 1_700_000_000_000_000_000
 
     def header(k: int, frame: str) -> object:
-        ns = start + k * 1_000_000
-        return types['std_msgs/msg/Header'](
-            stamp=types['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9),
-            frame_id=frame)
+        return _header(types, start + k * 1_000_000, frame)
 
     msgs = []
     for k in range(rec.t_s.size):
@@ -180,13 +178,8 @@ def _write_chamber_bag(path: Path, rec: ChamberRecord, position_m: np.ndarray) -
                 effort=np.array([0.0]))
             msgs.append(('valve/output_pressure', 'sensor_msgs/msg/FluidPressure', k, pres))
             msgs.append(('cylinder/joint_states', 'sensor_msgs/msg/JointState', k, joint))
-    with BagWriter(path, store) as w:
-        conns = {}
-        for topic, msgtype, k, msg in msgs:
-            if topic not in conns:
-                conns[topic] = w.add_topic(topic, msgtype, [reliable_qos(1000)])
-            w.write(conns[topic], start + k * 1_000_000,
-                    bytes(store.serialize_cdr(msg, msgtype)))
+    write_bag(path, store, [(topic, msgtype, start + k * 1_000_000, msg)
+                            for topic, msgtype, k, msg in msgs])
 
 
 def test_chamber_identification_from_a_suite_bag(tmp_path: Path, prior) -> None:

@@ -78,18 +78,18 @@ _SCAN_FRACTIONS = tuple(float(f) for f in np.linspace(0.02, 0.98, 25))
 _SCAN_RATES, _SCAN_TAUS, _ZOOMS = 25, 7, 2
 
 
-def slow_effect(effect: str, span_s: float) -> bool:
-    """True if ``effect``'s shortest time constant (the lower bound of a ``*_time_constant_s``
-    field) is longer than ``span_s``: a window that short cannot show it, and its refit
-    searches the whole fit window instead of the search window."""
-    spec = EFFECTS[effect]
-    lows = [spec.bounds[f][0] for f in spec.fields if f.endswith('_time_constant_s')]
-    return bool(lows) and min(lows) > span_s
-
-
 def _time_constant_field(effect: str) -> str | None:
+    """The effect's time-constant field (a further field named ``*_time_constant_s``)."""
     taus = [f for f in EFFECTS[effect].fields[1:] if f.endswith('_time_constant_s')]
     return taus[0] if taus else None
+
+
+def slow_effect(effect: str, span_s: float) -> bool:
+    """True if ``effect``'s shortest time constant (the lower bound of its time-constant
+    field) is longer than ``span_s``: a window that short cannot show it, and its refit
+    searches the whole fit window instead of the search window."""
+    tau = _time_constant_field(effect)
+    return tau is not None and EFFECTS[effect].bounds[tau][0] > span_s
 
 
 def _rate_tau_points(effect: str, centre: tuple[float, float] | None, level: int

@@ -587,8 +587,10 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
             # the true amount lowered it by a third).
             on_window = {False: (search, float(fun_s(u_best[None, :])[0])),
                          True: (fit, c_best)}
+            needed = {slow_effect(c.effect, settings.operation_search_window_s)
+                      for c in chosen}
             bars = {k: (d.serial(), c, d.errors(baseline_params).mae_per_file, _floors(d))
-                    for k, (d, c) in on_window.items()}
+                    for k, (d, c) in on_window.items() if k in needed}
 
         def run(c: CandidateResult) -> CandidateResult:
             # Each refit in its own thread, its simulations on that thread without the GIL.
