@@ -17,7 +17,7 @@ import pytest
 
 from valve_model_pkg import dataformat
 from valve_model_pkg.dataformat import DataFormatError, read_record
-from valve_model_pkg.identification.errors import MeasurementFormatError
+from valve_model_pkg.errors import MeasurementFormatError
 from valve_model_pkg.identification.measurements import read_csv
 
 HEAD = ('# experiment: step\n# supply_pressure_pa: 400000\n# sample_rate_hz: 50000\n'

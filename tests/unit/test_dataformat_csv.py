@@ -11,7 +11,7 @@ from valve_model_pkg import dataformat
 from valve_model_pkg.dataformat import (DataFormatError, FlowMapRecord, OperationRecord,
                                         TraceRecord, read_flow_map, read_operation,
                                         read_record, read_trace, write_record, write_table)
-from valve_model_pkg.identification.errors import MeasurementFormatError
+from valve_model_pkg.errors import MeasurementFormatError
 from valve_model_pkg.identification.measurements import read_csv
 from valve_model_pkg.maps import FlowMapFormatError
 from valve_model_pkg.maps import flow_check

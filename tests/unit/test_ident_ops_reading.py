@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from valve_model_pkg.dataformat import write_table
-from valve_model_pkg.identification.errors import MeasurementFormatError
+from valve_model_pkg.errors import MeasurementFormatError
 from valve_model_pkg.identification.measurements import (
     DISCARD_MIN_S, drive_from_in_force, hold_out, read_csv,
 )

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from suite_paths import REPO_ROOT
-from valve_model_pkg.identification.errors import MeasurementFormatError
+from valve_model_pkg.errors import MeasurementFormatError
 from valve_model_pkg.identification.measurements import (
     VALVE_STATE_MSG, VALVE_STATE_TYPE, read_bag, read_csv, read_measurements, write_csv,
 )

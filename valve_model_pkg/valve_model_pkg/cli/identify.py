@@ -57,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``valve_identify``."""
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s: %(message)s')
-    from ..identification.errors import IdentificationError, MeasurementFormatError
+    from ..errors import IdentificationError, MeasurementFormatError
     from ..identification.measurements import read_measurements
     from ..identification.pipeline import IdentifySettings, identify
     from ..identification.report import write_report

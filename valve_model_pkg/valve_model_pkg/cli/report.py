@@ -26,7 +26,7 @@ from valve_model_pkg.interface import (ATMOSPHERIC_PRESSURE_PA, TOPIC_DUTY_COMMA
                                        TOPIC_OUTPUT_PRESSURE, TOPIC_POSITION_SETPOINT,
                                        TOPIC_STATE)
 from valve_model_pkg.recording import load_bag, sequence_gaps
-from valve_model_pkg.recording.errors import RecordingError
+from valve_model_pkg.errors import RecordingError
 
 __all__ = ['main', 'StepResult', 'step_results', 'write_report']
 

@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model.constants import ATMOSPHERIC_PRESSURE_PA
+from ..errors import DataFormatError
 
 __all__ = [
     'EXPERIMENTS', 'FORMAT_NAME', 'MAX_FILE_BYTES', 'MAX_ROWS', 'MAX_LINE_CHARS',
@@ -104,34 +105,6 @@ MAX_ABS_CURRENT_A = 50.0
 #: A median time step off ``1/sample_rate_hz`` by more than this factor is refused (time
 #: in ms, a wrong rate); smaller differences are noted and the time axis is used.
 _RATE_REFUSE_FACTOR = 2.0
-
-
-class DataFormatError(ValueError):
-    """A file that breaks the measured-data format.
-
-    Parameters
-    ----------
-    path : str
-        The file that was refused.
-    line : int or None
-        1-based line of the problem; ``None`` when it concerns the whole file.
-    reason : str
-        What is wrong, naming the key or column and the value.
-    key : str, optional
-        The metadata key or column concerned.
-    value : str, optional
-        The offending text as found in the file.
-    """
-
-    def __init__(self, path: str | os.PathLike[str], line: int | None, reason: str, *,
-                 key: str | None = None, value: str | None = None) -> None:
-        self.path = str(path)
-        self.line = line
-        self.reason = reason
-        self.key = key
-        self.value = value
-        where = f'{self.path}:{line}' if line is not None else self.path
-        super().__init__(f'{where}: {reason}')
 
 
 # --- records --------------------------------------------------------------------------------

@@ -31,6 +31,8 @@ from typing import Any
 
 import yaml
 
+from ..errors import ManifestError
+
 __all__ = ['ManifestError', 'ValveJob', 'OPTION_KEYS', 'read_manifest']
 
 #: valve ids become folder names under DIR/valves/: letters, digits, ``._-``, no leading dot
@@ -49,28 +51,6 @@ _RECORD_KEYS = ('fit', 'validate')
 _ALL_KEYS = ('valve_id',) + _RECORD_KEYS + tuple(OPTION_KEYS)
 _TRUE = {'true', 'yes', '1', 'on'}
 _FALSE = {'false', 'no', '0', 'off'}
-
-
-class ManifestError(ValueError):
-    """A refused manifest: one line naming the file, the line and key, and the value.
-
-    Parameters
-    ----------
-    path : str
-        The manifest.
-    line : int or None
-        1-based line of the manifest, ``None`` when unknown or about the whole file.
-    key : str or None
-        The column or key at fault.
-    reason : str
-        What is wrong, with the value.
-    """
-
-    def __init__(self, path: str | Path, line: int | None, key: str | None,
-                 reason: str) -> None:
-        self.path, self.line, self.key, self.reason = str(path), line, key, reason
-        where = self.path + (f':{line}' if line is not None else '')
-        super().__init__(f'{where}: ' + (f'{key}: ' if key else '') + reason)
 
 
 @dataclass(frozen=True)

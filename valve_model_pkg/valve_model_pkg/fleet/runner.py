@@ -20,16 +20,13 @@ from .outliers import MIN_VALVES, THRESHOLD
 from .store import FleetStore
 from .table import failed_row, fleet_rows, valve_row, write_table
 from .worker import init_worker, run_valve, single_thread_env
+from ..errors import SchedulerError
 
 __all__ = ['FleetResult', 'SchedulerError', 'default_workers', 'run_fleet']
 
 
 #: how long to keep trying to reach a Dask scheduler before giving up, s
 CONNECT_TIMEOUT_S = 15.0
-
-
-class SchedulerError(ConnectionError):
-    """The Dask scheduler cannot be reached (bad or dead address)."""
 
 
 def default_workers() -> int:

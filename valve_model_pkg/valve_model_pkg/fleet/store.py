@@ -25,12 +25,9 @@ from pathlib import Path
 from typing import Any, IO
 
 from .manifest import ValveJob
+from ..errors import StoreBusyError
 
 __all__ = ['FleetStore', 'StoreBusyError']
-
-
-class StoreBusyError(RuntimeError):
-    """Another run holds the output folder."""
 
 
 class FleetStore:

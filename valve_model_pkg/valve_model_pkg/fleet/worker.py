@@ -120,7 +120,7 @@ def run_valve(job: dict[str, Any]) -> dict[str, Any]:
 
     opts = job.get('options', {})
     try:
-        from ..identification.errors import IdentificationError, MeasurementFormatError
+        from ..errors import IdentificationError, MeasurementFormatError
         from ..identification.measurements import read_measurements
         from ..identification.pipeline import IdentifySettings, identify
         from ..identification.report import write_report

@@ -8,7 +8,7 @@ Two sources feed the identification:
 * rosbag2 bags recorded from the suite (``valve_msgs/msg/ValveState`` on ``/valve/state``).
 
 Both end up as a :class:`Measurement`. Malformed input is refused with a
-:class:`~valve_model_pkg.identification.errors.MeasurementFormatError` naming the file, the
+:class:`~valve_model_pkg.errors.MeasurementFormatError` naming the file, the
 line (or message) and the reason. Nothing is dropped silently: a sample whose current is
 empty or ``nan`` is kept as ``nan`` (and excluded from the error integrals), gaps in the
 time axis are counted, and every such finding is listed in :attr:`Measurement.notes`.
@@ -31,7 +31,7 @@ import numpy as np
 from valve_model_pkg import dataformat
 from valve_model_pkg.interface import TOPIC_STATE
 
-from .errors import MeasurementFormatError
+from ..errors import MeasurementFormatError
 
 __all__ = [
     'DriveInput',

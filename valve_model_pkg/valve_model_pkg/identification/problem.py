@@ -26,7 +26,7 @@ import numpy as np
 from ..model import ElectronicsConfig
 from ..model.trace import PARALLEL_MIN_BATCH
 from ..model.parameters import EFFECTS, ValveParameters
-from .errors import IdentificationError
+from ..errors import IdentificationError
 from .measurements import Measurement
 from .model_adapter import FIELD_INDEX, TraceSetup, prepare_trace, simulate_trace_batch
 

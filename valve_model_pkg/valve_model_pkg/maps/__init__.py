@@ -13,7 +13,7 @@ The generation needs the model (numba); reading a map and inverting it do not ru
 from .curves import DEFAULT_STOP_TOLERANCE, CurveFeatures, curve_features, monotone_envelope
 from .dutymap import (DEFAULT_MAP_FILENAME, FORMAT_NAME, FORMAT_VERSION, DutyMap,
                       default_map_path, load_map, parameters_hash)
-from .errors import (FlowMapFormatError, MapError, MapFormatError, MapGenerationError,
+from ..errors import (FlowMapFormatError, MapError, MapFormatError, MapGenerationError,
                      MapParameterMismatchError)
 from .inversion import (ATMOSPHERIC_PRESSURE_PA, FlowStatus, FlowToDutyInverter,
                         FlowToDutyResult, OrificeConstants, flow_per_opening,

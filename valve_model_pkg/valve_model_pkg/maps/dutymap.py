@@ -33,7 +33,7 @@ File format (JSON, UTF-8), ``format = "valve_suite/duty_map"``, ``format_version
 
 Duties and positions are fractions [1] (the CLI and figures show percent); pressures are
 gauge [Pa]. Reading checks everything and refuses a bad file with a
-:class:`~valve_model_pkg.maps.errors.MapFormatError` naming the file and the problem.
+:class:`~valve_model_pkg.errors.MapFormatError` naming the file and the problem.
 """
 from __future__ import annotations
 
@@ -52,7 +52,7 @@ import numpy as np
 
 from ..model.constants import ATMOSPHERIC_PRESSURE_PA
 from .curves import DEFAULT_STOP_TOLERANCE, CurveFeatures, curve_features
-from .errors import MapFormatError, MapParameterMismatchError
+from ..errors import MapFormatError, MapParameterMismatchError
 
 __all__ = [
     'FORMAT_NAME', 'FORMAT_VERSION', 'DEFAULT_MAP_FILENAME', 'DutyMap', 'parameters_hash',

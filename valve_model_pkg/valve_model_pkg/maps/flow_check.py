@@ -37,7 +37,7 @@ import numpy as np
 
 from .. import dataformat
 from .dutymap import DutyMap
-from .errors import FlowMapFormatError
+from ..errors import FlowMapFormatError
 from .inversion import OrificeConstants, flow_per_opening
 
 __all__ = ['FlowMap', 'FlowComparison', 'read_flow_map', 'write_flow_map', 'compare_flow_map',

@@ -53,6 +53,7 @@ from ..model.parameters import ValveParameters, implausible_values
 from .dutymap import DutyMap
 from .flow_check import FlowMap, map_flow_fraction, map_flow_position
 from .inversion import OrificeConstants, flow_per_opening
+from ..errors import FlowIdentificationError
 
 __all__ = ['FlowIdentificationError', 'OrificeEstimate', 'EdgeCheck', 'FlowIdentification',
            'ChamberRecord', 'ChamberEstimate', 'identify_from_flow_map',
@@ -65,10 +66,6 @@ __all__ = ['FlowIdentificationError', 'OrificeEstimate', 'EdgeCheck', 'FlowIdent
 START_THRESHOLD = 0.02
 #: Flow fraction [1] at and above which the flow counts as saturated (full opening).
 SATURATION_THRESHOLD = 0.98
-
-
-class FlowIdentificationError(ValueError):
-    """The data cannot identify the orifice constant (one line saying why)."""
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ import numpy as np
 
 from .curves import DEFAULT_STOP_TOLERANCE, curve_features
 from .dutymap import DutyMap
-from .errors import MapGenerationError
+from ..errors import MapGenerationError
 from .steady_state import SteadyState, SteadyStateCriterion
 
 __all__ = ['MapGrid', 'GenerationStats', 'MapSimulator', 'Refinement', 'generate_map',

@@ -18,6 +18,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from ..errors import ParameterError
+
 __all__ = [
     'ParameterError',
     'ValveParameters',
@@ -35,23 +37,6 @@ __all__ = [
 ]
 
 _LOG = logging.getLogger(__name__)
-
-
-class ParameterError(ValueError):
-    """An invalid, missing or unknown model parameter (message names field and value).
-
-    Parameters
-    ----------
-    message : str
-        One line naming the field and the value.
-    key : str, optional
-        The parameter (or YAML key) concerned, when there is one; lets
-        :func:`load_parameters` name the line of the file.
-    """
-
-    def __init__(self, message: str, *, key: str | None = None) -> None:
-        super().__init__(message)
-        self.key = key
 
 
 @dataclasses.dataclass(frozen=True)

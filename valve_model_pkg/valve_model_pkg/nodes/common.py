@@ -30,6 +30,7 @@ from valve_model_pkg.interface import (ATMOSPHERIC_PRESSURE_PA, TOPIC_DIAGNOSTIC
                                        TOPIC_SUPPLY_PRESSURE, absolute_from_gauge,
                                        gauge_from_absolute)
 from valve_model_pkg.interface.ros import COMMAND_QOS, PRESSURE_QOS, STATE_QOS
+from valve_model_pkg.errors import StartupRefused
 
 __all__ = [
     'ATMOSPHERIC_PRESSURE_PA', 'TOPIC_STATE', 'TOPIC_DUTY_COMMAND', 'TOPIC_FLOW_COMMAND',
@@ -111,10 +112,6 @@ def key_values(**values: object) -> list[KeyValue]:
 EXIT_OK = 0        # normal end, also after Ctrl-C (SIGINT) or SIGTERM
 EXIT_FAILURE = 1   # a failure inside
 EXIT_REFUSED = 2   # refused start-up input: a bad parameter, a bad parameter or map file
-
-
-class StartupRefused(Exception):
-    """A node refuses its start-up input (its message names it): exit EXIT_REFUSED."""
 
 
 #: What a node refuses at start-up with one fatal line and EXIT_REFUSED: a value outside

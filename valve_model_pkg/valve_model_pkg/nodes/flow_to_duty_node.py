@@ -74,6 +74,7 @@ from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, 
                                           DiagnosticLevel,
                                           gauge_from_absolute, key_values, run_node,
                                           STARTUP_ERRORS)
+from valve_model_pkg.errors import StartupRefused
 
 #: A duty change smaller than this is not republished on a pressure change [1].
 _DUTY_EPS = 1e-9
@@ -85,10 +86,6 @@ assert int(FlowStatus.SATURATED_LOW) == FlowToDutyStatus.STATUS_SATURATED_LOW
 assert int(FlowStatus.DEAD_BAND_LIFTED) == FlowToDutyStatus.STATUS_DEAD_BAND_LIFTED
 assert int(FlowStatus.REJECTED) == FlowToDutyStatus.STATUS_REJECTED
 assert int(FlowStatus.NO_PRESSURE) == FlowToDutyStatus.STATUS_NO_PRESSURE
-
-
-class StartupError(RuntimeError):
-    """The node cannot start (bad map file, parameter); the message says why."""
 
 
 class FlowToDutyNode(Node):
@@ -147,12 +144,12 @@ class FlowToDutyNode(Node):
             params = load_parameters(self._params_path)
             dmap.check_parameters(params, self._map_path, self._params_path)
         except (MapError, ValueError, OSError) as err:
-            raise StartupError(f'map file refused: {err}') from err
+            raise StartupRefused(f'map file refused: {err}') from err
         try:
             temp_default = float(dmap.parameters['orifice']['supply_temperature_k'])
         except (KeyError, TypeError, ValueError) as err:
-            raise StartupError(f'map file refused: {self._map_path}: no supply temperature in '
-                               'its parameter set') from err
+            raise StartupRefused(f'map file refused: {self._map_path}: no supply temperature in '
+                                 'its parameter set') from err
         self._temperature_k = declare_float(
             self, 'supply_temperature_k', temp_default,
             'Supply air temperature T of eq. (12) [K] (default: the parameter set\'s)',
@@ -163,7 +160,7 @@ class FlowToDutyNode(Node):
                                                 zero_fraction=zero_fraction,
                                                 atmospheric_pressure_pa=ATMOSPHERIC_PRESSURE_PA)
         except KeyError as err:
-            raise StartupError(f'map file refused: {self._map_path}: {err.args[0]}') from err
+            raise StartupRefused(f'map file refused: {self._map_path}: {err.args[0]}') from err
 
         self._map = dmap
         self._zero_fraction = zero_fraction
@@ -422,7 +419,7 @@ def _default_map_or_fail() -> str:
     try:
         return str(default_map_path())
     except FileNotFoundError as err:
-        raise StartupError(f'map file refused: {err}') from err
+        raise StartupRefused(f'map file refused: {err}') from err
 
 
 def _ns(stamp: object) -> int:
@@ -436,7 +433,7 @@ def _nearest(values: object, v: float) -> int:
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C or an external shutdown."""
     run_node(FlowToDutyNode, 'flow_to_duty', args,
-             startup_errors=STARTUP_ERRORS + (StartupError,))
+             startup_errors=STARTUP_ERRORS)
 
 
 if __name__ == '__main__':

@@ -12,7 +12,7 @@ bytes of its subscriptions.
 """
 from __future__ import annotations
 
-from .errors import BagFormatError, BagWriteError, RecordingError, UnknownMessageTypeError
+from ..errors import BagFormatError, BagWriteError, RecordingError, UnknownMessageTypeError
 from .qos import make_qos, qos_summary, reliable_qos
 from .reader import TopicData, bag_info, is_complete_bag, load_bag, sequence_gaps
 from .recovery import McapScanner, RecoveryReport, ScanReport, recover_bag

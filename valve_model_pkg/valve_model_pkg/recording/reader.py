@@ -21,7 +21,7 @@ from rosbags.interfaces import Nodetype
 from rosbags.rosbag2 import Reader, ReaderError
 from rosbags.typesys.store import Typestore
 
-from .errors import BagFormatError
+from ..errors import BagFormatError
 from .qos import qos_summary
 from .recovery import McapChannel, McapMessage, McapScanner, McapSchema, typestore_from_schemas
 

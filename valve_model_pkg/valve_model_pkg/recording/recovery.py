@@ -29,7 +29,7 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_idl, get_types_
 from rosbags.typesys import get_typestore
 from rosbags.typesys.store import Typestore
 
-from .errors import BagFormatError
+from ..errors import BagFormatError
 from .writer import BagWriter
 
 __all__ = ['MAGIC', 'McapSchema', 'McapChannel', 'McapMessage', 'ScanReport', 'McapScanner',

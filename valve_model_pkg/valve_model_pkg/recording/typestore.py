@@ -19,7 +19,7 @@ from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from .errors import UnknownMessageTypeError
+from ..errors import UnknownMessageTypeError
 
 __all__ = ['SUITE_MSG_PACKAGE', 'build_typestore', 'ensure_type', 'find_msg_file',
            'msg_search_dirs', 'source_msg_dir', 'msgdef_and_hash']

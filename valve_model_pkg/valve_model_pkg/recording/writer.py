@@ -48,7 +48,7 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.rosbag2.storage_mcap import Channel, McapWriter, write_channel, write_string
 from rosbags.typesys.store import Typestore
 
-from .errors import BagWriteError, RecordingError
+from ..errors import BagWriteError, RecordingError
 from .typestore import build_typestore, ensure_type, msgdef_and_hash
 
 __all__ = ['BAG_VERSION', 'ROS_DISTRO', 'BagWriter', 'QueuedBagWriter', 'WriterStats',
