@@ -7,12 +7,12 @@ Public API (see docs/architecture.md, "Model core API"):
 - :class:`ElectronicsConfig` (boost, PI current chopper, negative-voltage capacitor)
 - :class:`ValveStepper`, :class:`ValveSample` (streaming, real time);
   :class:`ValveBank` (N valves advanced together in one compiled call)
-- :func:`simulate_step`, :func:`simulate_pwm`, :class:`SimulationResult`,
-  :func:`step_metrics` (offline traces)
-- :func:`simulate_step_batch`, :func:`simulate_pwm_batch` (parallel batches)
-- :func:`simulate_trace_batch`, :class:`InputTrace`, :class:`TraceBatchResult`: the general
-  entry point, many parameter sets under any input (a bare-coil voltage trace or main PWM
-  commands through the electronics), sampled instantaneously or as interval means
+- :func:`simulate_trace_batch`, :class:`InputTrace`: the one simulation entry, many
+  parameter sets under any input (a bare-coil voltage trace, main PWM commands through
+  the electronics, or the paper's voltage step), sampled instantaneously or as interval
+  means, with the exact per-period position means on request; :func:`simulate_step`,
+  :func:`simulate_pwm` are the paper's experiments as one run of it. Every simulation
+  returns a :class:`SimulationResult`; :func:`step_metrics`, :func:`closing_time` read it
 - :func:`orifice_mass_flow` (eq. 12), :func:`orifice_mass_flow_scalar`
 - the moving average of the suite, :func:`last_period_mean` (its definition: the mean over
   the last complete main PWM period); :class:`PeriodAverager` (streaming, same
@@ -30,7 +30,7 @@ from __future__ import annotations
 import importlib
 
 # The names are loaded on first use (PEP 562): the submodules with numba code (kernel,
-# magnetics, orifice, simulation, trace) are imported only when one of their names is
+# magnetics, orifice, simulation) are imported only when one of their names is
 # used, so a process that runs the streaming model on the ahead-of-time kernel
 # (model/aot.py; the simulator nodes) never imports numba or llvmlite (~130 MB).
 _HOME = {
@@ -44,14 +44,13 @@ _HOME = {
     'EFFECTS': 'parameters', 'PARAMETER_FIELDS': 'parameters', 'EffectSpec': 'parameters',
     'ParameterError': 'parameters', 'ValveParameters': 'parameters',
     'default_parameters_path': 'parameters', 'load_parameters': 'parameters',
-    'DEFAULT_SUPPLY_PRESSURE_PA': 'simulation', 'PwmBatchResult': 'simulation',
-    'SimulationResult': 'simulation', 'StepBatchResult': 'simulation',
-    'StepMetrics': 'simulation', 'closing_time': 'simulation', 'simulate_pwm': 'simulation',
-    'simulate_pwm_batch': 'simulation', 'simulate_step': 'simulation',
-    'simulate_step_batch': 'simulation', 'step_metrics': 'simulation',
+    'DEFAULT_SUPPLY_PRESSURE_PA': 'simulation', 'PARALLEL_MIN_BATCH': 'simulation',
+    'SAMPLING_MODES': 'simulation', 'simulate_pwm': 'simulation',
+    'simulate_step': 'simulation', 'simulate_trace_batch': 'simulation',
+    'SimulationResult': 'result', 'StepMetrics': 'result', 'closing_time': 'result',
+    'step_metrics': 'result',
     'ValveSample': 'stepper', 'ValveStepper': 'stepper',
-    'PARALLEL_MIN_BATCH': 'trace', 'SAMPLING_MODES': 'trace', 'InputTrace': 'trace',
-    'TraceBatchResult': 'trace', 'simulate_trace_batch': 'trace',
+    'InputTrace': 'trace',
 }
 # the step defaults are plain numbers: served from kernel.py's source, without numba
 _LAYOUT_NAMES = ('DEFAULT_H_FREE_S', 'DEFAULT_H_STOP_S')
@@ -90,12 +89,9 @@ __all__ = [
     'PARAMETER_FIELDS',
     'ParameterError',
     'PeriodAverager',
-    'PwmBatchResult',
     'SAMPLING_MODES',
     'SimulationResult',
-    'StepBatchResult',
     'StepMetrics',
-    'TraceBatchResult',
     'ValveBank',
     'ValveParameters',
     'ValveSample',
@@ -111,9 +107,7 @@ __all__ = [
     'orifice_mass_flow_scalar',
     'period_averages',
     'simulate_pwm',
-    'simulate_pwm_batch',
     'simulate_step',
-    'simulate_step_batch',
     'simulate_trace_batch',
     'step_metrics',
 ]

@@ -1,358 +1,70 @@
-"""Offline simulations: voltage steps and PWM drive, single runs and parallel batches.
+"""The model's one simulation entry, :func:`simulate_trace_batch`, and its short forms.
 
-All runs start with the valve closed and at rest, the coil de-energised and the capacitor
-empty. Pressures are gauge, Pa. The integration method is described in
-:mod:`valve_model_pkg.model.kernel`.
+:func:`simulate_trace_batch` simulates many parameter sets (one run each) under an
+:class:`~valve_model_pkg.model.InputTrace` and returns a
+:class:`~valve_model_pkg.model.SimulationResult`. :func:`simulate_step` and
+:func:`simulate_pwm` are the paper's experiments (Figs. 4-6) as one run of it.
+
+Every run starts at t = 0 with the valve closed and at rest, the coil de-energised and the
+capacitor empty. Pressures are gauge, Pa. Samples are the instantaneous state at each
+sample time (``'instant'``) or the mean over each sample interval (``'interval_mean'``:
+over ``[t_{k-1}, t_k]``, over ``[0, t_0]`` for the first sample), as a telemetry stream
+that reports the mean coil current since its previous sample does; the means are exact
+integrals of the model (accumulators integrated with the state).
+
+The integrator is the one of :mod:`valve_model_pkg.model.kernel` (fixed-step RK4 landing on
+every scheduled edge, exact end-stop impacts), so identification, maps and the real-time
+stepper simulate the same model. This module calls two of its entries and both give the
+same samples bit for bit where both apply:
+
+* ``trace_batch`` (runs in parallel, any input from t = 0, any sample times), the default;
+* ``advance`` run by run (the streaming integrator), when the period means are asked for
+  (``n_periods``: the kernel integrates them at each period start) or a step starts after
+  t = 0 (its edge lands exactly on the step time); it needs a constant input per run and
+  sample times on a uniform grid ``t_0 + k dt`` (or none).
 """
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from . import kernel as _k
-from .averaging import hold_period_means, moving_average
-from .electronics import ElectronicsConfig
-from .mechanics import MODE_CLOSED, MODE_OPEN
-from .orifice import orifice_mass_flow
 from . import parameters as _param
+from .electronics import ElectronicsConfig
 from .parameters import PARAMETER_FIELDS, ParameterError, ValveParameters
+from .result import SimulationResult
+from .trace import InputTrace
 
 __all__ = [
     'DEFAULT_SUPPLY_PRESSURE_PA',
-    'SimulationResult',
-    'StepMetrics',
-    'StepBatchResult',
-    'PwmBatchResult',
-    'simulate_step',
+    'PARALLEL_MIN_BATCH',
+    'SAMPLING_MODES',
     'simulate_pwm',
-    'simulate_step_batch',
-    'simulate_pwm_batch',
-    'step_metrics',
-    'closing_time',
+    'simulate_step',
+    'simulate_trace_batch',
 ]
 
 #: Supply pressure assumed for the paper's Fig. 4/5 step tests, Pa gauge (4 bar: the
 #: pressure of all the paper's stated experiments; Fig. 4 itself does not state one).
 DEFAULT_SUPPLY_PRESSURE_PA = 4.0e5
 
+#: Accepted values of ``sampling``.
+SAMPLING_MODES = ('instant', 'interval_mean')
 
-@dataclasses.dataclass(frozen=True)
-class SimulationResult:
-    """Sampled trace of one simulation.
+#: Batches smaller than this run on the calling thread: waking numba's thread pool for a
+#: few runs costs more than it gains, badly so on a busy machine (measured: 12 ms instead
+#: of 2 ms for one run with another process per core).
+PARALLEL_MIN_BATCH = 8
 
-    Attributes
-    ----------
-    t_s : numpy.ndarray, shape (n,)
-        Sample times, s.
-    voltage_v : numpy.ndarray, shape (n,)
-        Coil terminal voltage applied by the driver, V.
-    current_a : numpy.ndarray, shape (n,)
-        Coil terminal current, A.
-    position_m : numpy.ndarray, shape (n,)
-        Spool position, m (0 = closed, ``stroke_m`` = open).
-    velocity_m_s : numpy.ndarray, shape (n,)
-        Spool velocity, m/s.
-    temperature_rise_k : numpy.ndarray, shape (n,)
-        Coil temperature above the reference (coil_heating), K.
-    mode : numpy.ndarray of int, shape (n,)
-        Mechanical mode (mechanics.MODE_*: 0 moving, 1 closed stop, 2 open stop, 3 stuck).
-    position_avg_m : numpy.ndarray, shape (n,)
-        The suite's per-period moving average of the position (Section 5), m: the exact
-        mean over the last complete main PWM period, 0 before the first one ends (see
-        :mod:`~valve_model_pkg.model.averaging`). A step run has no PWM period: there, a
-        trailing 20 ms window (:func:`~valve_model_pkg.model.moving_average`).
-    period_end_s, period_avg_position_m : numpy.ndarray, shape (k,)
-        Exact average position over each completed main PWM period (from the kernel).
-    duty, pwm_frequency_hz, supply_voltage_v, supply_pressure_pa, output_pressure_pa : float
-        Inputs of the run.
-    experiment : str
-        ``'step'`` or ``'pwm'``.
-    params : ValveParameters
-    electronics : ElectronicsConfig
-    n_steps : int
-        RK4 steps taken (incl. redone event steps).
-    """
-
-    t_s: np.ndarray
-    voltage_v: np.ndarray
-    current_a: np.ndarray
-    position_m: np.ndarray
-    velocity_m_s: np.ndarray
-    temperature_rise_k: np.ndarray
-    mode: np.ndarray
-    position_avg_m: np.ndarray
-    period_end_s: np.ndarray
-    period_avg_position_m: np.ndarray
-    duty: float
-    pwm_frequency_hz: float
-    supply_voltage_v: float
-    supply_pressure_pa: float
-    output_pressure_pa: float
-    experiment: str
-    params: ValveParameters
-    electronics: ElectronicsConfig
-    n_steps: int
-
-    @property
-    def mass_flow_kg_s(self) -> np.ndarray:
-        """Mass flow from the moving-average position, eq. (12), kg/s."""
-        return orifice_mass_flow(self.position_avg_m, self.supply_pressure_pa,
-                                 self.output_pressure_pa, self.params)
-
-
-@dataclasses.dataclass(frozen=True)
-class StepMetrics:
-    """Opening figures of a step response (Fig. 4 / Fig. 5).
-
-    Attributes
-    ----------
-    motion_start_s : float
-        First time the spool leaves the closed stop, s (nan if it never moves).
-    stroke_end_s : float
-        First time it reaches the open stop, s (nan if never).
-    peak_current_a : float
-        Local current peak during the motion (between start and stroke end), A.
-    peak_time_s : float
-        Time of that peak, s.
-    final_current_a : float
-        Current at the end of the trace, A.
-    """
-
-    motion_start_s: float
-    stroke_end_s: float
-    peak_current_a: float
-    peak_time_s: float
-    final_current_a: float
-
-
-def _sample_count(duration_s: float, sample_rate_hz: float) -> tuple[int, float]:
-    if not np.isfinite(duration_s) or duration_s <= 0.0:
-        raise ParameterError(f'duration_s must be positive, got {duration_s!r}')
-    if not np.isfinite(sample_rate_hz) or sample_rate_hz <= 0.0:
-        raise ParameterError(f'sample_rate_hz must be positive, got {sample_rate_hz!r}')
-    dt = 1.0 / sample_rate_hz
-    return int(np.floor(duration_s * sample_rate_hz + 1e-9)) + 1, dt
-
-
-def _check_pwm(duty: float, pwm_frequency_hz: float) -> None:
-    if not np.isfinite(duty) or not 0.0 <= duty <= 1.0:
-        raise ParameterError(f'duty must be in [0, 1], got {duty!r}')
-    if not np.isfinite(pwm_frequency_hz) or pwm_frequency_hz <= 0.0:
-        raise ParameterError(f'pwm_frequency_hz must be positive, got {pwm_frequency_hz!r}')
-
-
-def _check_pressure(name: str, value: float) -> None:
-    if not np.isfinite(value) or value < -1.0e5:
-        raise ParameterError(f'{name} must be a finite gauge pressure above -1 bar, '
-                             f'got {value!r}')
-
-
-def _run(params: ValveParameters, electronics: ElectronicsConfig, supply_voltage_v: float,
-         duty: float, period_s: float, first_edge_s: float, duration_s: float,
-         supply_pressure_pa: float, output_pressure_pa: float, sample_rate_hz: float,
-         h_free_s: float, h_stop_s: float, avg_window_s: float, experiment: str
-         ) -> SimulationResult:
-    if not np.isfinite(supply_voltage_v):
-        raise ParameterError(f'voltage must be finite, got {supply_voltage_v!r}')
-    _check_pressure('supply_pressure_pa', supply_pressure_pa)
-    _check_pressure('output_pressure_pa', output_pressure_pa)
-    for name, h in (('h_free_s', h_free_s), ('h_stop_s', h_stop_s)):
-        if not np.isfinite(h) or h <= 0.0:
-            raise ParameterError(f'{name} must be positive, got {h!r}')
-    n, dt = _sample_count(duration_s, sample_rate_hz)
-    p = _k.derive_parameters(params.to_vector())
-    e = electronics.to_vector()
-    d = _k.new_drive_state(supply_voltage_v, duty, period_s, first_edge_s, supply_pressure_pa,
-                           output_pressure_pa, sample_dt_s=dt, first_sample_s=0.0)
-    y = np.zeros(_k.N_Y)
-    out = np.zeros((n, _k.N_OUT))
-    n_per = int(duration_s / period_s) + 2 if np.isfinite(period_s) else 0
-    avg = np.full(n_per, np.nan)
-    _k.advance(p, e, y, d, (n - 1) * dt, h_free_s, h_stop_s, out, avg)
-    t = np.arange(n) * dt
-    n_done = min(int(d[_k.D_AVG_IDX]), n_per)
-    ends = first_edge_s + period_s * np.arange(1, n_done + 1) if n_done else np.zeros(0)
-    if experiment == 'pwm':
-        # the suite's moving average (averaging.last_period_mean), from the kernel's exact
-        # period means: what ValveStepper and the simulator node publish
-        position_avg = hold_period_means(t, ends, avg[:n_done], period_s)
-    else:
-        # a step has no main PWM period: a trailing window (averaging.moving_average)
-        position_avg = moving_average(t, out[:, _k.O_X], avg_window_s) if n > 1 \
-            else out[:, _k.O_X].copy()
-    return SimulationResult(
-        t_s=t, voltage_v=out[:, _k.O_V].copy(), current_a=out[:, _k.O_I].copy(),
-        position_m=out[:, _k.O_X].copy(), velocity_m_s=out[:, _k.O_XDOT].copy(),
-        temperature_rise_k=out[:, _k.O_DT].copy(), mode=out[:, _k.O_MODE].astype(int),
-        position_avg_m=position_avg,
-        period_end_s=ends, period_avg_position_m=avg[:n_done].copy(),
-        duty=float(duty), pwm_frequency_hz=float(1.0 / period_s) if experiment == 'pwm'
-        else 0.0,
-        supply_voltage_v=float(supply_voltage_v), supply_pressure_pa=float(supply_pressure_pa),
-        output_pressure_pa=float(output_pressure_pa), experiment=experiment, params=params,
-        electronics=electronics, n_steps=int(d[_k.D_N_STEPS]))
-
-
-def simulate_step(params: ValveParameters, voltage_v: float = 24.0,
-                  duration_s: float = 0.02,
-                  supply_pressure_pa: float = DEFAULT_SUPPLY_PRESSURE_PA,
-                  output_pressure_pa: float = 0.0, *, sample_rate_hz: float = 100e3,
-                  step_time_s: float = 0.0, electronics: ElectronicsConfig | None = None,
-                  h_free_s: float = _k.DEFAULT_H_FREE_S,
-                  h_stop_s: float = _k.DEFAULT_H_STOP_S) -> SimulationResult:
-    """Response to a voltage step on the bare coil (paper Figs. 4 and 5).
-
-    Parameters
-    ----------
-    params : ValveParameters
-    voltage_v : float
-        Step voltage, V (24 V in Fig. 4, 15 V in Fig. 5).
-    duration_s : float
-        Simulated time, s.
-    supply_pressure_pa, output_pressure_pa : float
-        Gauge pressures for eq. (10), Pa (default 4 bar supply, see
-        :data:`DEFAULT_SUPPLY_PRESSURE_PA`).
-    sample_rate_hz : float
-        Output sampling rate, Hz (samples at k / rate, exact, not interpolated).
-    step_time_s : float
-        Time at which the voltage is switched on, s (0 V before).
-    electronics : ElectronicsConfig, optional
-        Default :meth:`ElectronicsConfig.off` (bare coil, as on a bench).
-    h_free_s, h_stop_s : float
-        Maximum RK4 step with the spool moving / resting, s.
-
-    Returns
-    -------
-    SimulationResult
-    """
-    if electronics is None:
-        electronics = ElectronicsConfig.off()
-    if not np.isfinite(step_time_s) or step_time_s < 0.0:
-        raise ParameterError(f'step_time_s must be non-negative, got {step_time_s!r}')
-    # a step is one main PWM period longer than the run with duty 1
-    period = 2.0 * (duration_s + step_time_s) + 1.0 if np.isfinite(duration_s) else 1.0
-    return _run(params, electronics, voltage_v, 1.0, period, step_time_s, duration_s,
-                supply_pressure_pa, output_pressure_pa, sample_rate_hz, h_free_s, h_stop_s,
-                0.02, 'step')
-
-
-def simulate_pwm(params: ValveParameters, electronics: ElectronicsConfig | None = None,
-                 duty: float = 0.4, pwm_frequency_hz: float = 50.0, duration_s: float = 0.1,
-                 supply_pressure_pa: float = DEFAULT_SUPPLY_PRESSURE_PA,
-                 output_pressure_pa: float = 0.0, *, supply_voltage_v: float = 24.0,
-                 sample_rate_hz: float = 100e3, h_free_s: float = _k.DEFAULT_H_FREE_S,
-                 h_stop_s: float = _k.DEFAULT_H_STOP_S) -> SimulationResult:
-    """Response to a main PWM input through the drive electronics (paper Fig. 6).
-
-    Parameters
-    ----------
-    params : ValveParameters
-    electronics : ElectronicsConfig, optional
-        Default ``ElectronicsConfig()`` (everything on).
-    duty : float
-        Main PWM duty cycle in [0, 1].
-    pwm_frequency_hz : float
-        Main PWM frequency, Hz; the first period starts (rising edge) at t = 0.
-    duration_s : float
-        Simulated time, s.
-    supply_pressure_pa, output_pressure_pa : float
-        Gauge pressures, Pa.
-    supply_voltage_v : float
-        Driver supply voltage, V.
-    sample_rate_hz : float
-        Output sampling rate, Hz.
-    h_free_s, h_stop_s : float
-        Maximum RK4 step with the spool moving / resting, s.
-
-    Returns
-    -------
-    SimulationResult
-        ``position_avg_m`` is the suite's moving average (the mean over the last
-        complete period, held); the per-period means are in ``period_avg_position_m``.
-    """
-    if electronics is None:
-        electronics = ElectronicsConfig()
-    _check_pwm(duty, pwm_frequency_hz)
-    period = 1.0 / pwm_frequency_hz
-    return _run(params, electronics, supply_voltage_v, duty, period, 0.0, duration_s,
-                supply_pressure_pa, output_pressure_pa, sample_rate_hz, h_free_s, h_stop_s,
-                period, 'pwm')
-
-
-def step_metrics(result: SimulationResult) -> StepMetrics:
-    """Start of motion, end of stroke and the local current peak of a step response.
-
-    The start of motion is the first sample at which the spool has left the closed stop
-    (mechanical mode, exact to one sample); the stroke end is the first sample on the open
-    stop; the peak is the largest current sample between the two.
-    """
-    t, i, mode = result.t_s, result.current_a, result.mode
-    left = np.nonzero(mode != MODE_CLOSED)[0]
-    if len(left) == 0:
-        return StepMetrics(np.nan, np.nan, np.nan, np.nan, float(i[-1]))
-    k0 = int(left[0])
-    at_open = np.nonzero(mode[k0:] == MODE_OPEN)[0]
-    if len(at_open) == 0:
-        return StepMetrics(float(t[k0]), np.nan, np.nan, np.nan, float(i[-1]))
-    k1 = k0 + int(at_open[0])
-    kp = k0 + int(np.argmax(i[k0:k1 + 1]))
-    return StepMetrics(float(t[k0]), float(t[k1]), float(i[kp]), float(t[kp]), float(i[-1]))
-
-
-def closing_time(result: SimulationResult, falling_edge_s: float) -> float:
-    """Time from a main PWM falling edge until the spool is back on the closed stop, s."""
-    t, x = result.t_s, result.position_m
-    after = np.nonzero((t >= falling_edge_s) & (x <= 0.0))[0]
-    moved = np.nonzero((t >= falling_edge_s) & (x > 0.0))[0]
-    if len(moved) == 0 or len(after) == 0:
-        return np.nan
-    closed = after[after > moved[0]]
-    return float(t[closed[0]] - falling_edge_s) if len(closed) else np.nan
+_E_BARE = ElectronicsConfig.off()
 
 
 # --------------------------------------------------------------------------------------
-# Batch API
+# Batch inputs: parameter matrix, per-run values
 # --------------------------------------------------------------------------------------
-@dataclasses.dataclass(frozen=True)
-class StepBatchResult:
-    """Voltage-step responses of many runs.
-
-    Attributes
-    ----------
-    t_s : numpy.ndarray, shape (n_samples,)
-    current_a : numpy.ndarray, shape (n_runs, n_samples)
-    position_m : numpy.ndarray, shape (n_runs, n_samples)
-    """
-
-    t_s: np.ndarray
-    current_a: np.ndarray
-    position_m: np.ndarray
-
-
-@dataclasses.dataclass(frozen=True)
-class PwmBatchResult:
-    """Period-averaged positions of many PWM runs.
-
-    Attributes
-    ----------
-    position_avg_m : numpy.ndarray, shape (n_runs, n_periods)
-        Average spool position over each main PWM period, m.
-    duty, pwm_frequency_hz, supply_pressure_pa : numpy.ndarray, shape (n_runs,)
-    """
-
-    position_avg_m: np.ndarray
-    duty: np.ndarray
-    pwm_frequency_hz: np.ndarray
-    supply_pressure_pa: np.ndarray
-
-    @property
-    def steady_position_m(self) -> np.ndarray:
-        """Average position over the last simulated period, m, shape (n_runs,)."""
-        return self.position_avg_m[:, -1]
-
-
 def _param_matrix(params: ValveParameters | Sequence[ValveParameters] | np.ndarray,
                   n_hint: int, validate: bool) -> np.ndarray:
     if isinstance(params, ValveParameters):
@@ -377,9 +89,9 @@ def _rows_valid(mat: np.ndarray) -> bool:
     """True if every row passes ``ValveParameters.from_vector`` (whole-matrix test).
 
     The rules of ``parameters._validate``, column by column: about 1 ms for 1000 rows
-    instead of about 20 ms (loaded machine: 130 ms) row by row, which was a tenth of a
-    1000-run batch. It may only ever be stricter than the row-wise check (a False falls
-    back to it); tests/unit/test_bank_model.py compares the two on random matrices.
+    instead of about 20 ms row by row. It may only ever be stricter than the row-wise
+    check (a False falls back to it); tests/unit/test_bank_model.py compares the two on
+    random matrices.
     """
     col = {name: mat[:, k] for k, name in enumerate(PARAMETER_FIELDS)}
     with np.errstate(invalid='ignore'):
@@ -413,10 +125,12 @@ def _broadcast(n: int, **arrays: float | np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
-def _n_runs(params: object, *arrays: float | np.ndarray) -> int:
+def _n_runs(params: object, traces: object, *arrays: float | np.ndarray) -> int:
     n = 1
     if not isinstance(params, ValveParameters):
         n = len(np.atleast_2d(params)) if isinstance(params, np.ndarray) else len(params)
+    if isinstance(traces, (list, tuple)) and n == 1:
+        n = len(traces)
     for a in arrays:
         a = np.asarray(a)
         if a.ndim > 0 and len(a) != 1:
@@ -424,104 +138,422 @@ def _n_runs(params: object, *arrays: float | np.ndarray) -> int:
     return n
 
 
-def simulate_step_batch(params: ValveParameters | Sequence[ValveParameters] | np.ndarray,
-                        voltage_v: float | np.ndarray = 24.0, duration_s: float = 0.01,
-                        supply_pressure_pa: float | np.ndarray = DEFAULT_SUPPLY_PRESSURE_PA,
-                        output_pressure_pa: float | np.ndarray = 0.0, *,
-                        sample_rate_hz: float = 50e3, step_time_s: float = 0.0,
-                        validate: bool = True, h_free_s: float = _k.DEFAULT_H_FREE_S,
-                        h_stop_s: float = _k.DEFAULT_H_STOP_S) -> StepBatchResult:
-    """Bare-coil voltage-step responses of many runs in parallel (numba ``prange``).
+@dataclasses.dataclass(frozen=True)
+class _Runs:
+    """A checked request: what every kernel route needs."""
 
-    For identification: each row of a parameter matrix is one run.
+    matrix: np.ndarray                 # (n_runs, len(PARAMETER_FIELDS))
+    traces: list[InputTrace]           # one per run
+    electronics: ElectronicsConfig
+    supply_pressure_pa: np.ndarray     # (n_runs,)
+    output_pressure_pa: np.ndarray     # (n_runs,)
+    t_s: np.ndarray                    # (n_samples,), empty for no samples
+    h_free_s: float
+    h_stop_s: float
+
+
+@dataclasses.dataclass(frozen=True)
+class _KernelRuns:
+    """Raw kernel output of a batch."""
+
+    out: np.ndarray                    # (n_runs, n_samples, N_OUT), columns O_*
+    stats: np.ndarray                  # (n_runs, 2): steps, forced steps
+    period_end_s: np.ndarray | None    # (n_runs, n_periods), NaN after a run's last
+    period_avg_position_m: np.ndarray | None
+
+
+def _check_traces(trace: InputTrace | Sequence[InputTrace], n: int) -> list[InputTrace]:
+    if isinstance(trace, InputTrace):
+        return [trace] * n
+    if not isinstance(trace, (list, tuple)) or not trace \
+            or not all(isinstance(tr, InputTrace) for tr in trace):
+        raise ParameterError('trace must be an InputTrace or a non-empty list of them, got '
+                             f'{type(trace).__name__}')
+    traces = list(trace)
+    if len(traces) != n:
+        raise ParameterError(f'{len(traces)} traces given for {n} runs: give one trace or '
+                             'one per run')
+    if len({tr.kind for tr in traces}) != 1:
+        raise ParameterError('the traces of one batch must be of one kind, got '
+                             f'{sorted({tr.kind for tr in traces})}')
+    return traces
+
+
+def _electronics_for(kind: str, electronics: ElectronicsConfig | None) -> ElectronicsConfig:
+    if kind == 'coil_voltage':
+        if electronics is not None:
+            raise ParameterError('a coil_voltage trace drives the bare coil: give no '
+                                 'electronics (use InputTrace.pwm_commands for the drive)')
+        return _E_BARE
+    if kind == 'step':
+        return electronics if electronics is not None else _E_BARE
+    return electronics if electronics is not None else ElectronicsConfig()
+
+
+def _check_times(sample_times_s: np.ndarray | Sequence[float] | None) -> np.ndarray:
+    if sample_times_s is None:
+        return np.zeros(0)
+    t = np.asarray(sample_times_s, dtype=np.float64)
+    if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)) or t[0] < 0.0 \
+            or np.any(np.diff(t) <= 0.0):
+        raise ParameterError('sample_times_s must be a non-empty, finite, strictly '
+                             'increasing 1-D array starting at t >= 0 s')
+    return t
+
+
+# --------------------------------------------------------------------------------------
+# Kernel routes
+# --------------------------------------------------------------------------------------
+def _run_traces(runs: _Runs, parallel: bool) -> _KernelRuns:
+    """``kernel.trace_batch``: the runs sharing a trace in one (parallel) call."""
+    n, n_s = runs.matrix.shape[0], runs.t_s.size
+    out = np.zeros((n, n_s, _k.N_OUT))
+    stats = np.zeros((n, 2))
+    groups: dict[tuple, list[int]] = {}
+    for r, tr in enumerate(runs.traces):
+        groups.setdefault(tr.key(), []).append(r)
+    e = runs.electronics.to_vector()
+    for idx in groups.values():
+        tr = runs.traces[idx[0]]
+        whole = len(idx) == n
+        o = out if whole else np.zeros((len(idx), n_s, _k.N_OUT))
+        s = stats if whole else np.zeros((len(idx), 2))
+        sel = slice(None) if whole else np.array(idx)
+        _k.trace_batch(runs.matrix[sel], e, tr.t_s, tr.supply_voltage_v, tr.duty,
+                       tr.period_s, runs.supply_pressure_pa[sel],
+                       runs.output_pressure_pa[sel], runs.t_s, runs.h_free_s,
+                       runs.h_stop_s, o, s, parallel=parallel and len(idx) >= PARALLEL_MIN_BATCH)
+        if not whole:
+            out[sel], stats[sel] = o, s
+    return _KernelRuns(out, stats, None, None)
+
+
+def _uniform_grid(t: np.ndarray) -> tuple[float, float]:
+    """(first sample, spacing) of sample times ``t_0 + k dt``, as the kernel records them."""
+    if t.size == 1:
+        return float(t[0]), 1.0
+    t0, dt = float(t[0]), float(t[1] - t[0])
+    if not np.array_equal(t, t0 + np.arange(t.size) * dt):
+        raise ParameterError('period means (n_periods) and a step after t = 0 need sample '
+                             'times on a uniform grid t_0 + k dt')
+    return t0, dt
+
+
+def _run_streaming(runs: _Runs, n_periods: int) -> _KernelRuns:
+    """``kernel.advance`` run by run: exact period means and step edges at any time."""
+    n, n_s = runs.matrix.shape[0], runs.t_s.size
+    t0, dt = _uniform_grid(runs.t_s) if n_s else (0.0, math.inf)
+    e = runs.electronics.to_vector()
+    out = np.zeros((n, n_s, _k.N_OUT))
+    stats = np.zeros((n, 2))
+    ends = np.full((n, n_periods), np.nan)
+    means = np.full((n, n_periods), np.nan)
+    for r, tr in enumerate(runs.traces):
+        if not tr.is_constant:
+            raise ParameterError('period means (n_periods) and a step after t = 0 need a '
+                                 'constant input per run (one trace value)')
+        step = tr.kind == 'step'
+        first_edge, period = (float(tr.t_s[0]), math.inf) if step else (0.0, tr.period_s[0])
+        d = _k.new_drive_state(tr.supply_voltage_v[0], tr.duty[0], period, first_edge,
+                               runs.supply_pressure_pa[r], runs.output_pressure_pa[r],
+                               sample_dt_s=dt, first_sample_s=t0)
+        avg = np.full(n_periods, np.nan)
+        # without samples the run ends just past its last period's closing boundary
+        t_end = runs.t_s[-1] if n_s else n_periods * period + 1e-9
+        _k.advance(_k.derive_parameters(runs.matrix[r]), e, np.zeros(_k.N_Y), d, t_end,
+                   runs.h_free_s, runs.h_stop_s, out[r], avg)
+        n_done = min(int(d[_k.D_AVG_IDX]), n_periods)
+        ends[r, :n_done] = first_edge + period * np.arange(1, n_done + 1)
+        means[r, :n_done] = avg[:n_done]
+        stats[r] = d[_k.D_N_STEPS], d[_k.D_N_FORCED]
+    width = int(np.max(np.sum(np.isfinite(ends), axis=1), initial=0))
+    return _KernelRuns(out, stats, ends[:, :width], means[:, :width])
+
+
+def _interval_means(t: np.ndarray, acc: np.ndarray, instant: np.ndarray) -> np.ndarray:
+    """Mean over each sample interval from an accumulated integral ``acc`` (runs x n)."""
+    prev_t = np.concatenate(([0.0], t[:-1]))
+    width = t - prev_t
+    prev = np.concatenate((np.zeros((acc.shape[0], 1)), acc[:, :-1]), axis=1)
+    mean = instant.copy()
+    ok = width > 0.0  # a first sample at t = 0 has no interval: its instantaneous value
+    mean[:, ok] = (acc[:, ok] - prev[:, ok]) / width[ok]
+    return mean
+
+
+def _samples(t: np.ndarray, out: np.ndarray, sampling: str) -> dict[str, np.ndarray]:
+    """The per-sample fields of the result from the kernel's sample rows."""
+    cur = out[:, :, _k.O_I]
+    volt = out[:, :, _k.O_V]
+    pos = out[:, :, _k.O_X]
+    vel = out[:, :, _k.O_XDOT]
+    if sampling == 'interval_mean' and t.size:
+        cur = _interval_means(t, out[:, :, _k.O_QI], cur)
+        volt = _interval_means(t, out[:, :, _k.O_QV], volt)
+        mean_x = _interval_means(t, out[:, :, _k.O_QX], pos)
+        # the mean velocity over an interval is the change of position over it
+        vel = _interval_means(t, pos, vel)
+        pos = mean_x
+    return {'coil_current_a': np.ascontiguousarray(cur),
+            'coil_voltage_v': np.ascontiguousarray(volt),
+            'spool_position_m': np.ascontiguousarray(pos),
+            'spool_velocity_m_s': np.ascontiguousarray(vel),
+            'coil_temperature_rise_k': np.ascontiguousarray(out[:, :, _k.O_DT]),
+            'mode': out[:, :, _k.O_MODE].astype(int)}
+
+
+# --------------------------------------------------------------------------------------
+# The entry
+# --------------------------------------------------------------------------------------
+def simulate_trace_batch(params_list: ValveParameters | Sequence[ValveParameters]
+                         | np.ndarray, trace: InputTrace | Sequence[InputTrace],
+                         sample_times_s: np.ndarray | Sequence[float] | None = None, *,
+                         electronics: ElectronicsConfig | None = None,
+                         sampling: str = 'instant', n_periods: int | None = None,
+                         supply_pressure_pa: float | np.ndarray = DEFAULT_SUPPLY_PRESSURE_PA,
+                         output_pressure_pa: float | np.ndarray = 0.0,
+                         h_free_s: float = _k.DEFAULT_H_FREE_S,
+                         h_stop_s: float = _k.DEFAULT_H_STOP_S, validate: bool = True,
+                         parallel: bool = True) -> SimulationResult:
+    """Simulate many parameter sets under an input trace (the model's one entry point).
+
+    Each run integrates eqs. (1)-(11) of Taghizadeh et al. (2009) (inductance eq. 4,
+    coil circuit eqs. 5-7, force eqs. 8-10, spool motion eq. 11, with the optional
+    effects of :data:`~valve_model_pkg.model.EFFECTS`) from rest at t = 0.
 
     Parameters
     ----------
-    params : ValveParameters, sequence of ValveParameters or numpy.ndarray
-        One set (shared by all runs), a list, or a matrix of shape (n_runs, n_fields) in
-        :data:`PARAMETER_FIELDS` order (``ValveParameters.to_vector``).
-    voltage_v, supply_pressure_pa, output_pressure_pa : float or numpy.ndarray
-        Scalars or per-run arrays of shape (n_runs,).
+    params_list : ValveParameters, sequence of ValveParameters or numpy.ndarray
+        One set (shared by all runs), a list, or a matrix of shape
+        (n_runs, len(PARAMETER_FIELDS)) in :data:`~valve_model_pkg.model.PARAMETER_FIELDS`
+        order (``to_vector``).
+    trace : InputTrace or sequence of InputTrace
+        The input, shared by all runs or one per run (all of one kind):
+        :meth:`InputTrace.coil_voltage` (bare coil), :meth:`InputTrace.pwm_commands`
+        (through the drive electronics) or :meth:`InputTrace.step`.
+    sample_times_s : array_like, shape (n_samples,), optional
+        Strictly increasing sample times, s (>= 0, any spacing; the integrator lands on
+        each one exactly). None: no samples (then ``n_periods`` sets the run length).
+    electronics : ElectronicsConfig, optional
+        Drive electronics of a ``pwm_commands`` trace (default ``ElectronicsConfig()``) or
+        of a step (default: none, the bare coil). Refused for a ``coil_voltage`` trace.
+    sampling : {'instant', 'interval_mean'}
+        Instantaneous values at each sample time, or means over each sample interval
+        (``[t_{k-1}, t_k]``, ``[0, t_0]`` for the first; a first sample at t = 0 keeps its
+        instantaneous value). Temperature and mode are always instantaneous.
+    n_periods : int, optional
+        Also report the exact mean spool position over each main PWM period, at most
+        ``n_periods`` of them (a constant ``pwm_commands`` value per run; the runs then go
+        one after another). With sample times the runs end at the last sample; without,
+        each lasts exactly ``n_periods`` periods (the static maps' runs).
+    supply_pressure_pa, output_pressure_pa : float or numpy.ndarray
+        Gauge pressures of eq. (10), Pa; scalars or per-run arrays of shape (n_runs,).
+    h_free_s, h_stop_s : float
+        Maximum RK4 step with the spool moving / resting on a stop, s.
+    validate : bool
+        Validate every row of a parameter matrix (about 1 us per row).
+    parallel : bool
+        Use numba's thread pool for runs sharing a trace, at least
+        :data:`PARALLEL_MIN_BATCH` of them. False runs on the calling thread without the
+        GIL, so several Python threads can simulate at once (numba's default threading
+        layer must not be entered from two threads).
+
+    Returns
+    -------
+    SimulationResult
+        With a leading run axis (``result.run(r)`` is one run).
+
+    Raises
+    ------
+    ParameterError
+        On invalid parameters, traces, times, sampling mode, period request or an
+        electronics setting given with a coil-voltage trace.
+
+    Examples
+    --------
+    >>> trace = InputTrace.pwm_commands([0.0, 0.1], duty=[0.3, 0.7])
+    >>> t = np.arange(1, 201) * 1e-3                    # 1 kHz telemetry
+    >>> res = simulate_trace_batch(load_parameters(), trace, t, sampling='interval_mean')
+    >>> res.coil_current_a.shape
+    (1, 200)
+    """
+    if sampling not in SAMPLING_MODES:
+        raise ParameterError(f'sampling must be one of {SAMPLING_MODES}, got {sampling!r}')
+    n_req = _n_runs(params_list, trace, supply_pressure_pa, output_pressure_pa)
+    traces = _check_traces(trace, n_req)
+    runs = _check_request(params_list, traces, n_req, sample_times_s, electronics,
+                          supply_pressure_pa, output_pressure_pa, h_free_s, h_stop_s,
+                          validate)
+    late_step = any(tr.kind == 'step' and tr.t_s[0] > 0.0 for tr in traces)
+    if n_periods is not None:
+        if int(n_periods) < 1:
+            raise ParameterError(f'n_periods must be at least 1, got {n_periods!r}')
+        if traces[0].kind != 'pwm_commands':
+            raise ParameterError('period means (n_periods) need main PWM commands')
+        raw = _run_streaming(runs, int(n_periods))
+    elif not runs.t_s.size:
+        raise ParameterError('give sample_times_s, or n_periods for period means only')
+    elif late_step:
+        raw = _run_streaming(runs, 0)
+        raw = dataclasses.replace(raw, period_end_s=None, period_avg_position_m=None)
+    else:
+        raw = _run_traces(runs, parallel)
+    if isinstance(params_list, np.ndarray):
+        params = runs.matrix
+    else:
+        params = (params_list,) * runs.matrix.shape[0] \
+            if isinstance(params_list, ValveParameters) else tuple(params_list)
+    return SimulationResult(
+        t_s=runs.t_s.copy(), **_samples(runs.t_s, raw.out, sampling),
+        period_end_s=raw.period_end_s, period_avg_position_m=raw.period_avg_position_m,
+        sampling=sampling, n_steps=raw.stats[:, 0].astype(np.int64),
+        n_forced_steps=raw.stats[:, 1].astype(np.int64),
+        trace=trace if isinstance(trace, InputTrace) else tuple(traces),
+        electronics=runs.electronics, params=params,
+        supply_pressure_pa=runs.supply_pressure_pa,
+        output_pressure_pa=runs.output_pressure_pa)
+
+
+def _check_request(params_list: ValveParameters | Sequence[ValveParameters] | np.ndarray,
+                   traces: list[InputTrace], n_req: int,
+                   sample_times_s: np.ndarray | Sequence[float] | None,
+                   electronics: ElectronicsConfig | None,
+                   supply_pressure_pa: float | np.ndarray,
+                   output_pressure_pa: float | np.ndarray, h_free_s: float,
+                   h_stop_s: float, validate: bool) -> _Runs:
+    """Check and normalise the inputs of :func:`simulate_trace_batch`."""
+    e = _electronics_for(traces[0].kind, electronics)
+    t = _check_times(sample_times_s)
+    for name, h in (('h_free_s', h_free_s), ('h_stop_s', h_stop_s)):
+        if not np.isfinite(h) or h <= 0.0:
+            raise ParameterError(f'{name} must be positive, got {h!r}')
+    mat = _param_matrix(params_list, n_req, validate)
+    n = mat.shape[0]
+    if len(traces) != n:
+        raise ParameterError(f'{len(traces)} traces given for {n} parameter sets')
+    arr = _broadcast(n, supply_pressure_pa=supply_pressure_pa,
+                     output_pressure_pa=output_pressure_pa)
+    if np.any(arr['supply_pressure_pa'] < -1.0e5) or np.any(arr['output_pressure_pa'] < -1e5):
+        raise ParameterError('pressures must be gauge pressures above -1 bar')
+    return _Runs(mat, traces, e, arr['supply_pressure_pa'], arr['output_pressure_pa'], t,
+                 float(h_free_s), float(h_stop_s))
+
+
+# --------------------------------------------------------------------------------------
+# The paper's experiments as one run
+# --------------------------------------------------------------------------------------
+def _sample_times(duration_s: float, sample_rate_hz: float) -> np.ndarray:
+    """Samples at k / rate from 0 to ``duration_s`` (a grid the kernel lands on)."""
+    if not np.isfinite(duration_s) or duration_s <= 0.0:
+        raise ParameterError(f'duration_s must be positive, got {duration_s!r}')
+    if not np.isfinite(sample_rate_hz) or sample_rate_hz <= 0.0:
+        raise ParameterError(f'sample_rate_hz must be positive, got {sample_rate_hz!r}')
+    n = int(np.floor(duration_s * sample_rate_hz + 1e-9)) + 1
+    return np.arange(n) * (1.0 / sample_rate_hz)
+
+
+def _check_pressure(name: str, value: float) -> None:
+    if not np.isfinite(value) or value < -1.0e5:
+        raise ParameterError(f'{name} must be a finite gauge pressure above -1 bar, '
+                             f'got {value!r}')
+
+
+def simulate_step(params: ValveParameters, voltage_v: float = 24.0,
+                  duration_s: float = 0.02,
+                  supply_pressure_pa: float = DEFAULT_SUPPLY_PRESSURE_PA,
+                  output_pressure_pa: float = 0.0, *, sample_rate_hz: float = 100e3,
+                  step_time_s: float = 0.0, electronics: ElectronicsConfig | None = None,
+                  h_free_s: float = _k.DEFAULT_H_FREE_S,
+                  h_stop_s: float = _k.DEFAULT_H_STOP_S) -> SimulationResult:
+    """Response to a voltage step on the bare coil (paper Figs. 4 and 5).
+
+    One run of :func:`simulate_trace_batch` under ``InputTrace.step(voltage_v,
+    step_time_s)``, sampled at k / ``sample_rate_hz``.
+
+    Parameters
+    ----------
+    params : ValveParameters
+    voltage_v : float
+        Step voltage, V (24 V in Fig. 4, 15 V in Fig. 5).
     duration_s : float
-        Simulated time per run, s.
+        Simulated time, s.
+    supply_pressure_pa, output_pressure_pa : float
+        Gauge pressures for eq. (10), Pa (default 4 bar supply, see
+        :data:`DEFAULT_SUPPLY_PRESSURE_PA`).
+    sample_rate_hz : float
+        Output sampling rate, Hz (samples at k / rate, exact, not interpolated).
+    step_time_s : float
+        Time at which the voltage is switched on, s (0 V before).
+    electronics : ElectronicsConfig, optional
+        Default :meth:`ElectronicsConfig.off` (bare coil, as on a bench).
+    h_free_s, h_stop_s : float
+        Maximum RK4 step with the spool moving / resting, s.
+
+    Returns
+    -------
+    SimulationResult
+        One run (no run axis); ``position_avg_m`` is a trailing 20 ms window.
+    """
+    trace = InputTrace.step(voltage_v, step_time_s)
+    _check_pressure('supply_pressure_pa', supply_pressure_pa)
+    _check_pressure('output_pressure_pa', output_pressure_pa)
+    t = _sample_times(duration_s, sample_rate_hz)
+    return simulate_trace_batch(
+        params, trace, t, electronics=electronics, supply_pressure_pa=supply_pressure_pa,
+        output_pressure_pa=output_pressure_pa, h_free_s=h_free_s, h_stop_s=h_stop_s).run(0)
+
+
+def simulate_pwm(params: ValveParameters, electronics: ElectronicsConfig | None = None,
+                 duty: float = 0.4, pwm_frequency_hz: float = 50.0, duration_s: float = 0.1,
+                 supply_pressure_pa: float = DEFAULT_SUPPLY_PRESSURE_PA,
+                 output_pressure_pa: float = 0.0, *, supply_voltage_v: float = 24.0,
+                 sample_rate_hz: float = 100e3, h_free_s: float = _k.DEFAULT_H_FREE_S,
+                 h_stop_s: float = _k.DEFAULT_H_STOP_S) -> SimulationResult:
+    """Response to a main PWM input through the drive electronics (paper Fig. 6).
+
+    One run of :func:`simulate_trace_batch` under a constant
+    ``InputTrace.pwm_commands``, sampled at k / ``sample_rate_hz``, with its period means.
+
+    Parameters
+    ----------
+    params : ValveParameters
+    electronics : ElectronicsConfig, optional
+        Default ``ElectronicsConfig()`` (everything on).
+    duty : float
+        Main PWM duty cycle in [0, 1].
+    pwm_frequency_hz : float
+        Main PWM frequency, Hz; the first period starts (rising edge) at t = 0.
+    duration_s : float
+        Simulated time, s.
+    supply_pressure_pa, output_pressure_pa : float
+        Gauge pressures, Pa.
+    supply_voltage_v : float
+        Driver supply voltage, V.
     sample_rate_hz : float
         Output sampling rate, Hz.
-    step_time_s : float
-        Time the voltage switches on, s.
-    validate : bool
-        Validate every row of a parameter matrix (about 20 us per row).
     h_free_s, h_stop_s : float
-        Maximum RK4 steps, s.
+        Maximum RK4 step with the spool moving / resting, s.
 
     Returns
     -------
-    StepBatchResult
-        ``current_a`` and ``position_m`` of shape (n_runs, n_samples).
-
-    Notes
-    -----
-    Threads: numba's default (all cores); limit with ``numba.set_num_threads``.
+    SimulationResult
+        One run (no run axis). ``period_avg_position_m`` holds the mean of every
+        completed period; ``position_avg_m`` is the suite's moving average (the mean over
+        the last complete period, held).
     """
-    n_req = _n_runs(params, voltage_v, supply_pressure_pa, output_pressure_pa)
-    mat = _param_matrix(params, n_req, validate)
-    n = mat.shape[0]
-    arr = _broadcast(n, voltage_v=voltage_v, supply_pressure_pa=supply_pressure_pa,
-                     output_pressure_pa=output_pressure_pa)
-    n_s, dt = _sample_count(duration_s, sample_rate_hz)
-    e = ElectronicsConfig.off().to_vector()
-    cur, pos = _k.step_batch(mat, e, arr['voltage_v'], arr['supply_pressure_pa'],
-                             arr['output_pressure_pa'], (n_s - 1) * dt, step_time_s, dt,
-                             n_s, h_free_s, h_stop_s)
-    return StepBatchResult(np.arange(n_s) * dt, cur, pos)
-
-
-def simulate_pwm_batch(params: ValveParameters | Sequence[ValveParameters] | np.ndarray,
-                       electronics: ElectronicsConfig | None = None,
-                       duty: float | np.ndarray = 0.5,
-                       pwm_frequency_hz: float | np.ndarray = 50.0,
-                       supply_pressure_pa: float | np.ndarray = DEFAULT_SUPPLY_PRESSURE_PA,
-                       output_pressure_pa: float | np.ndarray = 0.0, *, n_periods: int = 10,
-                       supply_voltage_v: float | np.ndarray = 24.0, validate: bool = True,
-                       h_free_s: float = _k.DEFAULT_H_FREE_S,
-                       h_stop_s: float = _k.DEFAULT_H_STOP_S) -> PwmBatchResult:
-    """Period-averaged spool positions of many PWM runs in parallel (Section 5 maps).
-
-    Each run starts closed at rest with a rising edge at t = 0 and is simulated for
-    ``n_periods`` main PWM periods.
-
-    Parameters
-    ----------
-    params : ValveParameters, sequence or numpy.ndarray (n_runs, n_fields)
-    electronics : ElectronicsConfig, optional
-        Default ``ElectronicsConfig()``.
-    duty, pwm_frequency_hz, supply_pressure_pa, output_pressure_pa, supply_voltage_v :
-        Scalars or per-run arrays of shape (n_runs,).
-    n_periods : int
-        Periods per run.
-
-    Returns
-    -------
-    PwmBatchResult
-        ``position_avg_m`` of shape (n_runs, n_periods); ``steady_position_m`` is the last.
-    """
-    if electronics is None:
-        electronics = ElectronicsConfig()
-    if int(n_periods) < 1:
-        raise ParameterError(f'n_periods must be at least 1, got {n_periods!r}')
-    n_req = _n_runs(params, duty, pwm_frequency_hz, supply_pressure_pa, output_pressure_pa,
-                    supply_voltage_v)
-    mat = _param_matrix(params, n_req, validate)
-    n = mat.shape[0]
-    arr = _broadcast(n, duty=duty, pwm_frequency_hz=pwm_frequency_hz,
-                     supply_pressure_pa=supply_pressure_pa,
-                     output_pressure_pa=output_pressure_pa, supply_voltage_v=supply_voltage_v)
-    if np.any((arr['duty'] < 0.0) | (arr['duty'] > 1.0)):
-        raise ParameterError(f'duty must be in [0, 1], got {arr["duty"]!r}')
-    if np.any(arr['pwm_frequency_hz'] <= 0.0):
-        raise ParameterError(
-            f'pwm_frequency_hz must be positive, got {arr["pwm_frequency_hz"]!r}')
-    avg = _k.pwm_batch(mat, electronics.to_vector(), arr['supply_voltage_v'], arr['duty'],
-                       1.0 / arr['pwm_frequency_hz'], arr['supply_pressure_pa'],
-                       arr['output_pressure_pa'], int(n_periods), h_free_s, h_stop_s)
-    return PwmBatchResult(avg, arr['duty'], arr['pwm_frequency_hz'],
-                          arr['supply_pressure_pa'])
+    if not np.isfinite(duty) or not 0.0 <= duty <= 1.0:
+        raise ParameterError(f'duty must be in [0, 1], got {duty!r}')
+    if not np.isfinite(pwm_frequency_hz) or pwm_frequency_hz <= 0.0:
+        raise ParameterError(f'pwm_frequency_hz must be positive, got {pwm_frequency_hz!r}')
+    if not np.isfinite(supply_voltage_v):
+        raise ParameterError(f'voltage must be finite, got {supply_voltage_v!r}')
+    _check_pressure('supply_pressure_pa', supply_pressure_pa)
+    _check_pressure('output_pressure_pa', output_pressure_pa)
+    t = _sample_times(duration_s, sample_rate_hz)
+    trace = InputTrace.pwm_commands([0.0], duty, pwm_frequency_hz, supply_voltage_v)
+    # room for every period the run completes
+    n_periods = int(duration_s * pwm_frequency_hz) + 2
+    return simulate_trace_batch(
+        params, trace, t, electronics=electronics, n_periods=n_periods,
+        supply_pressure_pa=supply_pressure_pa, output_pressure_pa=output_pressure_pa,
+        h_free_s=h_free_s, h_stop_s=h_stop_s).run(0)

@@ -1,32 +1,27 @@
-"""Batches of parameter sets under an arbitrary input trace: the model's general entry point.
+"""The input of a simulation: :class:`InputTrace`, a piecewise-constant valve input.
 
-:func:`simulate_trace_batch` simulates many parameter sets (one run each, in parallel)
-under one :class:`InputTrace` and samples them at given times:
+Three forms (build them with the classmethods):
 
 * ``InputTrace.coil_voltage(t_s, v)``: the terminal voltage of the bare coil (a bench
   supply, a measured voltage column). The drive electronics are not involved.
 * ``InputTrace.pwm_commands(t_s, duty, pwm_frequency_hz, supply_voltage_v)``: main PWM
   commands through the drive electronics (boost, chopper with PI holding current,
   negative-voltage capacitor, :class:`~valve_model_pkg.model.ElectronicsConfig`).
+* ``InputTrace.step(voltage_v, step_time_s)``: the paper's voltage step (Figs. 4, 5): the
+  main input switched on at ``step_time_s`` and held, on the bare coil or through the
+  electronics; the edge lands exactly on ``step_time_s``.
 
-Both are piecewise constant (zero-order hold): value ``k`` applies from ``t_s[k]`` to
-``t_s[k + 1]``, and the first value also from t = 0 (every run starts at t = 0 with the
-valve closed at rest, the coil de-energised and the capacitor empty). A PWM command is
-latched at the next main PWM period start, as :class:`~valve_model_pkg.model.ValveStepper`
-and the real valve do (the first period starts at t = 0 with the first command); a
-command given exactly at a period start takes effect at that period start. A duty of 0
-given within a period switches the coil off at once (docs/safety.md, "Close semantics"). A supply
-voltage change acts at once.
+The first two are zero-order holds: value ``k`` applies from ``t_s[k]`` to ``t_s[k + 1]``,
+and the first value also from t = 0 (every run starts at t = 0 with the valve closed at
+rest, the coil de-energised and the capacitor empty). A PWM command is latched at the next
+main PWM period start, as :class:`~valve_model_pkg.model.ValveStepper` and the real valve
+do (the first period starts at t = 0 with the first command); a command given exactly at a
+period start takes effect at that period start. A duty of 0 given within a period switches
+the coil off at once (docs/safety.md, "Close semantics"). A supply voltage change acts at
+once. The kernel applies a change 3 ps before its time, so a sample or period start at the
+same instant sees the new input.
 
-Samples are either the instantaneous state at each sample time (``'instant'``) or the
-mean over each sample interval (``'interval_mean'``: over ``[t_{k-1}, t_k]``, over
-``[0, t_0]`` for the first sample), as a telemetry stream that reports the mean coil
-current since its previous sample does. The means are exact integrals of the model
-(accumulators integrated with the state, not averages of samples).
-
-The integrator is the one of :mod:`valve_model_pkg.model.kernel` (fixed-step RK4 landing on
-every scheduled edge, exact end-stop impacts); every function of this module uses it, so
-identification, maps and the real-time stepper simulate the same model.
+:func:`~valve_model_pkg.model.simulate_trace_batch` simulates parameter sets under a trace.
 """
 from __future__ import annotations
 
@@ -35,23 +30,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from . import kernel as _k
-from .electronics import ElectronicsConfig
-from .parameters import ParameterError, ValveParameters
-from .simulation import DEFAULT_SUPPLY_PRESSURE_PA, _broadcast, _n_runs, _param_matrix
+from .parameters import ParameterError
 
-__all__ = ['InputTrace', 'TraceBatchResult', 'simulate_trace_batch', 'SAMPLING_MODES',
-           'PARALLEL_MIN_BATCH']
+__all__ = ['InputTrace', 'TRACE_KINDS']
 
-#: Accepted values of ``sampling``.
-SAMPLING_MODES = ('instant', 'interval_mean')
-
-#: Batches smaller than this run on the calling thread: waking numba's thread pool for a
-#: few runs costs more than it gains, badly so on a busy machine (measured: 12 ms instead
-#: of 2 ms for one run with another process per core).
-PARALLEL_MIN_BATCH = 8
-
-_E_BARE = ElectronicsConfig.off().to_vector()
+#: The forms of an :class:`InputTrace` (its ``kind``).
+TRACE_KINDS = ('coil_voltage', 'pwm_commands', 'step')
 
 
 def _as_1d(name: str, value: float | np.ndarray, n: int) -> np.ndarray:
@@ -78,22 +62,24 @@ def _change_times(t_s: np.ndarray | Sequence[float]) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class InputTrace:
-    """A piecewise-constant input of the valve (build it with the two classmethods).
+    """A piecewise-constant input of the valve (build it with the classmethods).
 
     Attributes
     ----------
     kind : str
-        ``'coil_voltage'`` (bare coil) or ``'pwm_commands'`` (through the electronics).
+        ``'coil_voltage'`` (bare coil), ``'pwm_commands'`` (through the electronics) or
+        ``'step'`` (the main input switched on at ``t_s[0]``).
     t_s : numpy.ndarray, shape (n,)
         Times at which each value starts to apply, s (strictly increasing, >= 0; the
-        first value also applies from t = 0).
+        first value of a ``coil_voltage`` or ``pwm_commands`` trace also applies from
+        t = 0; a ``step`` is off before its one time).
     supply_voltage_v : numpy.ndarray, shape (n,)
         Coil terminal voltage (``coil_voltage``) or driver supply voltage
-        (``pwm_commands``), V.
+        (``pwm_commands``, ``step``), V.
     duty : numpy.ndarray, shape (n,)
-        Main PWM duty in [0, 1] (1 for a ``coil_voltage`` trace).
+        Main PWM duty in [0, 1] (1 for ``coil_voltage`` and ``step``).
     pwm_frequency_hz : numpy.ndarray, shape (n,)
-        Main PWM frequency, Hz (0 for a ``coil_voltage`` trace: no PWM).
+        Main PWM frequency, Hz (0 for ``coil_voltage`` and ``step``: no PWM period).
     """
 
     kind: str
@@ -101,6 +87,42 @@ class InputTrace:
     supply_voltage_v: np.ndarray
     duty: np.ndarray
     pwm_frequency_hz: np.ndarray
+
+    @classmethod
+    def step(cls, voltage_v: float = 24.0, step_time_s: float = 0.0) -> InputTrace:
+        """The paper's voltage step: the main input off until ``step_time_s``, then on.
+
+        On the bare coil (the default of a step) the coil sees 0 V, then ``voltage_v``;
+        through drive electronics it is one main PWM period of duty 1 starting at
+        ``step_time_s`` (boost, then the holding current).
+
+        Parameters
+        ----------
+        voltage_v : float
+            Step (supply) voltage, V.
+        step_time_s : float
+            Time of the rising edge, s (>= 0).
+
+        Returns
+        -------
+        InputTrace
+        """
+        if not np.isfinite(voltage_v):
+            raise ParameterError(f'voltage must be finite, got {voltage_v!r}')
+        if not np.isfinite(step_time_s) or step_time_s < 0.0:
+            raise ParameterError(f'step_time_s must be non-negative, got {step_time_s!r}')
+        return cls('step', np.array([float(step_time_s)]), np.array([float(voltage_v)]),
+                   np.ones(1), np.zeros(1))
+
+    def key(self) -> tuple:
+        """A hashable identity of the trace (equal inputs give equal keys)."""
+        return (self.kind,) + tuple(a.tobytes() for a in (
+            self.t_s, self.supply_voltage_v, self.duty, self.pwm_frequency_hz))
+
+    @property
+    def is_constant(self) -> bool:
+        """True for a single value (a constant command or level, or a step)."""
+        return self.t_s.size == 1
 
     @classmethod
     def coil_voltage(cls, t_s: np.ndarray | Sequence[float],
@@ -163,174 +185,7 @@ class InputTrace:
 
     @property
     def period_s(self) -> np.ndarray:
-        """Main PWM period of each value, s (inf for a coil-voltage trace)."""
+        """Main PWM period of each value, s (inf without a main PWM: coil voltage, step)."""
         with np.errstate(divide='ignore'):
             return np.where(self.pwm_frequency_hz > 0.0, 1.0 / self.pwm_frequency_hz,
                             np.inf)
-
-
-@dataclasses.dataclass(frozen=True)
-class TraceBatchResult:
-    """Sampled response of many runs to one :class:`InputTrace`.
-
-    Attributes
-    ----------
-    t_s : numpy.ndarray, shape (n_samples,)
-        Sample times, s.
-    coil_current_a : numpy.ndarray, shape (n_runs, n_samples)
-        Coil terminal current, A (eq. 5; with eddy currents the terminal, not the
-        magnetising, current).
-    coil_voltage_v : numpy.ndarray, shape (n_runs, n_samples)
-        Coil terminal voltage, V.
-    spool_position_m : numpy.ndarray, shape (n_runs, n_samples)
-        Spool position x, m (0 closed, ``stroke_m`` open).
-    spool_velocity_m_s : numpy.ndarray, shape (n_runs, n_samples)
-        Spool velocity, m/s.
-    coil_temperature_rise_k : numpy.ndarray, shape (n_runs, n_samples)
-        Coil temperature above the reference (``coil_heating``), K; always instantaneous.
-    mode : numpy.ndarray of int, shape (n_runs, n_samples)
-        Mechanical mode at the sample time (``mechanics.MODE_*``); always instantaneous.
-    sampling : str
-        ``'instant'`` or ``'interval_mean'`` (current, voltage, position and velocity
-        averaged over each sample interval).
-    n_steps : numpy.ndarray of int, shape (n_runs,)
-        RK4 steps taken per run (incl. redone event steps).
-    """
-
-    t_s: np.ndarray
-    coil_current_a: np.ndarray
-    coil_voltage_v: np.ndarray
-    spool_position_m: np.ndarray
-    spool_velocity_m_s: np.ndarray
-    coil_temperature_rise_k: np.ndarray
-    mode: np.ndarray
-    sampling: str
-    n_steps: np.ndarray
-
-
-def _interval_means(t: np.ndarray, acc: np.ndarray, start: float,
-                    instant: np.ndarray) -> np.ndarray:
-    """Mean over each sample interval from an accumulated integral ``acc`` (runs x n)."""
-    prev_t = np.concatenate(([0.0], t[:-1]))
-    width = t - prev_t
-    prev = np.concatenate((np.full((acc.shape[0], 1), start), acc[:, :-1]), axis=1)
-    mean = instant.copy()
-    ok = width > 0.0  # a first sample at t = 0 has no interval: its instantaneous value
-    mean[:, ok] = (acc[:, ok] - prev[:, ok]) / width[ok]
-    return mean
-
-
-def simulate_trace_batch(params_list: ValveParameters | Sequence[ValveParameters]
-                         | np.ndarray, trace: InputTrace,
-                         sample_times_s: np.ndarray | Sequence[float], *,
-                         electronics: ElectronicsConfig | None = None,
-                         sampling: str = 'instant',
-                         supply_pressure_pa: float | np.ndarray = DEFAULT_SUPPLY_PRESSURE_PA,
-                         output_pressure_pa: float | np.ndarray = 0.0,
-                         h_free_s: float = _k.DEFAULT_H_FREE_S,
-                         h_stop_s: float = _k.DEFAULT_H_STOP_S, validate: bool = True,
-                         parallel: bool = True) -> TraceBatchResult:
-    """Simulate many parameter sets under one input trace (the model's general entry point).
-
-    Each run integrates eqs. (1)-(11) of Taghizadeh et al. (2009) (inductance eq. 4,
-    coil circuit eqs. 5-7, force eqs. 8-10, spool motion eq. 11, with the optional
-    effects of :data:`~valve_model_pkg.model.EFFECTS`) from rest at t = 0.
-
-    Parameters
-    ----------
-    params_list : ValveParameters, sequence of ValveParameters or numpy.ndarray
-        One set, a list, or a matrix of shape (n_runs, len(PARAMETER_FIELDS)) in
-        :data:`~valve_model_pkg.model.PARAMETER_FIELDS` order (``to_vector``).
-    trace : InputTrace
-        The input, from :meth:`InputTrace.coil_voltage` (bare coil) or
-        :meth:`InputTrace.pwm_commands` (through the drive electronics).
-    sample_times_s : array_like, shape (n_samples,)
-        Strictly increasing sample times, s (>= 0, any spacing; the integrator lands on
-        each one exactly).
-    electronics : ElectronicsConfig, optional
-        Drive electronics of a ``pwm_commands`` trace (default ``ElectronicsConfig()``).
-        Refused for a ``coil_voltage`` trace, which drives the bare coil.
-    sampling : {'instant', 'interval_mean'}
-        Instantaneous values at each sample time, or means over each sample interval
-        (``[t_{k-1}, t_k]``, ``[0, t_0]`` for the first; a first sample at t = 0 keeps its
-        instantaneous value). Temperature and mode are always instantaneous.
-    supply_pressure_pa, output_pressure_pa : float or numpy.ndarray
-        Gauge pressures of eq. (10), Pa; scalars or per-run arrays of shape (n_runs,).
-    h_free_s, h_stop_s : float
-        Maximum RK4 step with the spool moving / resting on a stop, s.
-    validate : bool
-        Validate every row of a parameter matrix (about 20 us per row).
-    parallel : bool
-        Use numba's thread pool for batches of at least :data:`PARALLEL_MIN_BATCH` runs.
-        False runs on the calling thread without the GIL, so several Python threads can
-        simulate at once (numba's default threading layer must not be entered from two
-        threads).
-
-    Returns
-    -------
-    TraceBatchResult
-
-    Raises
-    ------
-    ParameterError
-        On invalid parameters, times, sampling mode or an electronics setting given with
-        a coil-voltage trace.
-
-    Examples
-    --------
-    >>> trace = InputTrace.pwm_commands([0.0, 0.1], duty=[0.3, 0.7])
-    >>> t = np.arange(1, 201) * 1e-3                    # 1 kHz telemetry
-    >>> res = simulate_trace_batch(load_parameters(), trace, t, sampling='interval_mean')
-    >>> res.coil_current_a.shape
-    (1, 200)
-    """
-    if not isinstance(trace, InputTrace):
-        raise ParameterError(f'trace must be an InputTrace, got {type(trace).__name__}')
-    if sampling not in SAMPLING_MODES:
-        raise ParameterError(f'sampling must be one of {SAMPLING_MODES}, got {sampling!r}')
-    if trace.kind == 'coil_voltage':
-        if electronics is not None:
-            raise ParameterError('a coil_voltage trace drives the bare coil: give no '
-                                 'electronics (use InputTrace.pwm_commands for the drive)')
-        e = _E_BARE
-    else:
-        e = (electronics if electronics is not None else ElectronicsConfig()).to_vector()
-    t = np.asarray(sample_times_s, dtype=np.float64)
-    if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)) or t[0] < 0.0 \
-            or np.any(np.diff(t) <= 0.0):
-        raise ParameterError('sample_times_s must be a non-empty, finite, strictly '
-                             'increasing 1-D array starting at t >= 0 s')
-    for name, h in (('h_free_s', h_free_s), ('h_stop_s', h_stop_s)):
-        if not np.isfinite(h) or h <= 0.0:
-            raise ParameterError(f'{name} must be positive, got {h!r}')
-    n_req = _n_runs(params_list, supply_pressure_pa, output_pressure_pa)
-    mat = _param_matrix(params_list, n_req, validate)
-    n = mat.shape[0]
-    arr = _broadcast(n, supply_pressure_pa=supply_pressure_pa,
-                     output_pressure_pa=output_pressure_pa)
-    if np.any(arr['supply_pressure_pa'] < -1.0e5) or np.any(arr['output_pressure_pa'] < -1e5):
-        raise ParameterError('pressures must be gauge pressures above -1 bar')
-    out = np.zeros((n, t.size, _k.N_OUT))
-    stats = np.zeros((n, 2))
-    _k.trace_batch(mat, e, trace.t_s, trace.supply_voltage_v, trace.duty, trace.period_s,
-                   arr['supply_pressure_pa'], arr['output_pressure_pa'], t, float(h_free_s),
-                   float(h_stop_s), out, stats,
-                   parallel=parallel and n >= PARALLEL_MIN_BATCH)
-    cur = out[:, :, _k.O_I]
-    volt = out[:, :, _k.O_V]
-    pos = out[:, :, _k.O_X]
-    vel = out[:, :, _k.O_XDOT]
-    if sampling == 'interval_mean':
-        cur = _interval_means(t, out[:, :, _k.O_QI], 0.0, cur)
-        volt = _interval_means(t, out[:, :, _k.O_QV], 0.0, volt)
-        mean_x = _interval_means(t, out[:, :, _k.O_QX], 0.0, pos)
-        # the mean velocity over an interval is the change of position over it
-        vel = _interval_means(t, pos, 0.0, vel)
-        pos = mean_x
-    return TraceBatchResult(
-        t_s=t.copy(), coil_current_a=np.ascontiguousarray(cur),
-        coil_voltage_v=np.ascontiguousarray(volt), spool_position_m=np.ascontiguousarray(pos),
-        spool_velocity_m_s=np.ascontiguousarray(vel),
-        coil_temperature_rise_k=np.ascontiguousarray(out[:, :, _k.O_DT]),
-        mode=out[:, :, _k.O_MODE].astype(int), sampling=sampling,
-        n_steps=stats[:, 0].astype(np.int64))
