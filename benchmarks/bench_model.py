@@ -28,8 +28,8 @@ import numba  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
 from valve_model_pkg.model import (  # noqa: E402
-    ElectronicsConfig, ValveParameters, ValveStepper, load_parameters, simulate_pwm,
-    simulate_step, simulate_step_batch,
+    ElectronicsConfig, InputTrace, ValveParameters, ValveStepper, load_parameters,
+    simulate_pwm, simulate_step, simulate_trace_batch,
 )
 from valve_model_pkg import model as K  # noqa: E402  (public names only)
 from valve_model_pkg.model.magnetics import MU_0  # noqa: E402
@@ -236,8 +236,8 @@ def bench_pwm(params: ValveParameters) -> list[dict]:
                         h_stop_s=K.DEFAULT_H_STOP_S / 16)
     ours = simulate_pwm(params, elec, DUTY, FREQ, ACCURACY_WINDOW_S, P_SUP,
                         sample_rate_hz=SAMPLE_HZ)
-    peak = float(np.abs(fine.current_a).max())
-    err_ours = float(np.abs(ours.current_a - fine.current_a).max() / peak)
+    peak = float(np.abs(fine.coil_current_a).max())
+    err_ours = float(np.abs(ours.coil_current_a - fine.coil_current_a).max() / peak)
     target_err = 1e-4  # 10 x tighter than the issue's 0.1 % convergence criterion
     chosen = None
     ladder = []
@@ -247,7 +247,7 @@ def bench_pwm(params: ValveParameters) -> list[dict]:
             t0 = time.perf_counter()
             tr = ref.run(ACCURACY_WINDOW_S, t_s)
             w = time.perf_counter() - t0
-            err = float(np.abs(tr[:, 1] - fine.current_a).max() / peak)
+            err = float(np.abs(tr[:, 1] - fine.coil_current_a).max() / peak)
             ladder.append((method, rtol, err, w))
             print(f'  solve_ivp {method} rtol={rtol:g}: error {err:.2e} of peak, '
                   f'{ACCURACY_WINDOW_S / w:.3g} sim-s/s', file=sys.stderr)
@@ -304,10 +304,11 @@ def bench_batch(params: ValveParameters) -> list[dict]:
     # keep x_max below x_t
     xt = PARAMETER_FIELDS.index('total_air_gap_m')
     mat[:, xt] = np.maximum(mat[:, xt], 1.05 * params.stroke_m)
-    kw = dict(duration_s=0.01, sample_rate_hz=50e3)
+    step = InputTrace.step(24.0)
+    t_s = np.arange(501) * (1 / 50e3)   # 10 ms at 50 kHz, the grid of simulate_step
     numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
     threads = numba.get_num_threads()
-    simulate_step_batch(mat[:4], **kw)  # warm
+    simulate_trace_batch(mat[:4], step, t_s)  # warm
     walls = []
     loop_walls = []
     sets = [ValveParameters.from_vector(row) for row in mat]
@@ -315,17 +316,17 @@ def bench_batch(params: ValveParameters) -> list[dict]:
     # within seconds); the best of each is compared
     for _ in range(3):
         t0 = time.perf_counter()
-        res = simulate_step_batch(mat, **kw)
+        res = simulate_trace_batch(mat, step, t_s)
         walls.append(time.perf_counter() - t0)
         if len(loop_walls) < 2:
             t0 = time.perf_counter()
-            loop = [simulate_step(s, 24.0, 0.01, sample_rate_hz=50e3).current_a
+            loop = [simulate_step(s, 24.0, 0.01, sample_rate_hz=50e3).coil_current_a
                     for s in sets]
             loop_walls.append(time.perf_counter() - t0)
     wall = min(walls)
     loop_wall = min(loop_walls)
-    same = float(np.abs(np.array(loop) - res.current_a).max())
-    opened = int(np.sum(res.position_m[:, -1] >= params.stroke_m * 0.999))
+    same = float(np.abs(np.array(loop) - res.coil_current_a).max())
+    opened = int(np.sum(res.spool_position_m[:, -1] >= params.stroke_m * 0.999))
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
     notes = (f'{n_runs} bare-coil 24 V steps, 10 ms each, 50 kHz output (501 samples of '
              f'current and position), 7 parameters varied +-15 % (R, l_c, A_e, x_t, mu_r, b, '
@@ -364,9 +365,10 @@ def bench_stepper(params: ValveParameters) -> list[dict]:
 
 def bench_startup() -> list[dict]:
     code = ('import time, sys; t0 = time.perf_counter(); sys.path.insert(0, %r); '
-            'from valve_model_pkg.model import load_parameters, simulate_pwm, '
-            'simulate_step_batch; p = load_parameters(); simulate_pwm(p, duration_s=0.02); '
-            'simulate_step_batch(p, duration_s=0.002); print(time.perf_counter() - t0)'
+            'from valve_model_pkg.model import InputTrace, load_parameters, simulate_pwm, '
+            'simulate_trace_batch; p = load_parameters(); simulate_pwm(p, duration_s=0.02); '
+            'simulate_trace_batch(p, InputTrace.step(), [0.0, 0.001, 0.002]); '
+            'print(time.perf_counter() - t0)'
             % str(ROOT / 'valve_model_pkg'))
 
     def run(env: dict) -> float:

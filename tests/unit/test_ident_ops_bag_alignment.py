@@ -11,7 +11,7 @@ import numpy as np
 from valve_model_pkg.identification.measurements import (
     _bag_records_to_measurement, drive_from_in_force,
 )
-from valve_model_pkg.identification.model_adapter import prepare_trace, simulate_trace_batch
+from valve_model_pkg.identification.model_adapter import prepare_trace, simulate_measurement
 from valve_model_pkg.model import InputTrace, load_parameters
 from valve_model_pkg.model import simulate_trace_batch as model_trace_batch
 
@@ -55,7 +55,7 @@ def test_nominal_model_reproduces_a_lockstep_bag_through_the_adapter() -> None:
     """Reader + adapter + nominal parameters = the recorded interval means (< 1 mA)."""
     records, recorded = _lockstep_records()
     m = _bag_records_to_measurement('lockstep', '/valve/state', None, records)
-    sim, _ = simulate_trace_batch(load_parameters().to_vector()[None, :], prepare_trace(m))
+    sim, _ = simulate_measurement(load_parameters().to_vector()[None, :], prepare_trace(m))
     err = sim[0] - recorded
     assert np.max(np.abs(err[m.valid])) < 1e-3
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from valve_model_pkg.identification.measurements import Measurement
-from valve_model_pkg.identification.model_adapter import prepare_trace, simulate_trace_batch
+from valve_model_pkg.identification.model_adapter import prepare_trace, simulate_measurement
 from valve_model_pkg.identification.problem import (
     GAP, FitData, baseline_space, effect_space, equivalent_gap_m,
 )
@@ -13,7 +13,7 @@ from valve_model_pkg.identification.residuals import ljung_box, phase_masks
 from valve_model_pkg.identification.search import SearchSettings, direct_search
 from valve_model_pkg.identification.sensitivity import noise_std
 from valve_model_pkg.model.parameters import ValveParameters
-from valve_model_pkg.model.simulation import simulate_step_batch
+from valve_model_pkg.model import simulate_step
 
 
 def _step(rate: float = 50e3, duration: float = 0.03, on: float = 1e-3, off: float | None = None,
@@ -33,18 +33,18 @@ def _step(rate: float = 50e3, duration: float = 0.03, on: float = 1e-3, off: flo
 def test_adapter_reproduces_the_models_step_response(changes: dict) -> None:
     p = ValveParameters().replace(**changes)
     m = _step()
-    cur, pos = simulate_trace_batch(p.to_vector()[None, :], prepare_trace(m))
-    ref = simulate_step_batch(p, 24.0, duration_s=m.t_s[-1], sample_rate_hz=50e3,
-                              step_time_s=1e-3, supply_pressure_pa=4e5)
-    n = min(cur.shape[1], ref.current_a.shape[1])
-    np.testing.assert_allclose(cur[0, :n], ref.current_a[0, :n], atol=2e-6)
-    np.testing.assert_allclose(pos[0, :n], ref.position_m[0, :n], atol=1e-9)
+    cur, pos = simulate_measurement(p.to_vector()[None, :], prepare_trace(m))
+    ref = simulate_step(p, 24.0, duration_s=m.t_s[-1], sample_rate_hz=50e3,
+                        step_time_s=1e-3, supply_pressure_pa=4e5)
+    n = min(cur.shape[1], ref.coil_current_a.shape[0])
+    np.testing.assert_allclose(cur[0, :n], ref.coil_current_a[:n], atol=2e-6)
+    np.testing.assert_allclose(pos[0, :n], ref.spool_position_m[:n], atol=1e-9)
 
 
 def test_adapter_follows_a_pulse_and_samples_off_grid_times() -> None:
     p = ValveParameters()
     m = _step(off=15e-3, duration=0.04)
-    cur, pos = simulate_trace_batch(np.repeat(p.to_vector()[None, :], 3, axis=0),
+    cur, pos = simulate_measurement(np.repeat(p.to_vector()[None, :], 3, axis=0),
                                     prepare_trace(m))
     assert np.all(cur[0] == cur[2])
     k_off = np.searchsorted(m.t_s, 15e-3)
@@ -55,7 +55,7 @@ def test_adapter_follows_a_pulse_and_samples_off_grid_times() -> None:
     t = np.sort(np.arange(40) * 1e-3 + rng.uniform(0, 2e-5, 40))
     coarse = Measurement(source='bag', t_s=t, voltage_v=np.where(t >= 1e-3, 24.0, 0.0),
                          current_a=np.zeros(40), supply_pressure_pa=4e5)
-    c2, _ = simulate_trace_batch(p.to_vector()[None, :], prepare_trace(coarse))
+    c2, _ = simulate_measurement(p.to_vector()[None, :], prepare_trace(coarse))
     assert c2.shape == (1, 40)
     np.testing.assert_allclose(c2[0, 10], np.interp(t[10], m.t_s, cur[0]), atol=5e-3)
 
@@ -68,7 +68,7 @@ def test_l_c_mu_r_and_x_t_act_only_through_the_equivalent_gap() -> None:
                   core_length_m=300.0 * (s - 2 * xt))
     assert equivalent_gap_m(q) == pytest.approx(s)
     m = _step()
-    cur, _ = simulate_trace_batch(np.array([p.to_vector(), q.to_vector()]), prepare_trace(m))
+    cur, _ = simulate_measurement(np.array([p.to_vector(), q.to_vector()]), prepare_trace(m))
     np.testing.assert_allclose(cur[0], cur[1], atol=1e-12)
     space = baseline_space(p)
     assert GAP in space.names and 'core_length_m' not in space.names
@@ -82,7 +82,7 @@ def test_l_c_mu_r_and_x_t_act_only_through_the_equivalent_gap() -> None:
 def test_cost_is_zero_on_a_noise_free_simulated_measurement() -> None:
     p = ValveParameters()
     m = _step()
-    cur, _ = simulate_trace_batch(p.to_vector()[None, :], prepare_trace(m))
+    cur, _ = simulate_measurement(p.to_vector()[None, :], prepare_trace(m))
     data = FitData([m.with_current(cur[0])])
     costs = data.cost(np.array([p.to_vector(), p.replace(coil_resistance_ohm=14).to_vector()]))
     assert costs[0] == pytest.approx(0.0, abs=1e-12) and costs[1] > 1e-3
@@ -127,7 +127,7 @@ def test_ljung_box_and_noise_estimate() -> None:
 def test_phases_follow_the_stroke() -> None:
     p = ValveParameters()
     m = _step(off=15e-3, duration=0.04)
-    _, pos = simulate_trace_batch(p.to_vector()[None, :], prepare_trace(m))
+    _, pos = simulate_measurement(p.to_vector()[None, :], prepare_trace(m))
     masks = phase_masks(m, pos[0], p.stroke_m)
     order = [next(name for name, mk in masks.items() if mk[k]) for k in range(m.n_samples)]
     compact = [order[0]] + [b for a, b in zip(order, order[1:]) if a != b]

@@ -33,12 +33,12 @@ def test_halving_the_step_changes_current_by_less_than_0_1_percent(experiment: s
         return simulate_step(P, 24.0 if experiment == 'step24' else 15.0, 0.02, **kw)
 
     full, half, fine = run(1.0), run(0.5), run(1 / 16)
-    peak = np.abs(fine.current_a).max()
-    assert np.abs(full.current_a - half.current_a).max() < 1e-3 * peak
-    assert np.abs(full.current_a - fine.current_a).max() < 1e-3 * peak
-    assert np.abs(full.position_m - fine.position_m).max() < 1e-3 * P.stroke_m
+    peak = np.abs(fine.coil_current_a).max()
+    assert np.abs(full.coil_current_a - half.coil_current_a).max() < 1e-3 * peak
+    assert np.abs(full.coil_current_a - fine.coil_current_a).max() < 1e-3 * peak
+    assert np.abs(full.spool_position_m - fine.spool_position_m).max() < 1e-3 * P.stroke_m
     # in fact far better: document-level margin
-    assert np.abs(full.current_a - fine.current_a).max() < 1e-5 * peak
+    assert np.abs(full.coil_current_a - fine.coil_current_a).max() < 1e-5 * peak
 
 
 def test_step_response_matches_solve_ivp_reference() -> None:
@@ -83,7 +83,7 @@ def test_step_response_matches_solve_ivp_reference() -> None:
                   **tol)
     res = simulate_step(P, v, 0.02, p_sup, sample_rate_hz=20e3)
     ref = np.array([(a if t < t1 else b if t < t2 else c).sol(t)[0] for t in res.t_s])
-    np.testing.assert_allclose(res.current_a, ref, atol=1e-5 * ref.max())
+    np.testing.assert_allclose(res.coil_current_a, ref, atol=1e-5 * ref.max())
     m = step_metrics(simulate_step(P, v, 0.006, p_sup, sample_rate_hz=1e6))
     assert m.motion_start_s == pytest.approx(t1, abs=1.01e-6)
     assert m.stroke_end_s == pytest.approx(t2, abs=1.01e-6)
@@ -155,7 +155,7 @@ def test_bounce_height_follows_restitution() -> None:
 def test_bounce_at_open_stop_in_a_step_response() -> None:
     bouncy = simulate_step(P.replace(restitution_coefficient=0.6), 24.0, 0.01,
                            sample_rate_hz=1e6)
-    x = bouncy.position_m
+    x = bouncy.spool_position_m
     k = int(np.argmax(x >= 0.99 * P.stroke_m))
     assert x[k:].min() < P.stroke_m * 0.9     # bounces off the stop
     assert x[-1] == P.stroke_m                # and settles there
@@ -199,8 +199,8 @@ def test_leakage_inductance_slows_the_rl_rise() -> None:
     leak = 0.02
     res = simulate_step(P.replace(leakage_inductance_h=leak), 24.0, 0.01, BLOCKED_PA,
                         sample_rate_hz=10e3)
-    assert np.all(res.position_m == 0.0)
-    np.testing.assert_allclose(res.current_a, 24 / 13 * (1 - np.exp(-res.t_s * 13 / (
+    assert np.all(res.spool_position_m == 0.0)
+    np.testing.assert_allclose(res.coil_current_a, 24 / 13 * (1 - np.exp(-res.t_s * 13 / (
         L0 + leak))), rtol=1e-8, atol=1e-12)
 
 
@@ -213,10 +213,10 @@ def test_eddy_conductance_shunts_the_inductance() -> None:
     tau = L0 * (1 + 13 * g) / 13
     i_m = 24 / 13 * (1 - np.exp(-t[on] / tau))
     v_branch = (24 - 13 * i_m) / (1 + 13 * g)
-    np.testing.assert_allclose(res.current_a[on], i_m + g * v_branch, rtol=1e-8)
+    np.testing.assert_allclose(res.coil_current_a[on], i_m + g * v_branch, rtol=1e-8)
     # the terminal current jumps at the step: the resistor has no inductance
-    assert res.current_a[on][0] == pytest.approx(g * 24 / (1 + 13 * g))
-    assert np.all(res.current_a[~on] == 0.0)
+    assert res.coil_current_a[on][0] == pytest.approx(g * 24 / (1 + 13 * g))
+    assert np.all(res.coil_current_a[~on] == 0.0)
 
 
 def test_saturation_speeds_up_the_current_rise() -> None:
@@ -226,9 +226,9 @@ def test_saturation_speeds_up_the_current_rise() -> None:
     # t(i) = int_0^i L0 / ((1 + beta j)^2 (V - R j)) dj
     for i_q in (0.5, 1.0, 1.5):
         t_q = quad(lambda j: L0 / ((1 + beta * j) ** 2 * (24 - 13 * j)), 0, i_q)[0]
-        assert np.interp(i_q, res.current_a, res.t_s) == pytest.approx(t_q, rel=1e-5)
+        assert np.interp(i_q, res.coil_current_a, res.t_s) == pytest.approx(t_q, rel=1e-5)
     plain = simulate_step(P, 24.0, 0.01, BLOCKED_PA, sample_rate_hz=100e3)
-    assert np.all(res.current_a[1:] > plain.current_a[1:])
+    assert np.all(res.coil_current_a[1:] > plain.coil_current_a[1:])
 
 
 def test_coil_heating_reaches_the_thermal_fixed_point() -> None:
@@ -239,35 +239,35 @@ def test_coil_heating_reaches_the_thermal_fixed_point() -> None:
     d_t = 10.0
     for _ in range(200):
         d_t = r_th * 24.0 ** 2 / (13.0 * (1 + 0.00393 * d_t))
-    assert res.temperature_rise_k[-1] == pytest.approx(d_t, rel=1e-3)
-    assert res.current_a[-1] == pytest.approx(24 / (13 * (1 + 0.00393 * d_t)), rel=1e-3)
+    assert res.coil_temperature_rise_k[-1] == pytest.approx(d_t, rel=1e-3)
+    assert res.coil_current_a[-1] == pytest.approx(24 / (13 * (1 + 0.00393 * d_t)), rel=1e-3)
     cold = simulate_step(P.replace(thermal_time_constant_s=5.0), 24.0, 0.02)
     base = simulate_step(P, 24.0, 0.02)
-    np.testing.assert_array_equal(cold.current_a, base.current_a)  # R_th = 0: neutral
+    np.testing.assert_array_equal(cold.coil_current_a, base.coil_current_a)  # R_th = 0: neutral
 
 
 def test_reverse_current_is_blocked_by_the_driver() -> None:
     strong = ElectronicsConfig(capacitor_voltage_v=200.0, capacitor_discharge_time_s=5e-3)
     res = simulate_pwm(P, strong, 0.4, 50.0, 0.04, sample_rate_hz=50e3)
-    assert res.current_a.min() == 0.0
+    assert res.coil_current_a.min() == 0.0
     free = simulate_pwm(P, strong.replace(block_reverse_current=False), 0.4, 50.0, 0.04,
                         sample_rate_hz=50e3)
-    assert free.current_a.min() < -0.01
+    assert free.coil_current_a.min() < -0.01
 
 
 def test_electronics_off_is_the_bare_coil() -> None:
     res = simulate_pwm(P, ElectronicsConfig.off(), 0.4, 50.0, 0.04, sample_rate_hz=10e3)
     high = (res.t_s % 0.02) < 0.008
-    assert np.all(res.voltage_v[high] == 24.0)
-    assert np.all(res.voltage_v[~high] == 0.0)
+    assert np.all(res.coil_voltage_v[high] == 24.0)
+    assert np.all(res.coil_voltage_v[~high] == 0.0)
 
 
 def test_fixed_boost_time_without_dip_detection() -> None:
     cfg = ElectronicsConfig(dip_detection=False, max_boost_time_s=5e-3)
     res = simulate_pwm(P, cfg, 0.4, 50.0, 0.02, sample_rate_hz=100e3)
     boost = (res.t_s < 5e-3 - 1e-9)
-    assert np.all(res.voltage_v[boost] == 24.0)
-    assert np.any(res.voltage_v[(res.t_s > 5e-3) & (res.t_s < 8e-3)] == 0.0)
+    assert np.all(res.coil_voltage_v[boost] == 24.0)
+    assert np.any(res.coil_voltage_v[(res.t_s > 5e-3) & (res.t_s < 8e-3)] == 0.0)
 
 
 def test_model_core_is_ros_free() -> None:

@@ -69,12 +69,12 @@ def test_fig6_holding_current(fig6) -> None:
     for k in range(5):
         t0 = 0.02 * k
         # from 2 ms after the stroke has ended (boost end + settling) to the falling edge
-        opened = on.t_s[(on.t_s >= t0) & (on.position_m >= P.stroke_m)][0]
+        opened = on.t_s[(on.t_s >= t0) & (on.spool_position_m >= P.stroke_m)][0]
         window = (on.t_s >= opened + 2e-3) & (on.t_s < t0 + 0.008)
         assert window.sum() > 100
-        np.testing.assert_allclose(on.current_a[window], 0.5, rtol=0.05)
+        np.testing.assert_allclose(on.coil_current_a[window], 0.5, rtol=0.05)
         # the chopper really switches: the voltage takes both 24 V and 0 V
-        volts = on.voltage_v[window]
+        volts = on.coil_voltage_v[window]
         assert np.any(volts == 24.0) and np.any(volts == 0.0)
 
 
@@ -84,16 +84,16 @@ def test_fig6_negative_voltage_shortens_closing(fig6) -> None:
     t_off = closing_time(off, 0.008)
     assert np.isfinite(t_on) and np.isfinite(t_off)
     assert t_on < 0.8 * t_off
-    assert on.voltage_v[(on.t_s > 0.008) & (on.t_s < 0.0085)].min() < -20.0
-    assert off.voltage_v.min() == 0.0
+    assert on.coil_voltage_v[(on.t_s > 0.008) & (on.t_s < 0.0085)].min() < -20.0
+    assert off.coil_voltage_v.min() == 0.0
 
 
 def test_fig6_valve_opens_and_closes_every_period(fig6) -> None:
     on, _ = fig6
     for k in range(5):
         seg = (on.t_s >= 0.02 * k) & (on.t_s < 0.02 * (k + 1))
-        assert on.position_m[seg].max() == pytest.approx(P.stroke_m)
-        assert on.position_m[seg][-1] == 0.0
+        assert on.spool_position_m[seg].max() == pytest.approx(P.stroke_m)
+        assert on.spool_position_m[seg][-1] == 0.0
     assert len(on.period_avg_position_m) == 5
     # open from ~3.5 ms (opening delay) to ~12 ms (8 ms + closing delay) of 20 ms
     assert np.all((on.period_avg_position_m > 0.3 * P.stroke_m)

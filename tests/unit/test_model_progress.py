@@ -36,51 +36,54 @@ def _run(code: str) -> list[str]:
 
 
 def test_falling_edge_with_just_positive_margin_returns() -> None:
-    """The maps engineer's reproduction, batch and stepper, and points around it."""
+    """The maps engineer's reproduction, period batch and stepper, and points around it."""
     words = _run(f'''
         import numpy as np
-        from valve_model_pkg.model import ElectronicsConfig, ValveStepper, load_parameters
-        from valve_model_pkg.model import kernel as K
-        from valve_model_pkg.model.simulation import simulate_pwm_batch
+        from valve_model_pkg.model import (ElectronicsConfig, InputTrace, ValveStepper,
+                                           load_parameters, simulate_trace_batch)
         P, E = load_parameters(), ElectronicsConfig()
-        res = simulate_pwm_batch(P, E, duty=[{DUTY}], pwm_frequency_hz=[{FREQ_HZ}],
-                                 supply_pressure_pa=[{P_SUP_PA}], n_periods=2,
-                                 validate=False)
-        print(res.position_avg_m.shape[1])
+        res = simulate_trace_batch(P, InputTrace.pwm_commands([0.0], {DUTY}, {FREQ_HZ}),
+                                   None, electronics=E, supply_pressure_pa={P_SUP_PA},
+                                   n_periods=2, validate=False)
+        print(res.period_avg_position_m.shape[1], int(res.n_forced_steps[0]))
         s = ValveStepper(P, E)
         s.set_pressures({P_SUP_PA}, 0.0)
         s.set_command({DUTY}, {FREQ_HZ})
         s.advance_to(0.02)
-        print(repr(s.t_s), int(s._d[K.D_N_FORCED]))
+        print(repr(s.t_s))
         # neighbours: duties within 1e-4 of it, 1-3 bar, 200 and 100 Hz
         duty = np.repeat(np.linspace({DUTY} - 1e-4, {DUTY} + 1e-4, 21), 6)
         freq = np.tile(np.repeat([200.0, 100.0], 3), 21)
         p_sup = np.tile([1e5, 2e5, 3e5], 42)
-        res = simulate_pwm_batch(P, E, duty=duty, pwm_frequency_hz=freq,
-                                 supply_pressure_pa=p_sup, n_periods=4, validate=False)
-        print(int(np.isfinite(res.position_avg_m).all()))
+        traces = [InputTrace.pwm_commands([0.0], d, f) for d, f in zip(duty, freq)]
+        res = simulate_trace_batch(P, traces, None, electronics=E, supply_pressure_pa=p_sup,
+                                   n_periods=4, validate=False)
+        print(int(np.isfinite(res.period_avg_position_m).all()),
+              int(res.n_forced_steps.max()))
     ''')
-    assert words == ['2', '0.02', '0', '1']
+    assert words == ['2', '0', '0.02', '1', '0']
 
 
 def test_stall_guard_breaks_the_original_loop() -> None:
     """With the fix switched off the same state loops; the guard forces progress.
 
     ``_advance.py_func`` runs the kernel's loop as plain Python (the constant is frozen in
-    the compiled code), in a subprocess in case the guard ever fails.
+    the compiled code), in a subprocess in case the guard ever fails. The state is the
+    one ``ValveStepper`` starts from (``kernel.new_drive_state``).
     """
     words = _run(f'''
         import numpy as np
-        from valve_model_pkg.model import ElectronicsConfig, ValveStepper, load_parameters
+        from valve_model_pkg.model import ElectronicsConfig, load_parameters
         from valve_model_pkg.model import kernel as K
-        s = ValveStepper(load_parameters(), ElectronicsConfig(), duty={DUTY},
-                         pwm_frequency_hz={FREQ_HZ}, supply_pressure_pa={P_SUP_PA})
-        s.advance_to(0.0065)  # compiled, to just before the falling edge at 6.559375 ms
+        p = K.derive_parameters(load_parameters().to_vector())
+        e = ElectronicsConfig().to_vector()
+        y = np.zeros(K.N_Y)
+        d = K.new_drive_state(24.0, {DUTY}, 1.0 / {FREQ_HZ}, 0.0, {P_SUP_PA})
+        K.advance(p, e, y, d, 0.0065)  # compiled, to just before the falling edge at 6.559375 ms
         K._HOLD_ON_RECROSS = False  # the behaviour before the fix
-        d = s._d
-        K._advance.py_func(s._p, s._e, s._y, d, 0.007, K.DEFAULT_H_FREE_S,
+        K._advance.py_func(p, e, y, d, 0.007, K.DEFAULT_H_FREE_S,
                            K.DEFAULT_H_STOP_S, np.zeros((0, K.N_OUT)), np.zeros(0))
-        print(repr(float(d[K.D_T])), int(d[K.D_N_FORCED] >= 1), repr(float(s._y[K.Y_X])))
+        print(repr(float(d[K.D_T])), int(d[K.D_N_FORCED] >= 1), repr(float(y[K.Y_X])))
     ''')
     assert words == ['0.007', '1', '0.0']  # the spool stayed closed, as with the fix
 

@@ -35,8 +35,8 @@ def test_stepper_matches_offline_simulation() -> None:
         cur.append(smp.coil_current_a)
         pos.append(smp.spool_position_m)
     # chunked integration lands on the same edges: identical up to rounding
-    np.testing.assert_allclose(cur, res.current_a, atol=1e-6)
-    np.testing.assert_allclose(pos, res.position_m, atol=1e-9)
+    np.testing.assert_allclose(cur, res.coil_current_a, atol=1e-6)
+    np.testing.assert_allclose(pos, res.spool_position_m, atol=1e-9)
     smp = s.sample()
     assert smp.position_avg_m == pytest.approx(res.period_avg_position_m[-1], rel=1e-6)
     assert smp.mass_flow_kg_s == pytest.approx(

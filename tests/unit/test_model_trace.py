@@ -6,24 +6,23 @@ import pytest
 
 from valve_model_pkg.model import (
     ElectronicsConfig, InputTrace, ParameterError, ValveParameters, ValveStepper,
-    last_period_mean, period_averages, simulate_pwm, simulate_step_batch, simulate_trace_batch,
+    last_period_mean, period_averages, simulate_pwm, simulate_trace_batch,
 )
 
 P = ValveParameters()
 
 
 def test_coil_voltage_trace_is_the_models_step_response() -> None:
-    """A bare-coil step as a trace = simulate_step_batch (the edge is applied 3 ps early,
-    so a sample on it sees the new voltage: 400 A/s x 3 ps = 1.2e-9 A)."""
+    """A bare-coil step as a coil-voltage trace = the step input (a trace applies the edge
+    3 ps early, so a sample on it sees the new voltage: 400 A/s x 3 ps = 1.2e-9 A)."""
     rate = 50e3
     t = np.arange(501) / rate
     mat = np.array([P.to_vector(), P.replace(eddy_conductance_s=0.004,
                                              coulomb_friction_n=1.0).to_vector()])
     res = simulate_trace_batch(mat, InputTrace.coil_voltage([0.0, 1e-3], [0.0, 24.0]), t)
-    ref = simulate_step_batch(mat, 24.0, duration_s=t[-1], sample_rate_hz=rate,
-                              step_time_s=1e-3)
-    np.testing.assert_allclose(res.coil_current_a, ref.current_a, rtol=0, atol=1e-8)
-    np.testing.assert_allclose(res.spool_position_m, ref.position_m, rtol=0, atol=1e-11)
+    ref = simulate_trace_batch(mat, InputTrace.step(24.0, step_time_s=1e-3), t)
+    np.testing.assert_allclose(res.coil_current_a, ref.coil_current_a, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(res.spool_position_m, ref.spool_position_m, rtol=0, atol=1e-11)
     assert res.coil_voltage_v[0, 0] == 0.0 and res.coil_voltage_v[0, -1] == 24.0
     assert res.sampling == 'instant' and res.n_steps.shape == (2,)
 
@@ -33,9 +32,10 @@ def test_pwm_command_trace_is_simulate_pwm() -> None:
     ref = simulate_pwm(P, duty=0.4, pwm_frequency_hz=50.0, duration_s=0.05,
                        sample_rate_hz=20e3)
     res = simulate_trace_batch(P, InputTrace.pwm_commands([0.0], 0.4, 50.0, 24.0), ref.t_s)
-    np.testing.assert_allclose(res.coil_current_a[0], ref.current_a, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(res.spool_position_m[0], ref.position_m, rtol=0, atol=1e-15)
-    np.testing.assert_allclose(res.coil_voltage_v[0], ref.voltage_v, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(res.coil_current_a[0], ref.coil_current_a, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(res.spool_position_m[0], ref.spool_position_m, rtol=0,
+                               atol=1e-15)
+    np.testing.assert_allclose(res.coil_voltage_v[0], ref.coil_voltage_v, rtol=0, atol=1e-12)
 
 
 def test_command_changes_follow_the_stepper() -> None:
@@ -66,8 +66,8 @@ def test_interval_means_are_the_means_over_each_sample_interval() -> None:
     assert res.sampling == 'interval_mean'
     for k, tk in enumerate(t):
         sel = (fine.t_s >= tk - 1e-3 - 1e-12) & (fine.t_s <= tk + 1e-12)
-        for got, sig, tol in ((res.coil_current_a, fine.current_a, 2e-4),
-                              (res.spool_position_m, fine.position_m, 1e-8)):
+        for got, sig, tol in ((res.coil_current_a, fine.coil_current_a, 2e-4),
+                              (res.spool_position_m, fine.spool_position_m, 1e-8)):
             mean = np.trapezoid(sig[sel], fine.t_s[sel]) / 1e-3
             assert got[0, k] == pytest.approx(mean, abs=tol)
     inst = simulate_trace_batch(P, InputTrace.pwm_commands([0.0], 0.4, 50.0), t)
@@ -114,8 +114,8 @@ def test_last_period_mean_is_the_streaming_definition() -> None:
     """last_period_mean (offline) holds the period means and is 0 in the first period."""
     res = simulate_pwm(P, duty=0.4, pwm_frequency_hz=50.0, duration_s=0.07,
                        sample_rate_hz=20e3)
-    held = last_period_mean(res.t_s, res.position_m, 0.02)
-    ends, means = period_averages(res.t_s, res.position_m, 0.02)
+    held = last_period_mean(res.t_s, res.spool_position_m, 0.02)
+    ends, means = period_averages(res.t_s, res.spool_position_m, 0.02)
     assert np.all(held[res.t_s < 0.02 - 1e-9] == 0.0)
     assert held[-1] == means[-1]
     # SimulationResult.position_avg_m is the same definition from the kernel's exact means

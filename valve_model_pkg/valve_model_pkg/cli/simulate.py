@@ -109,27 +109,29 @@ def main_pwm_voltage(result: SimulationResult) -> np.ndarray:
 
     The first period starts with a rising edge at t = 0 (as :func:`simulate_pwm` drives it).
     """
-    period = 1.0 / result.pwm_frequency_hz
+    trace = result.trace
+    period = 1.0 / trace.pwm_frequency_hz[0]
     phase = np.mod(result.t_s, period)
     # a sample a rounding error short of the next rising edge belongs to that edge
     phase[period - phase < 1e-9 * period] = 0.0
-    return np.where(phase < result.duty * period, result.supply_voltage_v, 0.0)
+    return np.where(phase < trace.duty[0] * period, trace.supply_voltage_v[0], 0.0)
 
 
 def write_csv(path: Path, result: SimulationResult, metadata: dict[str, object]) -> None:
     """Write ``result`` as a file of the measured-data format (metadata, header, rows)."""
-    if result.experiment == 'pwm':
-        position_avg = last_period_mean(result.t_s, result.position_m,
-                                        1.0 / result.pwm_frequency_hz)
+    if result.trace.kind == 'pwm_commands':
+        position_avg = last_period_mean(result.t_s, result.spool_position_m,
+                                        1.0 / result.trace.pwm_frequency_hz[0])
         columns = {
             't': result.t_s, 'voltage': main_pwm_voltage(result),
-            'coil_voltage': result.voltage_v, 'current': result.current_a,
-            'position': result.position_m, 'duty': np.full_like(result.t_s, result.duty),
+            'coil_voltage': result.coil_voltage_v, 'current': result.coil_current_a,
+            'position': result.spool_position_m,
+            'duty': np.full_like(result.t_s, result.trace.duty[0]),
             'mass_flow': orifice_mass_flow(position_avg, result.supply_pressure_pa,
                                            result.output_pressure_pa, result.params)}
     else:
-        columns = {'t': result.t_s, 'voltage': result.voltage_v, 'current': result.current_a,
-                   'position': result.position_m}
+        columns = {'t': result.t_s, 'voltage': result.coil_voltage_v,
+                   'current': result.coil_current_a, 'position': result.spool_position_m}
     dataformat.write_table(path, metadata, columns)
 
 
@@ -141,19 +143,21 @@ def write_png(path: Path, result: SimulationResult, title: str) -> None:
 
     t_ms = result.t_s * 1e3
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(8, 7))
-    if result.experiment == 'pwm':
+    pwm = result.trace.kind == 'pwm_commands'
+    if pwm:
         axes[0].plot(t_ms, main_pwm_voltage(result), lw=0.8, color='grey',
                      label='main PWM input')
-        axes[0].plot(t_ms, result.voltage_v, lw=0.8, label='coil')
+        axes[0].plot(t_ms, result.coil_voltage_v, lw=0.8, label='coil')
         axes[0].legend(loc='upper right', fontsize=8)
     else:
-        axes[0].plot(t_ms, result.voltage_v, lw=0.8)
+        axes[0].plot(t_ms, result.coil_voltage_v, lw=0.8)
     axes[0].set_ylabel('voltage (V)')
-    axes[1].plot(t_ms, result.current_a, lw=0.8, color='C1')
+    axes[1].plot(t_ms, result.coil_current_a, lw=0.8, color='C1')
     axes[1].set_ylabel('current (A)')
-    axes[2].plot(t_ms, result.position_m * 1e3, lw=0.8, color='C2', label='position')
-    if result.experiment == 'pwm':
-        avg = last_period_mean(result.t_s, result.position_m, 1.0 / result.pwm_frequency_hz)
+    axes[2].plot(t_ms, result.spool_position_m * 1e3, lw=0.8, color='C2', label='position')
+    if pwm:
+        avg = last_period_mean(result.t_s, result.spool_position_m,
+                               1.0 / result.trace.pwm_frequency_hz[0])
         axes[2].plot(t_ms, avg * 1e3, lw=1.0, color='C3', ls='--',
                      label='mean over the last complete PWM period')
         axes[2].legend(loc='upper right', fontsize=8)

@@ -1,12 +1,12 @@
-"""Measurements -> the model's general entry point (:func:`model.simulate_trace_batch`).
+"""Measurements -> the model's one simulation entry (:func:`model.simulate_trace_batch`).
 
 The identification simulates a whole matrix of parameter vectors under a *measured* coil
 voltage (a pulse, a PWM train, a bench's own waveform), sampled at the measurement's own
 times. The model offers exactly that (:func:`valve_model_pkg.model.simulate_trace_batch`
 with :meth:`~valve_model_pkg.model.InputTrace.coil_voltage`, the bare coil); this module
 only turns a :class:`Measurement` into that call, once per file (:func:`prepare_trace`),
-so the identification simulates exactly the model that ``valve_simulate`` and
-``valve_map`` use.
+and simulates it (:func:`simulate_measurement`), so the identification simulates exactly
+the model that ``valve_simulate`` and ``valve_map`` use.
 
 The measured voltage is read as a zero-order hold: sample ``k``'s value applies from
 ``t[k]`` to ``t[k+1]``. Consecutive samples within a tolerance (0.5 % of the largest
@@ -24,12 +24,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model import (DEFAULT_H_FREE_S, DEFAULT_H_STOP_S, PARAMETER_FIELDS,
-                     ElectronicsConfig, InputTrace,
-                     simulate_trace_batch as simulate_model_trace_batch)
+                     ElectronicsConfig, InputTrace, simulate_trace_batch)
 from ..errors import ModelAdapterError
 from .measurements import Measurement
 
-__all__ = ['TraceSetup', 'prepare_trace', 'simulate_trace_batch', 'FIELD_INDEX']
+__all__ = ['TraceSetup', 'prepare_trace', 'simulate_measurement', 'FIELD_INDEX']
 
 #: Column of each ValveParameters field in a raw parameter matrix.
 FIELD_INDEX = {name: i for i, name in enumerate(PARAMETER_FIELDS)}
@@ -107,7 +106,7 @@ def _segments(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
                   keep: np.ndarray | None = None) -> TraceSetup:
-    """Prepare a measurement for :func:`simulate_trace_batch`.
+    """Prepare a measurement for :func:`simulate_measurement`.
 
     Parameters
     ----------
@@ -173,11 +172,11 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
                       h_stop_s=float(h_stop_s))
 
 
-def simulate_trace_batch(raw: np.ndarray, setup: TraceSetup, *,
+def simulate_measurement(raw: np.ndarray, setup: TraceSetup, *,
                          h_free_s: float = DEFAULT_H_FREE_S, parallel: bool = True,
                          electronics: ElectronicsConfig | None = None
                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Simulate many parameter vectors under one measured voltage trace.
+    """Simulate many parameter vectors under one measurement (its voltage or commands).
 
     Parameters
     ----------
@@ -205,21 +204,21 @@ def simulate_trace_batch(raw: np.ndarray, setup: TraceSetup, *,
             f'{len(PARAMETER_FIELDS)} fields')
     n = raw.shape[0]
     if setup.drive is not None:
-        res = simulate_model_trace_batch(
+        res = simulate_trace_batch(
             raw, setup.drive, setup.t_s, electronics=electronics or ElectronicsConfig(),
             sampling=setup.sampling, supply_pressure_pa=setup.supply_pressure_pa,
             output_pressure_pa=setup.output_pressure_pa, h_free_s=float(h_free_s),
             h_stop_s=setup.h_stop_s, validate=False, parallel=parallel)
         return res.coil_current_a, res.spool_position_m
     if setup.n_grid == 0:
-        res = simulate_model_trace_batch(
+        res = simulate_trace_batch(
             raw, InputTrace.coil_voltage(setup.seg_t0_s, setup.seg_v), setup.t_s,
             supply_pressure_pa=setup.supply_pressure_pa,
             output_pressure_pa=setup.output_pressure_pa, h_free_s=float(h_free_s),
             h_stop_s=setup.h_stop_s, validate=False, parallel=parallel)
         return res.coil_current_a, res.spool_position_m
     grid = setup.grid_t0_s + setup.grid_dt_s * np.arange(setup.n_grid)
-    res = simulate_model_trace_batch(
+    res = simulate_trace_batch(
         raw, InputTrace.coil_voltage(setup.seg_t0_s, setup.seg_v), grid,
         supply_pressure_pa=setup.supply_pressure_pa,
         output_pressure_pa=setup.output_pressure_pa, h_free_s=float(h_free_s),

@@ -24,11 +24,11 @@ from typing import Sequence
 import numpy as np
 
 from ..model import ElectronicsConfig
-from ..model.trace import PARALLEL_MIN_BATCH
+from ..model import PARALLEL_MIN_BATCH
 from ..model.parameters import EFFECTS, ValveParameters
 from ..errors import IdentificationError
 from .measurements import Measurement
-from .model_adapter import FIELD_INDEX, TraceSetup, prepare_trace, simulate_trace_batch
+from .model_adapter import FIELD_INDEX, TraceSetup, prepare_trace, simulate_measurement
 
 __all__ = [
     'IDENTIFIED_FIELDS',
@@ -382,7 +382,7 @@ class FitData:
         """A view on the same data whose simulations stay on the calling thread.
 
         For running several searches in Python threads at once (see
-        :func:`model_adapter.simulate_trace_batch`).
+        :func:`model_adapter.simulate_measurement`).
         """
         view = copy.copy(self)
         view.parallel = False
@@ -396,7 +396,7 @@ class FitData:
         """Simulated (current, position) of each file, each of shape (m, n_samples)."""
         raw = np.atleast_2d(raw)
         self._count[0] += raw.shape[0] * len(self.setups)
-        return [simulate_trace_batch(raw, s, parallel=self.parallel,
+        return [simulate_measurement(raw, s, parallel=self.parallel,
                                      electronics=self.electronics) for s in self.setups]
 
     def at_bound(self, space: 'ParameterSpace', params: ValveParameters,
@@ -419,7 +419,7 @@ class FitData:
         total = np.zeros(raw.shape[0])
         for m, setup, w, T in zip(self.measurements, self.setups, self.weights,
                                   self.durations):
-            cur, _ = simulate_trace_batch(raw, setup, parallel=self.parallel,
+            cur, _ = simulate_measurement(raw, setup, parallel=self.parallel,
                                           electronics=self.electronics)
             err = np.abs(np.where(np.isfinite(m.current_a), m.current_a, 0.0)[None, :] - cur)
             err[~np.isfinite(err)] = np.inf

@@ -4,9 +4,10 @@ Every grid point (duty, supply pressure, PWM frequency) is simulated with the fu
 drive electronics on, from a closed valve at rest, until its period averages meet the
 periodic-steady-state criterion of :mod:`.steady_state`. Each point is simulated with the
 model's streaming API one PWM period at a time and stopped as soon as it is steady, so it
-costs exactly the periods it needs (the model's batch API, ``simulate_pwm_batch``, cannot
-continue a run: a steady-state search on it has to restart longer runs from the beginning,
-which simulated 1.6-2.2 times the needed periods on this grid and was slower). The points
+costs exactly the periods it needs (the model's batch period means,
+``simulate_trace_batch(..., n_periods=n)``, cannot continue a run: a steady-state search
+on them restarts longer runs from the beginning, 1.6-2.2 times the needed periods on this
+grid). The points
 are spread over one worker process per core (:mod:`.worker`); a worker is restarted if a
 model call never returns, so a model fault cannot hang the generator; such events are
 noted in the file.

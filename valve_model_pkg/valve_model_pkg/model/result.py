@@ -132,20 +132,20 @@ class SimulationResult:
     def _trace_of(self, r: int) -> InputTrace:
         return self.trace[r] if isinstance(self.trace, tuple) else self.trace
 
-    def _per_run(self, value: np.ndarray | None, r: int) -> np.ndarray | None:
-        if value is None or not self.is_batch:
+    def _periods_of(self, value: np.ndarray | None, r: int | None) -> np.ndarray | None:
+        """A period array of run ``r`` of a batch, without its NaN padding."""
+        if value is None or r is None:
             return value
-        if value.ndim == 2:  # period arrays: without the NaN padding
-            return value[r][np.isfinite(self.period_end_s[r])]
-        return value[r]
+        return value[r][np.isfinite(self.period_end_s[r])]
 
     def _position_avg_rows(self) -> list[np.ndarray]:
-        runs = range(self.n_runs) if self.is_batch else [None]
-        return [_position_avg(self.t_s, self._per_run(self.spool_position_m, r),
-                              self._trace_of(r) if self.is_batch else self.trace,
-                              self._per_run(self.period_end_s, r),
-                              self._per_run(self.period_avg_position_m, r))
-                for r in runs]
+        if not self.is_batch:
+            return [_position_avg(self.t_s, self.spool_position_m, self.trace,
+                                  self.period_end_s, self.period_avg_position_m)]
+        return [_position_avg(self.t_s, self.spool_position_m[r], self._trace_of(r),
+                              self._periods_of(self.period_end_s, r),
+                              self._periods_of(self.period_avg_position_m, r))
+                for r in range(self.n_runs)]
 
     @property
     def position_avg_m(self) -> np.ndarray:
@@ -178,7 +178,7 @@ class SimulationResult:
             raise ParameterError('steady_position_m needs the period means: simulate '
                                  'with n_periods')
         runs = range(self.n_runs) if self.is_batch else [None]
-        rows = [self._per_run(self.period_avg_position_m, r) for r in runs]
+        rows = [self._periods_of(self.period_avg_position_m, r) for r in runs]
         last = [float(row[-1]) if row.size else np.nan for row in rows]
         return np.array(last) if self.is_batch else last[0]
 
