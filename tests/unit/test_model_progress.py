@@ -1,13 +1,14 @@
-"""The kernel always advances time: regression for the endless release/impact loop.
+"""The kernel always advances time, also where a release and an impact fall on one instant.
 
 At 200 Hz, duty 0.311875, 2 bar the falling edge of the second period (t = 6.559375 ms,
 i = 0.5007 A) finds the spool on the closed stop with a force margin of +0.15 mN. The
-kernel released it; the capacitor pulse makes the force fall at once, so the first free
+kernel releases it; the capacitor pulse makes the force fall at once, so the first free
 step ends below the stop and the Hermite interpolant puts the impact at the step start
-(the real lift, 4e-19 m for 32 ns, is far below its resolution). The spool went back on
-the stop at the same instant with the margin unchanged, and this repeated forever. The
-runs that could hang run in a subprocess with a timeout, so a regression fails the test
-instead of hanging pytest.
+(the real lift, 4e-19 m for 32 ns, is far below its resolution). A spool that re-crosses
+its stop at the instant it left it is held there (``kernel._HOLD_ON_RECROSS``), and a
+no-progress guard forces a step if events keep falling on one instant. Runs that could
+loop run in a subprocess with a timeout, so a loop fails the test instead of hanging
+pytest.
 """
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ def _run(code: str) -> list[str]:
 
 
 def test_falling_edge_with_just_positive_margin_returns() -> None:
-    """The maps engineer's reproduction, period batch and stepper, and points around it."""
+    """The case above as a period batch and on the stepper, and points around it."""
     words = _run(f'''
         import numpy as np
         from valve_model_pkg.model import (ElectronicsConfig, InputTrace, ValveStepper,
@@ -65,7 +66,7 @@ def test_falling_edge_with_just_positive_margin_returns() -> None:
 
 
 def test_stall_guard_breaks_the_original_loop() -> None:
-    """With the fix switched off the same state loops; the guard forces progress.
+    """Without holding the re-crossing spool the same state loops; the guard forces progress.
 
     ``_advance.py_func`` runs the kernel's loop as plain Python (the constant is frozen in
     the compiled code), in a subprocess in case the guard ever fails. The state is the
@@ -80,12 +81,12 @@ def test_stall_guard_breaks_the_original_loop() -> None:
         y = np.zeros(K.N_Y)
         d = K.new_drive_state(24.0, {DUTY}, 1.0 / {FREQ_HZ}, 0.0, {P_SUP_PA})
         K.advance(p, e, y, d, 0.0065)  # compiled, to just before the falling edge at 6.559375 ms
-        K._HOLD_ON_RECROSS = False  # the behaviour before the fix
+        K._HOLD_ON_RECROSS = False  # let the spool leave again at the same instant
         K._advance.py_func(p, e, y, d, 0.007, K.DEFAULT_H_FREE_S,
                            K.DEFAULT_H_STOP_S, np.zeros((0, K.N_OUT)), np.zeros(0))
         print(repr(float(d[K.D_T])), int(d[K.D_N_FORCED] >= 1), repr(float(y[K.Y_X])))
     ''')
-    assert words == ['0.007', '1', '0.0']  # the spool stayed closed, as with the fix
+    assert words == ['0.007', '1', '0.0']  # the spool stays closed, as when it is held
 
 
 def test_event_storm_below_the_time_resolution_cannot_hang() -> None:

@@ -105,7 +105,7 @@ EFFECTS: dict[str, EffectSpec] = {
         'coefficient of restitution at both end stops (0 = plastic stop, the paper)'),
 }
 
-#: Effect forms of the emulated valve only (issue 13 item 6), written independently of
+#: Effect forms of the emulated valve only, written independently of
 #: the identification's candidates in :data:`EFFECTS`: a valve emulated with one of these
 #: is not the candidate's own equation, so a loop test that names the right effect is not
 #: circular. They are NOT candidates of the identification (``diagnosis`` iterates

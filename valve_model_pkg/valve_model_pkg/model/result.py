@@ -18,8 +18,7 @@ from .orifice import orifice_mass_flow
 from .parameters import ParameterError, ValveParameters
 from .trace import InputTrace
 
-__all__ = ['SimulationResult', 'StepMetrics', 'step_metrics', 'closing_time',
-           'STEP_AVERAGE_WINDOW_S']
+__all__ = ['SimulationResult', 'StepMetrics', 'step_metrics', 'closing_time']
 
 #: Window of the trailing moving average of the position of an input without a main PWM
 #: period (a step, a coil-voltage trace), s.

@@ -32,10 +32,7 @@ import numpy as np
 
 from .parameters import ParameterError
 
-__all__ = ['InputTrace', 'TRACE_KINDS']
-
-#: The forms of an :class:`InputTrace` (its ``kind``).
-TRACE_KINDS = ('coil_voltage', 'pwm_commands', 'step')
+__all__ = ['InputTrace']
 
 
 def _as_1d(name: str, value: float | np.ndarray, n: int) -> np.ndarray:

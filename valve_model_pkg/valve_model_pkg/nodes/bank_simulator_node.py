@@ -29,7 +29,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
@@ -49,6 +48,7 @@ from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, 
                                           TOPIC_SUPPLY_PRESSURE, DiagnosticLevel,
                                           StartupRefused, declare_bool, declare_float,
                                           gauge_from_absolute, key_values, run_node)
+from valve_model_pkg.nodes.tick_loop import TickLoop
 from valve_model_pkg.nodes.inputs import (InputGuard, SequenceTracker, pressure_reason,
                                           stamp_reason)
 
@@ -155,20 +155,12 @@ class ValveBankSimulatorNode(Node):
                                                DIAGNOSTICS_QOS)
 
         self._period_s = 1.0 / self._rate_hz
-        self._t0: Time | None = None          # ROS time at model time 0
-        self._last_now_ns: int | None = None
-        self._last_tick_wall: float | None = None
-        self._next_sample = 0             # index of the next sample-grid instant
-        self._late_samples = 0
-        self._ticks = 0
-        self._behind_ticks = 0
-        self._skipped_model_s = 0.0
-        self._last_behind_reason = ''
-        self._max_tick_compute_s = 0.0
-        self._window_start_wall = time.monotonic()
-        self._window_ticks = 0
-        self._achieved_rate_hz = 0.0
-
+        # the real-time rules (sample grid, bounded work, clock going backwards)
+        self._loop = TickLoop(self._period_s, self._max_advance_s,
+                              advance_to=self._bank.advance_to,
+                              publish=self._publish_states,
+                              restart=self._restart,
+                              samples_label='sample(s) of all valves')
         self.create_timer(self._period_s, self._on_tick)
         self.create_timer(diag_period, self._publish_summary)
         self.get_logger().info(
@@ -262,67 +254,20 @@ class ValveBankSimulatorNode(Node):
     def _on_tick(self) -> None:
         """Advance every valve to the clock, publishing each sample-grid instant passed.
 
-        The rules of ``valve_simulator._on_tick``, for all valves at once: one compiled
-        call advances the bank to each grid instant, one reads all states.
+        The rules of :class:`~valve_model_pkg.nodes.tick_loop.TickLoop`, for all valves at
+        once: one compiled call advances the bank to each grid instant, one reads all
+        states.
         """
-        wall_start = time.monotonic()
-        now = self.get_clock().now()
-        now_ns = now.nanoseconds
-        if now_ns == 0:  # use_sim_time and no /clock yet
-            return
-        if self._t0 is None or (self._last_now_ns is not None and now_ns < self._last_now_ns):
-            if self._t0 is not None:
-                self.get_logger().warning('clock went backwards; restarting the models')
-                self._bank.reset()
-            self._t0 = now
-            self._next_sample = 0
-        self._last_now_ns = now_ns
-        target_s = (now - self._t0).nanoseconds * 1e-9
+        reason = self._loop.tick(self.get_clock().now().nanoseconds)
+        if reason:
+            self._publish_diagnostics(DiagnosticLevel.WARN, 'fell behind: ' + reason)
 
-        behind_reasons = []
-        if self._last_tick_wall is not None:
-            gap = wall_start - self._last_tick_wall
-            if gap > 2.0 * self._period_s:
-                behind_reasons.append(f'tick came {gap * 1e3:.2f} ms after the previous one '
-                                      f'(period {self._period_s * 1e3:.3g} ms)')
-        self._last_tick_wall = wall_start
+    def _restart(self) -> None:
+        self.get_logger().warning('clock went backwards; restarting the models')
+        self._bank.reset()
 
-        lag = target_s - self._next_sample * self._period_s
-        if lag > self._max_advance_s:
-            skip = int((lag - self._max_advance_s) / self._period_s) + 1
-            skipped = skip * self._period_s
-            self._skipped_model_s += skipped
-            self._t0 = Time(nanoseconds=self._t0.nanoseconds + int(round(skipped * 1e9)),
-                            clock_type=self._t0.clock_type)
-            target_s -= skipped
-            behind_reasons.append(f'model {lag * 1e3:.1f} ms behind the clock; '
-                                  f'{skipped * 1e3:.1f} ms skipped without integration')
-        published = 0
-        while self._next_sample * self._period_s <= target_s + 1e-12:
-            t_sample = self._next_sample * self._period_s
-            self._bank.advance_to(t_sample)
-            stamp = Time(nanoseconds=self._t0.nanoseconds + int(round(t_sample * 1e9)),
-                         clock_type=self._t0.clock_type).to_msg()
-            self._publish_states(stamp)
-            self._next_sample += 1
-            published += 1
-        if published > 1:
-            self._late_samples += published - 1
-
-        compute = time.monotonic() - wall_start
-        self._max_tick_compute_s = max(self._max_tick_compute_s, compute)
-        if compute > self._period_s * max(1, published):
-            behind_reasons.append(f'tick took {compute * 1e3:.2f} ms for {published} '
-                                  'sample(s) of all valves, longer than their period')
-        self._ticks += 1
-        self._window_ticks += published
-        if behind_reasons:
-            self._behind_ticks += 1
-            self._last_behind_reason = '; '.join(behind_reasons)
-            self._publish_diagnostics(DiagnosticLevel.WARN,
-                                      'fell behind: ' + self._last_behind_reason)
-
-    def _publish_states(self, stamp) -> None:
+    def _publish_states(self, stamp_ns: int) -> None:
+        stamp = Time(nanoseconds=stamp_ns, clock_type=self.get_clock().clock_type).to_msg()
         # one compiled call for every valve's state; tolist() gives Python floats at once
         rows = self._bank.sample_array().tolist()
         source = ValveState.SOURCE_SIMULATOR
@@ -333,13 +278,9 @@ class ValveBankSimulatorNode(Node):
 
     # --- diagnostics ----------------------------------------------------------------------
     def _publish_summary(self) -> None:
-        wall = time.monotonic()
-        elapsed = wall - self._window_start_wall
-        if elapsed > 0:
-            self._achieved_rate_hz = self._window_ticks / elapsed
-        self._window_start_wall, self._window_ticks = wall, 0
+        self._loop.close_window()
         self._publish_diagnostics(None, '')
-        self._max_tick_compute_s = 0.0
+        self._loop.max_tick_compute_s = 0.0
 
     def _publish_diagnostics(self, level: int | None, text: str) -> None:
         """One status per valve; ``level`` None = the periodic summary (level per valve)."""
@@ -354,12 +295,12 @@ class ValveBankSimulatorNode(Node):
             status = DiagnosticStatus(level=lvl, name=f'{self.get_name()}: {v.name} real-time '
                                       'model', message=msg, hardware_id=v.name)
             status.values = key_values(
-                ticks=self._ticks, ticks_behind=self._behind_ticks,
-                late_samples=self._late_samples,
-                skipped_model_time_s=self._skipped_model_s,
-                achieved_rate_hz=self._achieved_rate_hz, target_rate_hz=self._rate_hz,
+                ticks=self._loop.ticks, ticks_behind=self._loop.behind_ticks,
+                late_samples=self._loop.late_samples,
+                skipped_model_time_s=self._loop.skipped_model_s,
+                achieved_rate_hz=self._loop.achieved_rate_hz, target_rate_hz=self._rate_hz,
                 samples_published=v.sequence,
-                max_tick_compute_s=self._max_tick_compute_s,
+                max_tick_compute_s=self._loop.max_tick_compute_s,
                 rejected_commands=v.inputs.total,
                 last_rejection=v.inputs.last_reason,
                 **v.commands.diagnostic_values('duty_commands'),
@@ -377,9 +318,9 @@ class ValveBankSimulatorNode(Node):
 
     def _summary(self, v: _Valve) -> tuple[int, str]:
         problems = []
-        if self._behind_ticks:
-            problems.append(f'{self._behind_ticks} tick(s) fell behind; last: '
-                            f'{self._last_behind_reason}')
+        if self._loop.behind_ticks:
+            problems.append(f'{self._loop.behind_ticks} tick(s) fell behind; last: '
+                            f'{self._loop.last_behind_reason}')
         if v.commands.lost:
             problems.append(f'{v.commands.lost} duty command(s) lost (sequence gaps)')
         if v.inputs.total:

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
@@ -40,6 +39,7 @@ from valve_model_pkg.model.aot import backend as kernel_backend
 from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS, forward_logging, state_message
 # The accepted PWM frequencies: one pair for simulator, CAN driver and DBC.
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
+from valve_model_pkg.nodes.tick_loop import TickLoop
 from valve_model_pkg.nodes.inputs import (InputGuard, SequenceTracker, pressure_reason,
                                           stamp_reason)
 from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, PRESSURE_QOS,
@@ -120,25 +120,16 @@ class ValveSimulatorNode(Node):
                                  PRESSURE_QOS)
 
         self._period_s = 1.0 / self._rate_hz
-        self._t0: Time | None = None          # ROS time at model time 0
-        self._last_now_ns: int | None = None
-        self._last_tick_wall: float | None = None
-        self._next_sample = 0             # index of the next sample-grid instant
-        self._late_samples = 0            # samples published by a tick after their time
+        # the real-time rules (sample grid, bounded work, clock going backwards)
+        self._loop = TickLoop(self._period_s, self._max_advance_s,
+                              advance_to=self._stepper.advance_to,
+                              publish=self._publish_state,
+                              restart=self._restart)
         self._sequence = 0
-        self._ticks = 0
-        self._behind_ticks = 0
-        self._skipped_model_s = 0.0
-        self._last_behind_reason = ''
         # Every message is checked; what is refused is counted per input and kind
         # (docs/safety.md, "Node inputs"), and the command stream by its sequence numbers.
         self._inputs = InputGuard(self.get_logger())
         self._commands = SequenceTracker()
-        self._max_tick_compute_s = 0.0
-        self._window_start_wall = time.monotonic()
-        self._window_ticks = 0
-        self._achieved_rate_hz = 0.0
-
         self.create_timer(self._period_s, self._on_tick)
         self.create_timer(diag_period, self._publish_summary)
         self.get_logger().info(
@@ -225,89 +216,33 @@ class ValveSimulatorNode(Node):
     def _on_tick(self) -> None:
         """Advance the model to the clock, publishing every sample-grid instant passed.
 
-        States are published on an exact grid of model time (one per 1/publish_rate_hz),
-        stamped with the ROS time of that instant. A tick that comes late publishes the
-        grid points it missed, so the stream stays complete and evenly stamped even when
-        the executor is held up; the late tick itself is reported in diagnostics.
+        The rules are :class:`~valve_model_pkg.nodes.tick_loop.TickLoop`'s; a tick that
+        fell behind is reported in diagnostics at once.
         """
-        wall_start = time.monotonic()
-        now = self.get_clock().now()
-        now_ns = now.nanoseconds
-        if now_ns == 0:  # use_sim_time and no /clock yet
-            return
-        if self._t0 is None or (self._last_now_ns is not None and now_ns < self._last_now_ns):
-            if self._t0 is not None:
-                self.get_logger().warning('clock went backwards; restarting the model')
-                self._stepper.reset()
-            self._t0 = now
-            self._next_sample = 0
-        self._last_now_ns = now_ns
-        target_s = (now - self._t0).nanoseconds * 1e-9
+        reason = self._loop.tick(self.get_clock().now().nanoseconds)
+        if reason:
+            self._publish_diagnostics(DiagnosticLevel.WARN, 'fell behind: ' + reason)
 
-        behind_reasons = []
-        if self._last_tick_wall is not None:
-            gap = wall_start - self._last_tick_wall
-            if gap > 2.0 * self._period_s:
-                behind_reasons.append(f'tick came {gap * 1e3:.2f} ms after the previous one '
-                                      f'(period {self._period_s * 1e3:.3g} ms)')
-        self._last_tick_wall = wall_start
+    def _restart(self) -> None:
+        self.get_logger().warning('clock went backwards; restarting the model')
+        self._stepper.reset()
 
-        lag = target_s - self._next_sample * self._period_s
-        if lag > self._max_advance_s:
-            # Bound the work of this callback: skip the grid points beyond max_advance and
-            # move the model on to the clock without integrating the gap.
-            skip = int((lag - self._max_advance_s) / self._period_s) + 1
-            skipped = skip * self._period_s
-            self._skipped_model_s += skipped
-            self._t0 = Time(nanoseconds=self._t0.nanoseconds + int(round(skipped * 1e9)),
-                            clock_type=self._t0.clock_type)
-            target_s -= skipped
-            behind_reasons.append(f'model {lag * 1e3:.1f} ms behind the clock; '
-                                  f'{skipped * 1e3:.1f} ms skipped without integration')
-        published = 0
-        while self._next_sample * self._period_s <= target_s + 1e-12:
-            t_sample = self._next_sample * self._period_s
-            self._stepper.advance_to(t_sample)
-            stamp = Time(nanoseconds=self._t0.nanoseconds + int(round(t_sample * 1e9)),
-                         clock_type=self._t0.clock_type)
-            self._publish_state(stamp)
-            self._next_sample += 1
-            published += 1
-        if published > 1:
-            self._late_samples += published - 1
-
-        compute = time.monotonic() - wall_start
-        self._max_tick_compute_s = max(self._max_tick_compute_s, compute)
-        if compute > self._period_s * max(1, published):
-            behind_reasons.append(f'tick took {compute * 1e3:.2f} ms for {published} '
-                                  'sample(s), longer than their period')
-        self._ticks += 1
-        self._window_ticks += published
-        if behind_reasons:
-            self._behind_ticks += 1
-            self._last_behind_reason = '; '.join(behind_reasons)
-            self._publish_diagnostics(DiagnosticLevel.WARN,
-                                      'fell behind: ' + self._last_behind_reason)
-
-    def _publish_state(self, now: Time) -> None:
+    def _publish_state(self, stamp_ns: int) -> None:
         s = self._stepper.sample()
-        msg = state_message(s, now.to_msg(), self._frame_id, self._sequence,
+        stamp = Time(nanoseconds=stamp_ns, clock_type=self.get_clock().clock_type)
+        msg = state_message(s, stamp.to_msg(), self._frame_id, self._sequence,
                             ValveState.SOURCE_SIMULATOR)
         self._sequence += 1
         self._state_pub.publish(msg)
 
     # --- diagnostics ----------------------------------------------------------------------
     def _publish_summary(self) -> None:
-        wall = time.monotonic()
-        elapsed = wall - self._window_start_wall
-        if elapsed > 0:
-            self._achieved_rate_hz = self._window_ticks / elapsed
-        self._window_start_wall, self._window_ticks = wall, 0
+        self._loop.close_window()
         level, text = DiagnosticLevel.OK, 'running in real time'
         problems = []
-        if self._behind_ticks:
-            problems.append(f'{self._behind_ticks} tick(s) fell behind; last: '
-                            f'{self._last_behind_reason}')
+        if self._loop.behind_ticks:
+            problems.append(f'{self._loop.behind_ticks} tick(s) fell behind; last: '
+                            f'{self._loop.last_behind_reason}')
         if self._commands.lost:
             problems.append(f'{self._commands.lost} duty command(s) lost (sequence gaps)')
         if self._inputs.total:
@@ -316,19 +251,19 @@ class ValveSimulatorNode(Node):
         if problems:
             level, text = DiagnosticLevel.WARN, '; '.join(problems)
         self._publish_diagnostics(level, text)
-        self._max_tick_compute_s = 0.0
+        self._loop.max_tick_compute_s = 0.0
 
     def _publish_diagnostics(self, level: int, text: str) -> None:
         s = self._stepper.sample()
         status = DiagnosticStatus(level=level, name=f'{self.get_name()}: real-time model',
                                   message=text, hardware_id=self._frame_id)
         status.values = key_values(
-            ticks=self._ticks, ticks_behind=self._behind_ticks,
-            late_samples=self._late_samples,
-            skipped_model_time_s=self._skipped_model_s,
-            achieved_rate_hz=self._achieved_rate_hz, target_rate_hz=self._rate_hz,
+            ticks=self._loop.ticks, ticks_behind=self._loop.behind_ticks,
+            late_samples=self._loop.late_samples,
+            skipped_model_time_s=self._loop.skipped_model_s,
+            achieved_rate_hz=self._loop.achieved_rate_hz, target_rate_hz=self._rate_hz,
             samples_published=self._sequence,
-            max_tick_compute_s=self._max_tick_compute_s,
+            max_tick_compute_s=self._loop.max_tick_compute_s,
             rejected_commands=self._inputs.total,
             last_rejection=self._inputs.last_reason,
             **self._commands.diagnostic_values('duty_commands'),
