@@ -1,8 +1,8 @@
 """Damaged bags: one line from the readers, and ``--recover`` keeps every intact chunk.
 
-Issue 11 item 7: a bag with 64 flipped bytes gave an OverflowError traceback in
-valve_identify and valve_report, and ``valve_recorder --recover`` stopped at the first
-damaged chunk, dropping the intact ones after it.
+A bag with 64 flipped bytes in a chunk is refused by valve_identify and valve_report with
+one line naming the bag (no traceback), and ``valve_recorder --recover`` keeps every
+intact chunk before and after the damaged one.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Bad measured-data files: a clear refusal at once, bounded memory (issue 11 item 7).
+"""Bad measured-data files: a clear refusal at once, bounded memory.
 
 A 1 GB file is refused before it is read (size limit, tested with a sparse file), a binary
 file at its first bytes, a time axis in ms, a current beyond the sensor's range and a
@@ -18,7 +18,7 @@ import pytest
 from valve_model_pkg import dataformat
 from valve_model_pkg.dataformat import DataFormatError, read_record
 from valve_model_pkg.errors import MeasurementFormatError
-from valve_model_pkg.identification.measurements import read_csv
+from valve_model_pkg.identification.csv_reader import read_csv
 
 HEAD = ('# experiment: step\n# supply_pressure_pa: 400000\n# sample_rate_hz: 50000\n'
         't,voltage,current\n')

@@ -102,7 +102,7 @@ def test_mcap_has_ros2_profile_schemas_and_channel_qos(tmp_path, store) -> None:
 
 
 def test_identification_reader_reads_a_recorded_bag(tmp_path, store) -> None:
-    from valve_model_pkg.identification.measurements import read_bag
+    from valve_model_pkg.identification.bag_reader import read_bag
     states, _ = _write_suite_bag(tmp_path / 'bag', store)
     m = read_bag(tmp_path / 'bag')
     assert m.n_samples == len(states)

@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s: %(message)s')
     from ..errors import IdentificationError, MeasurementFormatError
-    from ..identification.measurements import read_measurements
+    from ..identification.readers import read_measurements
     from ..identification.pipeline import IdentifySettings, identify
     from ..identification.report import write_report
     from ..model.parameters import ParameterError, load_parameters

@@ -27,7 +27,7 @@ from ..model import (DEFAULT_H_FREE_S, DEFAULT_H_STOP_S, PARAMETER_FIELDS,
                      ElectronicsConfig, InputTrace,
                      simulate_trace_batch as simulate_model_trace_batch)
 from ..errors import ModelAdapterError
-from .measurements import Measurement
+from .measurement import Measurement
 
 __all__ = ['TraceSetup', 'prepare_trace', 'simulate_trace_batch', 'FIELD_INDEX']
 

@@ -27,7 +27,7 @@ from ..model import ElectronicsConfig
 from ..model.trace import PARALLEL_MIN_BATCH
 from ..model.parameters import EFFECTS, ValveParameters
 from ..errors import IdentificationError
-from .measurements import Measurement
+from .measurement import Measurement
 from .model_adapter import FIELD_INDEX, TraceSetup, prepare_trace, simulate_trace_batch
 
 __all__ = [
