@@ -146,7 +146,7 @@ def test_limits_on_lines_columns_and_rows(tmp_path: Path, monkeypatch) -> None:
     many = _write(tmp_path, ','.join(f'c{i}' for i in range(2000)) + '\n', 'many.csv')
     with pytest.raises(DataFormatError, match='2000 columns'):
         read_record(many)
-    from valve_model_pkg.dataformat import csv as csv_module
+    from valve_model_pkg.dataformat import csv_format as csv_module
     monkeypatch.setattr(csv_module, 'MAX_ROWS', 30)
     with pytest.raises(DataFormatError, match='more than 30 data rows'):
         read_record(_write(tmp_path, HEAD + _rows(40), 'rows.csv'))

@@ -213,7 +213,7 @@ def test_the_writer_refuses_what_the_reader_would(tmp_path: Path, columns: dict,
 
 
 def test_the_format_is_named_never_by_a_machine_path() -> None:
-    for rel in ('dataformat/csv.py', 'dataformat/__init__.py', 'maps/flow_check.py',
+    for rel in ('dataformat/csv_format.py', 'dataformat/__init__.py', 'maps/flow_check.py',
                 'identification/csv_reader.py', 'cli/simulate.py', 'cli/flow_check.py',
                 'cli/identify.py'):
         text = (PKG / rel).read_text(encoding='utf-8')
