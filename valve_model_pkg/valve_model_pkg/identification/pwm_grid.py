@@ -144,8 +144,8 @@ def drive_from_in_force(t: np.ndarray, duty: np.ndarray, freq: np.ndarray, suppl
         if on_samples:
             # The period grid lies on the sample instants: the controller acts on its own
             # telemetry grid (the emulator in lockstep does), so a switch-off seen in an
-            # interval acted at its start (mid-interval put 0.5 ms of supply too much on
-            # the coil: 86 mA at a switch-off of a CAN demo bag).
+            # interval acted at its start (its middle would put half an interval of supply
+            # too much on the coil).
             t_off = t[offs - 1].astype(float)
             where = 'at the start of the interval in which they were seen (the period grid ' \
                 'lies on the sample instants)'
@@ -160,7 +160,19 @@ def drive_from_in_force(t: np.ndarray, duty: np.ndarray, freq: np.ndarray, suppl
 
 def drive_from_main_pwm(t: np.ndarray, v: np.ndarray, supply_v: float,
                         freq_hz: float | None) -> DriveInput:
-    """Commands of a bench ``pwm`` record from its main PWM voltage column (its edges)."""
+    """Commands of a bench ``pwm`` record from its main PWM voltage column (its edges).
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Sample times [s].
+    v : numpy.ndarray, shape (n,)
+        Main PWM voltage [V]; high above half its maximum.
+    supply_v : float
+        Drive supply voltage [V].
+    freq_hz : float or None
+        Main PWM frequency [Hz] for the last period (else taken from its edges).
+    """
     on = v > 0.5 * float(np.max(v))
     rise = np.flatnonzero(on & ~np.concatenate(([False], on[:-1])))
     fall = np.flatnonzero(~on & np.concatenate(([False], on[:-1])))
