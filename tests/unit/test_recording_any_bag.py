@@ -19,7 +19,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from suite_bags import header, write_rosbag2
 from valve_model_pkg.errors import BagFormatError, UnknownMessageTypeError
 from valve_model_pkg.recording import (FieldSpec, bag_info, load_bag, load_bag_contents,
-                                       read_fields, reindex)
+                                       read_fields, reindex_bag)
 from valve_model_pkg.recording.reindex import storage_files
 
 # lark (used by mcap-ros2-support to parse .msg) imports deprecated sre modules
@@ -133,7 +133,7 @@ def test_a_bag_without_metadata_is_reindexed_in_memory_and_left_untouched(
     shutil.copytree(whole, bag)
     (bag / 'metadata.yaml').unlink()
     before = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in bag.iterdir()}
-    index = reindex(bag)
+    index = reindex_bag(bag)
     _check_contents(bag, load_bag(bag))
     info = bag_info(bag)
     after = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in bag.iterdir()}

@@ -23,7 +23,7 @@ from .fields import FieldRecord, FieldSeries, FieldSpec, read_fields
 from .qos import make_qos, qos_summary, reliable_qos
 from .reader import BagContents, bag_info, is_complete_bag, load_bag, load_bag_contents
 from .recovery import McapScanner, RecoveryReport, ScanReport, recover_bag
-from .reindex import BagIndex, reindex
+from .reindex import BagIndex, reindex_bag
 from .topics import DEFAULT_TOPICS, SUITE_TOPICS, parse_topic_spec
 from .typestore import (TypeDefinition, build_typestore, ensure_type, msgdef_and_hash,
                         typestore_for_bag)
@@ -36,6 +36,6 @@ __all__ = [
     'TopicData', 'TypeDefinition', 'UnknownMessageTypeError', 'WriterStats', 'absolute_topic',
     'bag_info', 'build_typestore', 'ensure_type', 'is_complete_bag', 'load_bag',
     'load_bag_contents', 'make_qos', 'msgdef_and_hash', 'parse_topic_spec', 'qos_summary',
-    'read_fields', 'recover_bag', 'reindex', 'reliable_qos', 'sequence_gaps',
+    'read_fields', 'recover_bag', 'reindex_bag', 'reliable_qos', 'sequence_gaps',
     'typestore_for_bag',
 ]

@@ -26,7 +26,7 @@ from rosbags.typesys.store import Typestore
 from ..errors import BagFormatError
 from .arrays import TopicAccumulator, TopicData, sequence_gaps
 from .qos import qos_summary
-from .reindex import decompress_message, reindex, storage_messages
+from .reindex import decompress_message, reindex_bag, storage_messages
 from .typestore import TypeDefinition, typestore_for_bag
 
 __all__ = ['BagContents', 'TopicData', 'bag_info', 'is_complete_bag', 'load_bag',
@@ -278,7 +278,7 @@ def bag_info(path: str | Path) -> str:
 
 def _reindexed_info(path: Path) -> str:
     """``bag_info`` of a bag without ``metadata.yaml``, from its in-memory index."""
-    index = reindex(path)
+    index = reindex_bag(path)
     if len(index.scans) == 1 and len(index.files) == 1:
         rep = index.scans[0]
         lines = [f'File:              {rep.path} (no metadata.yaml: '

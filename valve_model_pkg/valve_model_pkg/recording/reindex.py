@@ -32,7 +32,7 @@ from .recovery import McapChannel, McapMessage, McapScanner, McapSchema, ScanRep
 from .typestore import TypeDefinition
 
 __all__ = ['BagIndex', 'IndexedMessage', 'TopicIndex', 'ZSTD_MAGIC', 'decompress_message',
-           'reindex', 'storage_files', 'storage_messages']
+           'reindex_bag', 'storage_files', 'storage_messages']
 
 #: First bytes of a zstd frame (RFC 8878); a CDR payload starts with a zero byte.
 ZSTD_MAGIC = b'\x28\xb5\x2f\xfd'
@@ -293,7 +293,7 @@ def storage_messages(path: Path, stack: ExitStack) -> tuple[BagIndex, Iterator[I
     return index, iter(_MessageStream(index, stack))
 
 
-def reindex(path: str | Path) -> BagIndex:
+def reindex_bag(path: str | Path) -> BagIndex:
     """Index a bag directory without ``metadata.yaml`` in memory (nothing is written).
 
     Parameters
