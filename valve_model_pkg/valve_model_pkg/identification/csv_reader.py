@@ -20,7 +20,8 @@ import numpy as np
 from valve_model_pkg import dataformat
 
 from ..errors import MeasurementFormatError
-from .measurement import (MIN_SAMPLES, Measurement, check_excitation, median_pressure)
+from .measurement import (MIN_SAMPLES, DriveInput, Measurement, check_excitation,
+                          median_pressure)
 from .pwm_grid import discard_for, drive_from_in_force, drive_from_main_pwm
 
 __all__ = ['read_csv', 'read_operation_csv', 'write_csv']
@@ -86,36 +87,7 @@ def read_csv(path: str | Path) -> Measurement:
     sampling = ('interval_mean' if record.metadata.get('current_averaging') == 'interval_mean'
                 else 'instant')
     if record.experiment == 'pwm':
-        # A pwm record's 'voltage' is the main PWM input to the drive electronics. With a
-        # coil_voltage column that resolves the chopper, the bare coil is driven by it;
-        # otherwise the model runs the drive electronics from the main PWM.
-        coil = record.coil_voltage_v
-        use_coil = coil is not None and bool(np.all(np.isfinite(coil)))
-        if use_coil and _chopper_unresolved(coil, voltage):
-            use_coil = False
-            notes.append('coil_voltage toggles faster than its samples resolve (the 20 kHz '
-                         'current chopper): not used as a bare-coil input; the model runs '
-                         'the drive electronics from the main PWM column instead')
-        elif coil is not None and not use_coil:
-            notes.append('coil_voltage has missing values: not used; the model runs the '
-                         'drive electronics from the main PWM column')
-        if use_coil:
-            voltage = coil
-            notes.append('pwm record: the bare coil model is driven by the measured '
-                         'coil_voltage column (chopper and release pulse included)')
-        else:
-            check_excitation(spath, voltage, record.line_numbers)
-            meta_v = record.metadata.get('supply_voltage_v')
-            supply_v = float(meta_v) if meta_v else float(np.max(voltage))
-            if not meta_v:
-                notes.append(f'no supply_voltage_v: the drive supply is taken as the main '
-                             f'PWM high level, {supply_v:.3g} V')
-            freq = record.metadata.get('pwm_frequency_hz')
-            drive = drive_from_main_pwm(record.t_s, voltage, supply_v,
-                                        float(freq) if freq else None)
-            notes.append(f'pwm record: the model runs the drive electronics (boost, current '
-                         f'chopper, release pulse) from the main PWM column at {supply_v:.3g} '
-                         'V supply')
+        voltage, drive = _pwm_input(spath, record, notes)
     elif record.experiment in ('step', 'unknown'):
         _refuse_pwm_in_step(spath, record.t_s, voltage, record.current_a)
     check_excitation(spath, voltage, record.line_numbers)
@@ -132,6 +104,44 @@ def read_csv(path: str | Path) -> Measurement:
         metadata=dict(record.metadata), notes=tuple(notes),
         n_missing_values=record.n_missing_values, n_gaps=record.n_gaps, drive=drive,
         sampling=sampling)
+
+
+def _pwm_input(spath: str, record: dataformat.TraceRecord, notes: list[str]
+               ) -> tuple[np.ndarray, DriveInput | None]:
+    """What drives the model for a ``pwm`` record: (coil voltage, None) for the bare coil,
+    or (main PWM voltage, its commands) for the drive electronics; notes appended.
+
+    A pwm record's ``voltage`` is the main PWM input to the drive electronics. With a
+    ``coil_voltage`` column that resolves the chopper, the bare coil is driven by it;
+    otherwise the model runs the drive electronics from the main PWM.
+    """
+    voltage = record.voltage_v
+    coil = record.coil_voltage_v
+    use_coil = coil is not None and bool(np.all(np.isfinite(coil)))
+    if use_coil and _chopper_unresolved(coil, voltage):
+        use_coil = False
+        notes.append('coil_voltage toggles faster than its samples resolve (the 20 kHz '
+                     'current chopper): not used as a bare-coil input; the model runs '
+                     'the drive electronics from the main PWM column instead')
+    elif coil is not None and not use_coil:
+        notes.append('coil_voltage has missing values: not used; the model runs the '
+                     'drive electronics from the main PWM column')
+    if use_coil:
+        notes.append('pwm record: the bare coil model is driven by the measured '
+                     'coil_voltage column (chopper and release pulse included)')
+        return coil, None
+    check_excitation(spath, voltage, record.line_numbers)
+    meta_v = record.metadata.get('supply_voltage_v')
+    supply_v = float(meta_v) if meta_v else float(np.max(voltage))
+    if not meta_v:
+        notes.append(f'no supply_voltage_v: the drive supply is taken as the main '
+                     f'PWM high level, {supply_v:.3g} V')
+    freq = record.metadata.get('pwm_frequency_hz')
+    drive = drive_from_main_pwm(record.t_s, voltage, supply_v, float(freq) if freq else None)
+    notes.append(f'pwm record: the model runs the drive electronics (boost, current '
+                 f'chopper, release pulse) from the main PWM column at {supply_v:.3g} '
+                 'V supply')
+    return voltage, drive
 
 
 def read_operation_csv(path: str | Path) -> Measurement:
