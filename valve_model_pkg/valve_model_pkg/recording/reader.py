@@ -19,7 +19,6 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from rosbags.interfaces import MessageDefinitionFormat
 from rosbags.rosbag2 import Reader, ReaderError
 from rosbags.typesys.store import Typestore
 
@@ -34,7 +33,6 @@ __all__ = ['BagContents', 'TopicData', 'bag_info', 'is_complete_bag', 'load_bag'
 
 _LOG = logging.getLogger(__name__)
 
-_FORMATS = {MessageDefinitionFormat.MSG: 'ros2msg', MessageDefinitionFormat.IDL: 'ros2idl'}
 _STORAGE_FILE = ('.mcap', '.db3', '.zstd')
 
 
@@ -139,8 +137,7 @@ def _load_complete(path: Path, wanted: set[str] | None) -> BagContents:
             if types.setdefault(c.topic, c.msgtype) != c.msgtype:
                 raise BagFormatError(f'{path}: topic {c.topic} carries two types, '
                                      f'{types[c.topic]} and {c.msgtype}')
-        defs = {c.id: TypeDefinition(c.msgtype, _FORMATS.get(c.msgdef.format, ''),
-                                     c.msgdef.data, c.digest) for c in conns}
+        defs = {c.id: TypeDefinition.of_connection(c) for c in conns}
         topics = _Topics(path, wanted)
         topics.know(defs.values())
         for c in conns:

@@ -23,7 +23,6 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from rosbags.interfaces import MessageDefinitionFormat
 from rosbags.rosbag2 import Reader
 from rosbags.rosbag2.storage_mcap import DECOMPRESSORS
 
@@ -38,7 +37,6 @@ __all__ = ['BagIndex', 'IndexedMessage', 'TopicIndex', 'ZSTD_MAGIC', 'decompress
 ZSTD_MAGIC = b'\x28\xb5\x2f\xfd'
 
 _STORAGES = {'.mcap': 'mcap', '.db3': 'sqlite3'}
-_FORMATS = {MessageDefinitionFormat.MSG: 'ros2msg', MessageDefinitionFormat.IDL: 'ros2idl'}
 
 
 def _storage_suffix(path: Path) -> tuple[str, bool] | None:
@@ -243,9 +241,7 @@ class _MessageStream:
             raise BagFormatError(f'{path} cannot be read as a sqlite3 bag file: '
                                  f'{" ".join(str(err).split())}') from err
         try:
-            defs = {c.id: TypeDefinition(c.msgtype, _FORMATS.get(c.msgdef.format, ''),
-                                         c.msgdef.data, c.digest)
-                    for c in reader.connections}
+            defs = {c.id: TypeDefinition.of_connection(c) for c in reader.connections}
             for conn, log_ns, data in reader.messages():
                 yield self._count(IndexedMessage(conn.topic, defs[conn.id], log_ns, data))
         finally:

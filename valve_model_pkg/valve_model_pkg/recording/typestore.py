@@ -20,7 +20,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from rosbags.interfaces import Nodetype
+from rosbags.interfaces import Connection, MessageDefinitionFormat, Nodetype
 from rosbags.typesys import (Stores, TypesysError, get_types_from_idl, get_types_from_msg,
                              get_typestore)
 from rosbags.typesys.store import Typestore
@@ -213,6 +213,13 @@ class TypeDefinition:
     encoding: str = ''
     text: str = ''
     digest: str = ''
+
+    @classmethod
+    def of_connection(cls, connection: Connection) -> 'TypeDefinition':
+        """The type of a rosbags connection, with the definition the storage embeds."""
+        encoding = {MessageDefinitionFormat.MSG: 'ros2msg',
+                    MessageDefinitionFormat.IDL: 'ros2idl'}.get(connection.msgdef.format, '')
+        return cls(connection.msgtype, encoding, connection.msgdef.data, connection.digest)
 
 
 def _parse_definition(definition: TypeDefinition, source: str) -> dict:
