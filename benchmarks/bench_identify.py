@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT / 'valve_model_pkg'))
 sys.path.insert(0, str(ROOT / 'tests'))
 
 from datagen.generate import CASES, LISTED_EFFECTS, generate_case  # noqa: E402
-from valve_model_pkg.identification.measurements import read_csv  # noqa: E402
+from valve_model_pkg.identification.csv_reader import read_csv  # noqa: E402
 from valve_model_pkg.identification.pipeline import IdentifySettings, identify  # noqa: E402
 from valve_model_pkg.identification.problem import equivalent_gap_m  # noqa: E402
 from valve_model_pkg.model.parameters import load_parameters  # noqa: E402
@@ -84,7 +84,7 @@ def _operation_records(tmp: str, base, load: str) -> list[dict]:
     """Issue 12: a 10 s operational record, the close-the-loop run on a 60 ms step pair
     plus a 3 s record, and the per-parameter error on records with known truth."""
     import numpy as np
-    from valve_model_pkg.identification.measurements import read_measurements
+    from valve_model_pkg.identification.readers import read_measurements
     out = []
     rec = _write_operation(Path(tmp) / 'ops10.csv', base, 10.0, 3e-3, 1)
     t0 = time.perf_counter()

@@ -35,7 +35,8 @@ sys.path.insert(0, str(HERE))
 from bench_identify import _write_operation  # noqa: E402
 from common import record as _record, write_results  # noqa: E402
 from datagen.generate import generate_case  # noqa: E402
-from valve_model_pkg.identification.measurements import read_csv, read_measurements  # noqa: E402,E501
+from valve_model_pkg.identification.csv_reader import read_csv  # noqa: E402
+from valve_model_pkg.identification.readers import read_measurements  # noqa: E402
 from valve_model_pkg.identification.pipeline import IdentifySettings, identify  # noqa: E402
 from valve_model_pkg.model.parameters import load_parameters  # noqa: E402
 

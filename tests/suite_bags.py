@@ -1,6 +1,7 @@
-"""Small bags of the suite's messages for unit tests: one writer loop and one header
-builder for the tests that build a bag message by message (rosbags, MCAP, the suite's
-typestore)."""
+"""Small bags for unit tests: one writer loop and one header builder for the tests that
+build a suite bag message by message (the suite's BagWriter), and :func:`write_rosbag2`
+for bags laid out as ``ros2 bag record`` writes them in every storage, split, compression
+and metadata version (rosbags' writer)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -25,3 +26,103 @@ def write_bag(path: Path, store: object,
             if topic not in conns:
                 conns[topic] = w.add_topic(topic, msgtype, [reliable_qos(1000)])
             w.write(conns[topic], log_ns, bytes(store.serialize_cdr(msg, msgtype)))
+
+
+#: rosbag2 storage-file layouts :func:`write_rosbag2` writes.
+COMPRESSIONS = ('none', 'file', 'message', 'chunk')
+
+
+def _write_part(path: Path, store: object, topics: dict[str, str],
+                messages: list[tuple[str, str, int, object]], storage: str,
+                compression: str, version: int) -> None:
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    from valve_model_pkg.recording import reliable_qos
+    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+    w = Writer(path, version=max(version, 8), storage_plugin=plugin)
+    mode = {'none': CompressionMode.NONE, 'file': CompressionMode.FILE,
+            'message': CompressionMode.MESSAGE, 'chunk': CompressionMode.STORAGE}[compression]
+    w.set_compression(mode, CompressionFormat.ZSTD)
+    with w:
+        conns = {topic: w.add_connection(topic, msgtype, typestore=store,
+                                         offered_qos_profiles=[reliable_qos(100)])
+                 for topic, msgtype in topics.items()}
+        for topic, msgtype, log_ns, msg in messages:
+            w.write(conns[topic], log_ns, bytes(store.serialize_cdr(msg, msgtype)))
+
+
+def _as_older_version(info: dict, version: int) -> dict:
+    """``metadata.yaml`` content as ros2 wrote version ``version`` (4..7) of it: keys added
+    later dropped (v5 files, v6 custom_data, v7 type_description_hash, v8 ros_distro), the
+    QoS profiles a YAML string (before v9)."""
+    info = dict(info, version=version)
+    info.pop('ros_distro', None)
+    if version < 7:
+        for t in info['topics_with_message_count']:
+            t['topic_metadata'].pop('type_description_hash', None)
+    if version < 6:
+        info.pop('custom_data', None)
+    if version < 5:
+        info.pop('files', None)
+    return info
+
+
+def write_rosbag2(path: Path, store: object, messages: Iterable[tuple[str, str, int, object]],
+                  *, storage: str = 'mcap', split: int = 1, compression: str = 'none',
+                  version: int = 9, metadata: bool = True) -> Path:
+    """Write ``messages`` = (topic, type, log time [ns], message) as ``ros2 bag record``
+    lays a bag out, with rosbags' writer.
+
+    Parameters
+    ----------
+    storage : {'mcap', 'sqlite3'}
+    split : int
+        Number of storage files ``<name>_<i>.<ext>`` the messages are split into, in order
+        (each file registers every topic, as rosbag2's splitting does).
+    compression : {'none', 'file', 'message', 'chunk'}
+        zstd compression of whole files (``.zstd``), of each message, or of MCAP chunks.
+    version : int
+        ``metadata.yaml`` version, 4..9 (below 8 the keys of later versions are removed
+        as ros2 wrote them).
+    metadata : bool
+        False deletes ``metadata.yaml`` (a bag to reindex).
+    """
+    import shutil
+    import tempfile
+
+    import yaml
+    messages = list(messages)
+    topics = {topic: msgtype for topic, msgtype, _, _ in messages}
+    bounds = [round(k * len(messages) / split) for k in range(split + 1)]
+    path.mkdir(parents=True)
+    infos = []
+    with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
+        for k in range(split):
+            part = Path(tmp) / f'{path.name}_{k}'
+            _write_part(part, store, topics, messages[bounds[k]:bounds[k + 1]], storage,
+                        compression, version)
+            info = yaml.safe_load((part / 'metadata.yaml').read_text())
+            info = info['rosbag2_bagfile_information']
+            (name,) = info['relative_file_paths']
+            shutil.move(part / name, path / name)
+            infos.append(info)
+    info = infos[0]
+    info['relative_file_paths'] = [i['relative_file_paths'][0] for i in infos]
+    info['files'] = [f for i in infos for f in i['files']]
+    info['message_count'] = sum(i['message_count'] for i in infos)
+    start = min(i['starting_time']['nanoseconds_since_epoch'] for i in infos)
+    end = max(i['starting_time']['nanoseconds_since_epoch'] + i['duration']['nanoseconds']
+              for i in infos)
+    info['starting_time'] = {'nanoseconds_since_epoch': start}
+    info['duration'] = {'nanoseconds': end - start}
+    for t in info['topics_with_message_count']:
+        name = t['topic_metadata']['name']
+        t['message_count'] = sum(u['message_count'] for i in infos
+                                 for u in i['topics_with_message_count']
+                                 if u['topic_metadata']['name'] == name)
+    if version < 8:
+        info = _as_older_version(info, version)
+    if metadata:
+        (path / 'metadata.yaml').write_text(
+            yaml.safe_dump({'rosbag2_bagfile_information': info}, sort_keys=False))
+    return path

@@ -1,13 +1,14 @@
 """Damaged bags: one line from the readers, and ``--recover`` keeps every intact chunk.
 
-Issue 11 item 7: a bag with 64 flipped bytes gave an OverflowError traceback in
-valve_identify and valve_report, and ``valve_recorder --recover`` stopped at the first
-damaged chunk, dropping the intact ones after it.
+A bag with 64 flipped bytes in a chunk is refused by valve_identify and valve_report with
+one line naming the bag (no traceback), and ``valve_recorder --recover`` keeps every
+intact chunk before and after the damaged one.
 """
 from __future__ import annotations
 
 import random
 import shutil
+import struct
 import subprocess
 from pathlib import Path
 
@@ -16,9 +17,11 @@ from rosbags.highlevel import AnyReader
 
 from valve_model_pkg.recording import (BagWriter, McapScanner, build_typestore, recover_bag,
                                        reliable_qos)
-from valve_model_pkg.recording.recovery import _REC_HEAD, McapMessage
+from valve_model_pkg.recording.recovery import McapMessage
 from valve_model_pkg.recording.synthetic import VALVE_STATE, valve_state_cdr
 
+#: MCAP record header (MCAP specification): opcode uint8, record length uint64 LE.
+_REC_HEAD = struct.Struct('<BQ')
 N = 3000            # messages, 1 kHz
 FLUSH_S = 0.5       # a chunk every 500 messages: 6 chunks
 

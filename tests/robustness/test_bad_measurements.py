@@ -1,4 +1,4 @@
-"""Bad measured-data files: a clear refusal at once, bounded memory (issue 11 item 7).
+"""Bad measured-data files: a clear refusal at once, bounded memory.
 
 A 1 GB file is refused before it is read (size limit, tested with a sparse file), a binary
 file at its first bytes, a time axis in ms, a current beyond the sensor's range and a
@@ -18,7 +18,7 @@ import pytest
 from valve_model_pkg import dataformat
 from valve_model_pkg.dataformat import DataFormatError, read_record
 from valve_model_pkg.errors import MeasurementFormatError
-from valve_model_pkg.identification.measurements import read_csv
+from valve_model_pkg.identification.csv_reader import read_csv
 
 HEAD = ('# experiment: step\n# supply_pressure_pa: 400000\n# sample_rate_hz: 50000\n'
         't,voltage,current\n')
@@ -126,10 +126,8 @@ def test_a_current_beyond_the_sensor_range_is_refused_naming_the_line(tmp_path: 
 
 def test_a_record_without_excitation_is_refused_before_fitting(tmp_path: Path) -> None:
     path = _write(tmp_path, HEAD + _rows(400, voltage=0.0, current=lambda k: 0.0))
-    start = time.monotonic()
     with pytest.raises(MeasurementFormatError, match='no excitation: the coil voltage is 0 V'):
-        read_csv(path)
-    assert time.monotonic() - start < 5.0
+        read_csv(path)  # the reader refuses it: nothing is simulated or fitted
 
 
 def test_non_utf8_bytes_are_refused_naming_the_line(tmp_path: Path) -> None:
@@ -146,7 +144,7 @@ def test_limits_on_lines_columns_and_rows(tmp_path: Path, monkeypatch) -> None:
     many = _write(tmp_path, ','.join(f'c{i}' for i in range(2000)) + '\n', 'many.csv')
     with pytest.raises(DataFormatError, match='2000 columns'):
         read_record(many)
-    from valve_model_pkg.dataformat import csv as csv_module
+    from valve_model_pkg.dataformat import csv_format as csv_module
     monkeypatch.setattr(csv_module, 'MAX_ROWS', 30)
     with pytest.raises(DataFormatError, match='more than 30 data rows'):
         read_record(_write(tmp_path, HEAD + _rows(40), 'rows.csv'))

@@ -12,7 +12,7 @@ from valve_model_pkg.dataformat import (DataFormatError, FlowMapRecord, Operatio
                                         TraceRecord, read_flow_map, read_operation,
                                         read_record, read_trace, write_record, write_table)
 from valve_model_pkg.errors import MeasurementFormatError
-from valve_model_pkg.identification.measurements import read_csv
+from valve_model_pkg.identification.csv_reader import read_csv
 from valve_model_pkg.maps import FlowMapFormatError
 from valve_model_pkg.maps import flow_check
 
@@ -150,7 +150,7 @@ def test_both_consumers_apply_the_same_rules(tmp_path: Path) -> None:
     same = "metadata key 'supply_pressure_pa' given twice (first on line {}, again as '3e5')"
     assert (a.value.reason, b.value.reason) == (same.format(1), same.format(2))
     assert (a.value.line, b.value.line) == (2, 3)
-    # a blank line inside the data is refused by both (it used to be skipped in flow maps)
+    # a blank line inside the data is refused by both readers
     gap = _write(tmp_path, '# experiment: flow_map\n# pwm_frequency_hz: 50\n'
                  '# supply_pressure_pa: 4e5\nduty,flow_fraction\n0,0\n\n1,1\n', 'g.csv')
     with pytest.raises(FlowMapFormatError, match='empty line inside the data'):
@@ -169,8 +169,8 @@ def test_kind_readers_refuse_other_kinds(tmp_path: Path) -> None:
 
 def test_identification_reads_operation_records_and_pwm_through_the_electronics(
         tmp_path: Path) -> None:
-    # issue 12: operation records and pwm records without coil_voltage are identified with
-    # the drive electronics in the loop (formerly refused as not implemented)
+    # operation records and pwm records without coil_voltage are identified with the
+    # drive electronics in the loop
     op = _write(tmp_path, OPERATION + _operation_rows())
     m = read_csv(op)
     assert m.through_electronics and m.sampling == 'interval_mean'
@@ -213,8 +213,8 @@ def test_the_writer_refuses_what_the_reader_would(tmp_path: Path, columns: dict,
 
 
 def test_the_format_is_named_never_by_a_machine_path() -> None:
-    for rel in ('dataformat/csv.py', 'dataformat/__init__.py', 'maps/flow_check.py',
-                'identification/measurements.py', 'cli/simulate.py', 'cli/flow_check.py',
+    for rel in ('dataformat/csv_format.py', 'dataformat/__init__.py', 'maps/flow_check.py',
+                'identification/csv_reader.py', 'cli/simulate.py', 'cli/flow_check.py',
                 'cli/identify.py'):
         text = (PKG / rel).read_text(encoding='utf-8')
         assert '/work/' not in text and '/home/' not in text, rel

@@ -1,17 +1,16 @@
 """A CAN-lockstep bag read for identification: the time axis rebuilt from the sequence
 numbers and the main PWM grid placed where the controller has it. The emulator's PWM grid
 is locked to its 1 kHz telemetry (both tick from model time 0), so a period starts exactly
-at a sample time; the nominal model must then reproduce the recorded interval means (a
-reader that put the start mid-interval, or rebuilt the step from the two end stamps, was
-off by tens of mA). Fast: no identification run."""
+at a sample time; the nominal model must then reproduce the recorded interval means
+(placing the start mid-interval, or rebuilding the step from the two end stamps, puts it
+tens of mA off). Fast: no identification run."""
 from __future__ import annotations
 
 import numpy as np
 
-from valve_model_pkg.identification.measurements import (
-    _bag_records_to_measurement, drive_from_in_force,
-)
+from valve_model_pkg.identification.bag_reader import StateColumns, measurement_from_state
 from valve_model_pkg.identification.model_adapter import prepare_trace, simulate_measurement
+from valve_model_pkg.identification.pwm_grid import drive_from_in_force
 from valve_model_pkg.model import InputTrace, load_parameters
 from valve_model_pkg.model import simulate_trace_batch as model_trace_batch
 
@@ -19,7 +18,7 @@ _N = 1201          # telemetry messages, 1 ms apart, from model time 0
 _STEP_S = 1e-3
 
 
-def _lockstep_records() -> tuple[list[tuple], np.ndarray]:
+def _lockstep_records() -> tuple[StateColumns, np.ndarray]:
     """ValveState fields of the emulator on the simulation clock (nominal model, 50 Hz)."""
     t = np.arange(_N) * _STEP_S
     # commands given between period starts (control ticks); each latches at the next start
@@ -34,15 +33,20 @@ def _lockstep_records() -> tuple[list[tuple], np.ndarray]:
     lag = np.where(np.arange(_N) % 7 == 3, _STEP_S, 0.0)
     lag[-1] = _STEP_S
     stamps = 100.0 + t - lag
-    records = [('valve', float(stamps[k]), float(stamps[k]), k, 0.0, 0.0, 0.0, False, 4e5,
-                0.0, 50.0, float(in_force[k]), float(res.coil_current_a[0, k]), 1.0)
-               for k in range(_N)]
+    zeros = np.zeros(_N)
+    records = StateColumns(
+        frame_id=np.full(_N, 'valve'), stamp_s=stamps, log_time_s=stamps,
+        sequence=np.arange(_N, dtype=float), coil_voltage_v=zeros, coil_current_a=zeros,
+        spool_position_m=zeros, position_measured=np.zeros(_N, dtype=bool),
+        supply_pressure_pa=np.full(_N, 4e5), output_pressure_pa=zeros,
+        pwm_frequency_hz=np.full(_N, 50.0), duty=in_force.astype(float),
+        coil_current_mean_a=res.coil_current_a[0].copy())
     return records, res.coil_current_a[0]
 
 
 def test_lockstep_bag_time_axis_and_pwm_grid_match_the_emulator() -> None:
     records, _ = _lockstep_records()
-    m = _bag_records_to_measurement('lockstep', '/valve/state', None, records)
+    m = measurement_from_state('lockstep', '/valve/state', None, records)
     # one message per 1 ms step: the lagging last stamp must not shorten the step
     np.testing.assert_allclose(m.t_s, np.arange(_N) * _STEP_S, atol=1e-9)
     # the first energised period starts exactly at 20 ms (the grid of model time 0)
@@ -54,7 +58,7 @@ def test_lockstep_bag_time_axis_and_pwm_grid_match_the_emulator() -> None:
 def test_nominal_model_reproduces_a_lockstep_bag_through_the_adapter() -> None:
     """Reader + adapter + nominal parameters = the recorded interval means (< 1 mA)."""
     records, recorded = _lockstep_records()
-    m = _bag_records_to_measurement('lockstep', '/valve/state', None, records)
+    m = measurement_from_state('lockstep', '/valve/state', None, records)
     sim, _ = simulate_measurement(load_parameters().to_vector()[None, :], prepare_trace(m))
     err = sim[0] - recorded
     assert np.max(np.abs(err[m.valid])) < 1e-3

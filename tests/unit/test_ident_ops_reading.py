@@ -1,4 +1,4 @@
-"""Operational and pwm records for identification (issue 12): reading, PWM grid, hold-out,
+"""Operational and pwm records for identification: reading, PWM grid, hold-out,
 refusals of records whose kind contradicts their content. Fast: no identification run."""
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import pytest
 
 from valve_model_pkg.dataformat import write_table
 from valve_model_pkg.errors import MeasurementFormatError
-from valve_model_pkg.identification.measurements import (
-    DISCARD_MIN_S, drive_from_in_force, hold_out, read_csv,
-)
+from valve_model_pkg.identification.csv_reader import read_csv
+from valve_model_pkg.identification.measurement import hold_out
+from valve_model_pkg.identification.pwm_grid import DISCARD_MIN_S, drive_from_in_force
 from valve_model_pkg.identification.pipeline import IdentifySettings, prepare_files
 from valve_model_pkg.model import InputTrace, load_parameters, simulate_trace_batch
 

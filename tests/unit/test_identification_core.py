@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from valve_model_pkg.identification.measurements import Measurement
+from valve_model_pkg.identification.measurement import Measurement
 from valve_model_pkg.identification.model_adapter import prepare_trace, simulate_measurement
 from valve_model_pkg.identification.problem import (
     GAP, FitData, baseline_space, effect_space, equivalent_gap_m,

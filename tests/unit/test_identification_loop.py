@@ -18,7 +18,7 @@ import pytest
 
 from datagen.cache import dataset
 from datagen.generate import LISTED_EFFECTS
-from valve_model_pkg.identification.measurements import read_csv
+from valve_model_pkg.identification.csv_reader import read_csv
 from valve_model_pkg.identification.pipeline import IdentifySettings, identify
 from valve_model_pkg.identification.problem import equivalent_gap_m
 from valve_model_pkg.model.parameters import load_parameters

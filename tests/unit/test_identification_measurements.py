@@ -9,9 +9,9 @@ import pytest
 
 from suite_paths import REPO_ROOT
 from valve_model_pkg.errors import MeasurementFormatError
-from valve_model_pkg.identification.measurements import (
-    VALVE_STATE_MSG, VALVE_STATE_TYPE, read_bag, read_csv, read_measurements, write_csv,
-)
+from valve_model_pkg.identification.bag_reader import VALVE_STATE_TYPE, read_bag
+from valve_model_pkg.identification.csv_reader import read_csv, write_csv
+from valve_model_pkg.identification.readers import read_measurements
 
 HEADER = ('# experiment: step\n# valve: bench valve 7\n# supply_pressure_pa: 400000\n'
           '# output_pressure_pa: 0\n# sample_rate_hz: 50000\n')
@@ -113,11 +113,21 @@ def test_write_csv_round_trip(tmp_path: Path) -> None:
     assert m.n_missing_values == 1 and m.supply_pressure_pa == 3e5
 
 
-def test_valve_state_msg_text_matches_the_interface_file() -> None:
-    text = (REPO_ROOT / 'valve_msgs' / 'msg' / 'ValveState.msg').read_text()
-    fields = [ln.split('#')[0].strip() for ln in text.splitlines()]
-    fields = [' '.join(f.split()) for f in fields if f]
-    assert fields == VALVE_STATE_MSG.strip().splitlines()
+#: ValveState as the interface package defines it (comments and blank lines dropped).
+VALVE_STATE_MSG = '\n'.join(
+    ' '.join(ln.split('#')[0].split())
+    for ln in (REPO_ROOT / 'valve_msgs' / 'msg' / 'ValveState.msg').read_text().splitlines()
+    if ln.split('#')[0].strip()) + '\n'
+
+
+def test_no_message_definition_is_pasted_into_the_identification() -> None:
+    """Bags are decoded with the definitions they embed or the built valve_msgs, never
+    with a copy of a .msg file kept in the identification's code."""
+    pkg = REPO_ROOT / 'valve_model_pkg' / 'valve_model_pkg' / 'identification'
+    for path in pkg.glob('*.py'):
+        text = path.read_text(encoding='utf-8')
+        assert 'float64 coil_current' not in text and 'std_msgs/Header header' not in text, \
+            path.name
 
 
 def _write_bag(path: Path, *, embed_definition: bool, n: int = 40, frame: str = 'v1',
@@ -218,7 +228,7 @@ def test_files_with_different_sample_rates_are_combined(tmp_path: Path) -> None:
 
 
 def test_pwm_bag_is_an_operation_record_and_needs_the_mean_current(tmp_path: Path) -> None:
-    """A bag of the suite running PWM is read as an operational record (issue 12)."""
+    """A bag of the suite running PWM is read as an operational record."""
     bag = tmp_path / 'ops'
     _write_bag(bag, embed_definition=True, pwm=True, n=60)
     m = read_bag(bag)

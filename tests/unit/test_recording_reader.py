@@ -7,7 +7,7 @@ import shutil
 import numpy as np
 import pytest
 
-from valve_model_pkg.recording import reader as reader_module
+from valve_model_pkg.recording import arrays as arrays_module
 from valve_model_pkg.recording import (BagFormatError, BagWriter, bag_info, build_typestore,
                                        load_bag, reliable_qos, sequence_gaps)
 from valve_model_pkg.recording.synthetic import (DUTY_COMMAND, VALVE_STATE, duty_command_cdr,
@@ -98,7 +98,7 @@ def test_sequences_and_nested_messages(suite_bag) -> None:
 @pytest.mark.parametrize('block', [1, 2, 3])
 def test_long_bags_are_converted_in_blocks_with_the_same_result(suite_bag, monkeypatch, block):
     whole = load_bag(suite_bag)
-    monkeypatch.setattr(reader_module._Accumulator, '_BLOCK', block)
+    monkeypatch.setattr(arrays_module, 'BLOCK_MESSAGES', block)
     blocked = load_bag(suite_bag)
     for topic, data in whole.items():
         np.testing.assert_array_equal(blocked[topic].log_time_ns, data.log_time_ns)

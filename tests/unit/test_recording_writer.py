@@ -102,7 +102,7 @@ def test_mcap_has_ros2_profile_schemas_and_channel_qos(tmp_path, store) -> None:
 
 
 def test_identification_reader_reads_a_recorded_bag(tmp_path, store) -> None:
-    from valve_model_pkg.identification.measurements import read_bag
+    from valve_model_pkg.identification.bag_reader import read_bag
     states, _ = _write_suite_bag(tmp_path / 'bag', store)
     m = read_bag(tmp_path / 'bag')
     assert m.n_samples == len(states)
@@ -203,15 +203,21 @@ def test_queued_writer_takes_messages_from_many_threads(tmp_path, store) -> None
     assert qos['/valve/state'][0].reliability == QosReliability.RELIABLE
 
 
+def _poll(condition, timeout_s: float = 10.0) -> None:
+    """Return once ``condition()`` holds or ``timeout_s`` has passed (the caller asserts)."""
+    deadline = time.monotonic() + timeout_s
+    tick = threading.Event()
+    while not condition() and time.monotonic() < deadline:
+        tick.wait(0.005)
+
+
 def test_queued_writer_flushes_when_messages_stop(tmp_path, store) -> None:
     qw = QueuedBagWriter(BagWriter(tmp_path / 'bag', store, flush_period_s=0.05,
                                    fsync=False)).start()
     key = qw.add_topic('valve/state', VALVE_STATE)
     for t, raw in valve_state_cdr(store, 50):
         qw.put(key, t, raw)
-    deadline = time.monotonic() + 10.0
-    while qw.stats().flushed < 50 and time.monotonic() < deadline:
-        time.sleep(0.01)
+    _poll(lambda: qw.stats().flushed >= 50)  # the thread flushes on its own, no close
     assert qw.stats().flushed == 50
     qw.close()
 
@@ -219,11 +225,8 @@ def test_queued_writer_flushes_when_messages_stop(tmp_path, store) -> None:
 def test_a_failing_writer_thread_is_reported_not_swallowed(tmp_path, store) -> None:
     qw = QueuedBagWriter(BagWriter(tmp_path / 'bag', store)).start()
     qw.put(99, 0, b'not a known topic key')
-    deadline = time.monotonic() + 10.0
-    while qw.error is None and time.monotonic() < deadline:
-        time.sleep(0.01)
+    with pytest.raises(BagWriteError, match='bag writer failed'):
+        qw.close()  # joins the writer thread, which stopped on the unknown key
     assert isinstance(qw.error, KeyError)
     with pytest.raises(BagWriteError, match='bag writer stopped'):
         qw.put(1, 0, b'')
-    with pytest.raises(BagWriteError, match='bag writer failed'):
-        qw.close()

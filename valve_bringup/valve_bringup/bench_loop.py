@@ -548,7 +548,7 @@ def flow_prediction_error(bag: Path, params_files: dict[str, Path | None]) -> di
     """
     import numpy as np
 
-    from valve_model_pkg.identification.measurements import read_bag
+    from valve_model_pkg.identification.bag_reader import read_bag
     from valve_model_pkg.maps.flow_identification import (ChamberRecord, chamber_valve_flow,
                                                           chamber_volume_m3)
     from valve_model_pkg.model import (InputTrace, load_parameters, orifice_mass_flow,

@@ -23,6 +23,20 @@ import time
 __all__ = ['main']
 
 
+class _MapAction(argparse.Action):
+    """Collects ``--map`` entries; a malformed one or a role given twice is a usage error."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: object, option_string: str | None = None) -> None:
+        from ..identification.topic_map import parse_topic_map
+        entries = list(getattr(namespace, self.dest) or []) + [str(values)]
+        try:
+            parse_topic_map(entries)
+        except ValueError as err:
+            parser.error(f'--map {err}')
+        setattr(namespace, self.dest, entries)
+
+
 def _parser() -> argparse.ArgumentParser:
     from valve_model_pkg.interface import TOPIC_STATE
 
@@ -44,6 +58,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('-o', '--out', required=True, metavar='DIR', help='output directory')
     p.add_argument('--topic', default='/' + TOPIC_STATE, help='valve state topic in bags')
     p.add_argument('--valve', default=None, help='frame_id of the valve in multi-valve bags')
+    p.add_argument('--map', action=_MapAction, default=[], metavar='ROLE=TOPIC[.FIELD]',
+                   help='read bags from your own topics instead of the suite\'s valve state '
+                        '(repeatable): current=/coil/current (a Float32/Float64 data), '
+                        'duty=/valve/duty_command.duty (a field, nested with dots); roles: '
+                        'current or current_mean with voltage (step) or with duty and '
+                        'pwm_frequency (operation), coil_voltage_mean, supply_voltage, '
+                        'supply_pressure, output_pressure (the last four and pwm_frequency '
+                        'may be numbers)')
     p.add_argument('--no-diagnosis', action='store_true',
                    help='stop after the baseline fit (no effect search)')
     p.add_argument('--quick', action='store_true',
@@ -58,7 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s: %(message)s')
     from ..errors import IdentificationError, MeasurementFormatError
-    from ..identification.measurements import read_measurements
+    from ..identification.readers import read_measurements
+    from ..identification.topic_map import parse_topic_map
     from ..identification.pipeline import IdentifySettings, identify
     from ..identification.report import write_report
     from ..model.parameters import ParameterError, load_parameters
@@ -71,8 +94,10 @@ def main(argv: list[str] | None = None) -> int:
                   flush=True)
 
     try:
-        fit = read_measurements(args.fit, topic=args.topic, valve=args.valve)
-        val = read_measurements(args.validate, topic=args.topic, valve=args.valve)
+        mapping = parse_topic_map(args.map) or None
+        fit = read_measurements(args.fit, topic=args.topic, valve=args.valve, mapping=mapping)
+        val = read_measurements(args.validate, topic=args.topic, valve=args.valve,
+                                mapping=mapping)
         for m in fit + val:
             if m.supply_pressure_pa is None:
                 raise MeasurementFormatError(

@@ -4,7 +4,8 @@ The format is defined in *the measured-data format* document
 (``shared/measured-data-format.md`` of the steering repository). This package is its one
 reader and writer (ROS-free: numpy and the standard library): every tool that reads or
 writes such files (``valve_simulate``, ``valve_identify``, ``valve_flow_check``, the test
-data generator's checks) goes through :mod:`.csv`, so the rules are the same everywhere.
+data generator's checks) goes through :mod:`.csv_format`, so the rules are the same
+everywhere.
 
 - :func:`read_record` reads any kind and returns a typed record: :class:`TraceRecord`
   (``step``, ``pwm``), :class:`OperationRecord` (``operation``) or :class:`FlowMapRecord`
@@ -16,7 +17,7 @@ data generator's checks) goes through :mod:`.csv`, so the rules are the same eve
 """
 from __future__ import annotations
 
-from .csv import (
+from .csv_format import (
     EXPERIMENTS, FORMAT_NAME, MAX_ABS_CURRENT_A, MAX_COLUMNS, MAX_FILE_BYTES, MAX_LINE_CHARS,
     MAX_ROWS, DataFormatError, FlowMapRecord, OperationRecord, TraceRecord,
     check_time_axis, read_flow_map, read_operation, read_record, read_trace, write_record,

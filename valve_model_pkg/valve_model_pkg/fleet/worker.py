@@ -121,7 +121,7 @@ def run_valve(job: dict[str, Any]) -> dict[str, Any]:
     opts = job.get('options', {})
     try:
         from ..errors import IdentificationError, MeasurementFormatError
-        from ..identification.measurements import read_measurements
+        from ..identification.readers import read_measurements
         from ..identification.pipeline import IdentifySettings, identify
         from ..identification.report import write_report
         from ..model.parameters import ParameterError, load_parameters

@@ -26,7 +26,7 @@ import numpy as np
 from ..model import (DEFAULT_H_FREE_S, DEFAULT_H_STOP_S, PARAMETER_FIELDS,
                      ElectronicsConfig, InputTrace, simulate_trace_batch)
 from ..errors import ModelAdapterError
-from .measurements import Measurement
+from .measurement import Measurement
 
 __all__ = ['TraceSetup', 'prepare_trace', 'simulate_measurement', 'FIELD_INDEX']
 

@@ -24,7 +24,7 @@ from .diagnosis import (
     select, slow_effect,
 )
 from .drive import DriveReport, fit_drive
-from .measurements import Measurement, hold_out
+from .measurement import Measurement, hold_out
 from .problem import (
     ErrorFigures, FitData, ParameterSpace, baseline_space, effect_space, start_point,
     unit_objective,

@@ -27,7 +27,7 @@ from ..model import ElectronicsConfig
 from ..model import PARALLEL_MIN_BATCH
 from ..model.parameters import EFFECTS, ValveParameters
 from ..errors import IdentificationError
-from .measurements import Measurement
+from .measurement import Measurement
 from .model_adapter import FIELD_INDEX, TraceSetup, prepare_trace, simulate_measurement
 
 __all__ = [

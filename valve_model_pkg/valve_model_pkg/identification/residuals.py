@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from .measurements import Measurement
+from .measurement import Measurement
 from .sensitivity import noise_std
 
 __all__ = ['PHASES', 'ResidualReport', 'FileResidual', 'analyse_residuals', 'phase_masks',

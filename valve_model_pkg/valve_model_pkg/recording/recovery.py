@@ -25,11 +25,11 @@ from typing import BinaryIO
 from rosbags.rosbag2 import ReaderError
 from rosbags.rosbag2.metadata import parse_qos
 from rosbags.rosbag2.storage_mcap import decompress
-from rosbags.typesys import Stores, TypesysError, get_types_from_idl, get_types_from_msg
-from rosbags.typesys import get_typestore
+from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from ..errors import BagFormatError
+from .typestore import TypeDefinition, typestore_for_bag
 from .writer import BagWriter
 
 __all__ = ['MAGIC', 'McapSchema', 'McapChannel', 'McapMessage', 'ScanReport', 'McapScanner',
@@ -365,34 +365,16 @@ class McapScanner:
 
 
 def typestore_from_schemas(schemas: dict[int, McapSchema] | list[McapSchema]) -> Typestore:
-    """A typestore with the types defined by embedded schemas (as rosbags' AnyReader does).
+    """A typestore with the types defined by embedded schemas.
 
     Raises
     ------
     BagFormatError
         A schema cannot be parsed.
     """
-    store = get_typestore(Stores.EMPTY)
-    typs: dict = {}
     items = schemas.values() if isinstance(schemas, dict) else schemas
-    for s in items:
-        try:
-            if s.encoding == 'ros2msg':
-                typs.update(get_types_from_msg(s.data, s.name))
-            elif s.encoding == 'ros2idl':
-                sep = '=' * 80 + '\n'
-                parts = s.data.split(sep)[1:] if s.data.startswith(sep + 'IDL: ') \
-                    else ['\n' + s.data]
-                for part in parts:
-                    typs.update(get_types_from_idl(part.split('\n', 1)[1]))
-            else:
-                raise BagFormatError(f'schema {s.name!r} has encoding {s.encoding!r}, '
-                                     'not ros2msg or ros2idl')
-        except TypesysError as err:
-            raise BagFormatError(f'embedded definition of {s.name!r} cannot be parsed: {err}'
-                                 ) from err
-    store.register(typs)
-    return store
+    return typestore_for_bag([TypeDefinition(s.name, s.encoding, s.data) for s in items],
+                             'MCAP schemas')
 
 
 @dataclass(frozen=True)

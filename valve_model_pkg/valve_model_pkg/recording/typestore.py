@@ -1,4 +1,4 @@
-"""Message types for bags: a rosbags typestore that knows the suite's messages.
+"""Message types for bags: rosbags typestores that know the suite's and the bag's messages.
 
 rosbags ships the standard ROS 2 Jazzy types (std_msgs, sensor_msgs, diagnostic_msgs,
 ...). The suite's own types (``valve_msgs``) and any other package's types are parsed from
@@ -7,22 +7,29 @@ colcon install or a ROS install) or, for ``valve_msgs``, in the source tree next
 package. The definitions parsed this way give the same RIHS01 type hashes as rosidl (a
 unit test checks it against the ``.json`` type descriptions rosidl installs), so a bag's
 ``type_description_hash`` matches what a ROS 2 Jazzy install computes.
+
+A bag is decoded with the definitions it embeds (MCAP schemas, the sqlite3
+``message_definitions`` table) and, for the types it does not embed, with the installed
+ones (:func:`typestore_for_bag`).
 """
 from __future__ import annotations
 
 import logging
 import os
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
-from rosbags.interfaces import Nodetype
-from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
+from rosbags.interfaces import Connection, MessageDefinitionFormat, Nodetype
+from rosbags.typesys import (Stores, TypesysError, get_types_from_idl, get_types_from_msg,
+                             get_typestore)
 from rosbags.typesys.store import Typestore
 
-from ..errors import UnknownMessageTypeError
+from ..errors import BagFormatError, UnknownMessageTypeError
 
-__all__ = ['SUITE_MSG_PACKAGE', 'build_typestore', 'ensure_type', 'find_msg_file',
-           'msg_search_dirs', 'source_msg_dir', 'msgdef_and_hash']
+__all__ = ['SUITE_MSG_PACKAGE', 'TypeDefinition', 'build_typestore', 'ensure_type',
+           'find_msg_file', 'msg_search_dirs', 'source_msg_dir', 'msgdef_and_hash',
+           'typestore_for_bag']
 
 _LOG = logging.getLogger(__name__)
 
@@ -183,3 +190,129 @@ def msgdef_and_hash(store: Typestore, msgtype: str) -> tuple[str, str]:
         raise UnknownMessageTypeError(f'message type {msgtype!r} is not in the typestore')
     msgdef, _ = store.generate_msgdef(msgtype, ros_version=2)
     return msgdef, store.hash_rihs01(msgtype)
+
+
+@dataclass(frozen=True)
+class TypeDefinition:
+    """A message type as a bag records it.
+
+    Attributes
+    ----------
+    msgtype : str
+        ``pkg/msg/Name``.
+    encoding : str
+        ``ros2msg`` or ``ros2idl`` for an embedded definition; ``''`` when the bag embeds
+        none (sqlite3 bags written before Iron, hand-made bags).
+    text : str
+        The embedded definition (dependencies appended, as rosbag2 writes it).
+    digest : str
+        The RIHS01 type hash the bag records; ``''`` when it records none.
+    """
+
+    msgtype: str
+    encoding: str = ''
+    text: str = ''
+    digest: str = ''
+
+    @classmethod
+    def of_connection(cls, connection: Connection) -> 'TypeDefinition':
+        """The type of a rosbags connection, with the definition the storage embeds."""
+        encoding = {MessageDefinitionFormat.MSG: 'ros2msg',
+                    MessageDefinitionFormat.IDL: 'ros2idl'}.get(connection.msgdef.format, '')
+        return cls(connection.msgtype, encoding, connection.msgdef.data, connection.digest)
+
+
+def _parse_definition(definition: TypeDefinition, source: str) -> dict:
+    """rosbags field definitions of an embedded ``ros2msg``/``ros2idl`` definition."""
+    try:
+        if definition.encoding == 'ros2msg':
+            return dict(get_types_from_msg(definition.text, definition.msgtype))
+        if definition.encoding == 'ros2idl':
+            sep = '=' * 80 + '\n'
+            parts = definition.text.split(sep)[1:] if definition.text.startswith(
+                sep + 'IDL: ') else ['\n' + definition.text]
+            types: dict = {}
+            for part in parts:
+                types.update(get_types_from_idl(part.split('\n', 1)[1]))
+            return types
+    except TypesysError as err:
+        raise BagFormatError(f'{source}: the embedded definition of {definition.msgtype!r} '
+                             f'cannot be parsed: {err}') from err
+    raise BagFormatError(f'{source}: the definition of {definition.msgtype!r} has encoding '
+                         f'{definition.encoding!r}; expected ros2msg or ros2idl')
+
+
+def _closure(store: Typestore, msgtype: str) -> list[str]:
+    """``msgtype`` and every type it uses, from ``store``."""
+    out: list[str] = []
+    pending = [msgtype]
+    while pending:
+        name = pending.pop()
+        if name in out:
+            continue
+        out.append(name)
+        pending.extend(_referenced_types(store.fielddefs[name][1]))
+    return out
+
+
+def typestore_for_bag(definitions: Iterable[TypeDefinition], source: str) -> Typestore:
+    """A typestore that decodes every type of a bag.
+
+    A type is decoded with the definition the bag embeds; a type the bag does not embed is
+    taken from the ROS 2 Jazzy types or the installed ``.msg`` files (:func:`ensure_type`:
+    the ament prefixes, the colcon install, ``valve_msgs`` of the source tree). When the
+    bag records a type hash, an installed definition must give the same hash, so a bag is
+    never decoded with a definition other than the one it was recorded with.
+
+    Parameters
+    ----------
+    definitions : iterable of TypeDefinition
+        The types of the bag's topics.
+    source : str
+        The bag, for the error messages.
+
+    Returns
+    -------
+    rosbags Typestore
+        Knows every ``msgtype`` of ``definitions``.
+
+    Raises
+    ------
+    BagFormatError
+        An embedded definition cannot be parsed or contradicts another one, or an installed
+        definition has another type hash than the bag records.
+    UnknownMessageTypeError
+        A type the bag does not embed has no definition installed either.
+    """
+    definitions = list(definitions)
+    types: dict = {}
+    for d in definitions:
+        if d.encoding and d.msgtype not in types:
+            types.update(_parse_definition(d, source))
+    store = get_typestore(Stores.EMPTY)
+    try:
+        store.register(types)
+    except TypesysError as err:
+        raise BagFormatError(f'{source}: the embedded message definitions contradict each '
+                             f'other: {err}') from err
+    installed: Typestore | None = None
+    for d in definitions:
+        if d.msgtype in store.fielddefs:
+            continue
+        if installed is None:
+            installed = get_typestore(Stores.ROS2_JAZZY)
+        try:
+            ensure_type(installed, d.msgtype)
+        except UnknownMessageTypeError as err:
+            raise UnknownMessageTypeError(f'{source}: the bag does not embed the definition '
+                                          f'of {d.msgtype!r}, and {err}') from err
+        store.register({name: installed.fielddefs[name]
+                        for name in _closure(installed, d.msgtype)
+                        if name not in store.fielddefs})
+        if d.digest and store.hash_rihs01(d.msgtype) != d.digest:
+            raise BagFormatError(
+                f'{source}: the bag does not embed the definition of {d.msgtype!r}, and the '
+                f'installed one differs from the one it was recorded with (type hash '
+                f'{d.digest} in the bag, {store.hash_rihs01(d.msgtype)} installed)')
+        _LOG.debug('%s: %s decoded with the installed definition', source, d.msgtype)
+    return store

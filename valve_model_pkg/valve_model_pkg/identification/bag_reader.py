@@ -1,0 +1,345 @@
+"""rosbag2 bags read for identification: the suite's valve state, or a user's own topics.
+
+Bags are opened by :mod:`valve_model_pkg.recording` (any storage, split, compressed, with
+or without ``metadata.yaml``); this module turns what it reads into a
+:class:`~.measurement.Measurement`:
+
+* the suite's ``valve_msgs/msg/ValveState`` on ``/valve/state`` (:func:`read_bag`,
+  :func:`measurement_from_state`): a bag of the suite running PWM is an ``operation``
+  record compared as interval means (``coil_current_mean``); one of steps on the bare
+  coil a ``step`` or ``pwm`` record driven by ``coil_voltage``;
+* a user's own topics, named by a mapping ``ROLE=TOPIC[.FIELD]`` (:mod:`.topic_map`).
+
+Malformed input is refused with a :class:`~valve_model_pkg.errors.MeasurementFormatError`
+naming the bag, the topic or message and the reason.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from valve_model_pkg.interface import TOPIC_STATE
+
+from ..errors import MeasurementFormatError, RecordingError
+from ..recording import TopicData, load_bag_contents
+from .measurement import (MIN_SAMPLES, Measurement, check_excitation, check_time_axis,
+                          median_pressure, refused_bag)
+from .pwm_grid import operation_measurement
+from .topic_map import FieldSpecOrValue, read_mapped_bag
+
+__all__ = ['DEFAULT_BAG_SUPPLY_V', 'MEAN_CURRENT_FIELD', 'StateColumns', 'VALVE_STATE_TYPE',
+           'measurement_from_state', 'read_bag']
+
+_LOG = logging.getLogger(__name__)
+
+#: The message type the suite records its valve state with.
+VALVE_STATE_TYPE = 'valve_msgs/msg/ValveState'
+#: ValveState field with the mean coil current since the previous message [A].
+MEAN_CURRENT_FIELD = 'coil_current_mean'
+#: Drive supply voltage assumed for a suite bag, which does not carry it [V].
+DEFAULT_BAG_SUPPLY_V = 24.0
+#: A state stream slower than this is coarse for identification (the stroke lasts under
+#: 1 ms) [Hz].
+_COARSE_RATE_HZ = 10e3
+
+
+@dataclass(frozen=True)
+class StateColumns:
+    """The ``ValveState`` fields identification uses, one array per field, shape (n,).
+
+    Attributes
+    ----------
+    frame_id : numpy.ndarray of str
+        ``header.frame_id``: the valve.
+    stamp_s, log_time_s : numpy.ndarray
+        ``header.stamp`` and the bag's receive time [s since the epoch].
+    sequence : numpy.ndarray
+        The publisher's message counter (float64).
+    coil_voltage_v, coil_current_a, spool_position_m : numpy.ndarray
+        Instantaneous coil voltage [V], coil current [A], spool position [m].
+    position_measured : numpy.ndarray of bool
+        Whether ``spool_position`` is measured (else modelled).
+    supply_pressure_pa, output_pressure_pa : numpy.ndarray
+        Gauge pressures [Pa].
+    pwm_frequency_hz, duty : numpy.ndarray
+        Main PWM command in force: frequency [Hz] and duty [1].
+    coil_current_mean_a : numpy.ndarray or None
+        Mean coil current since the previous message [A]; ``None`` when the recorded
+        definition of ``ValveState`` has no such field.
+    """
+
+    frame_id: np.ndarray
+    stamp_s: np.ndarray
+    log_time_s: np.ndarray
+    sequence: np.ndarray
+    coil_voltage_v: np.ndarray
+    coil_current_a: np.ndarray
+    spool_position_m: np.ndarray
+    position_measured: np.ndarray
+    supply_pressure_pa: np.ndarray
+    output_pressure_pa: np.ndarray
+    pwm_frequency_hz: np.ndarray
+    duty: np.ndarray
+    coil_current_mean_a: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.stamp_s.size)
+
+    @classmethod
+    def from_topic(cls, data: TopicData) -> 'StateColumns':
+        """The columns of a ``ValveState`` topic as :func:`~valve_model_pkg.recording.
+        load_bag` reads it."""
+        f = data.fields
+
+        def num(name: str) -> np.ndarray:
+            return np.asarray(f[name], dtype=float)
+
+        return cls(
+            frame_id=np.asarray(f['header.frame_id'], dtype=str),
+            stamp_s=num('header.stamp.sec') + 1e-9 * num('header.stamp.nanosec'),
+            log_time_s=data.log_time_ns * 1e-9, sequence=num('sequence'),
+            coil_voltage_v=num('coil_voltage'), coil_current_a=num('coil_current'),
+            spool_position_m=num('spool_position'),
+            position_measured=np.asarray(f['position_measured'], dtype=bool),
+            supply_pressure_pa=num('supply_pressure'),
+            output_pressure_pa=num('output_pressure'), pwm_frequency_hz=num('pwm_frequency'),
+            duty=num('duty'),
+            coil_current_mean_a=num(MEAN_CURRENT_FIELD) if MEAN_CURRENT_FIELD in f else None)
+
+    def select(self, keep: np.ndarray) -> 'StateColumns':
+        """The messages where ``keep`` (bool, shape (n,)) is true."""
+        return StateColumns(**{fl.name: None if getattr(self, fl.name) is None
+                               else getattr(self, fl.name)[keep] for fl in fields(self)})
+
+
+def read_bag(path: str | Path, *, topic: str = '/' + TOPIC_STATE, valve: str | None = None,
+             mapping: Mapping[str, FieldSpecOrValue] | None = None) -> Measurement:
+    """Read a rosbag2 bag for identification.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        Bag directory (any bag :func:`valve_model_pkg.recording.load_bag` reads: MCAP or
+        sqlite3, split, zstd-compressed, with or without ``metadata.yaml``) or one storage
+        file of it.
+    topic : str
+        Topic of the suite's ``valve_msgs/msg/ValveState`` messages.
+    valve : str, optional
+        ``header.frame_id`` of the valve to take when the topic carries several valves.
+    mapping : mapping of str to FieldSpec or float, optional
+        A user's own topics by role (:func:`~.topic_map.parse_topic_map`); when given,
+        ``topic`` and ``valve`` are not used (:func:`~.topic_map.read_mapped_bag`).
+
+    Returns
+    -------
+    Measurement
+        From ValveState: time from ``header.stamp`` relative to the first message (the
+        bag's receive time when the stamps are all zero); ``coil_voltage``,
+        ``coil_current``; the supply pressure is the median of ``supply_pressure`` over
+        the messages; the spool position only if the messages say it is measured
+        (``position_measured``).
+
+    Raises
+    ------
+    MeasurementFormatError
+        The bag cannot be read, lacks the topic, mixes valves without ``valve`` given,
+        has non-increasing stamps or non-finite voltages.
+
+    Notes
+    -----
+    The suite publishes its state at about 1 kHz. That is coarse for identification (the
+    spool stroke lasts under a millisecond): the fit uses what there is, the model is
+    simulated at its own step and sampled at the message times, and the voltage is held
+    between messages, so PWM edges between two messages are lost. Sequence gaps are
+    reported as missing samples.
+    """
+    spath = str(path)
+    if mapping:
+        return read_mapped_bag(path, mapping)
+    if not Path(path).exists():
+        raise MeasurementFormatError(spath, None, 'cannot be opened as a rosbag2 bag: it '
+                                     'does not exist')
+    try:
+        contents = load_bag_contents(path, [topic])
+    except RecordingError as err:
+        raise refused_bag(spath, err) from err
+    data = contents.topics.get(topic if topic.startswith('/') else '/' + topic)
+    if data is None:
+        have = sorted(f'{t} ({m})' for t, m in contents.available.items())
+        raise MeasurementFormatError(spath, None, f'has no topic {topic!r}; it has {have}')
+    if data.msgtype != VALVE_STATE_TYPE:
+        raise MeasurementFormatError(
+            spath, None, f'topic {topic!r} carries {data.msgtype}, not {VALVE_STATE_TYPE}')
+    m = measurement_from_state(spath, topic, valve, StateColumns.from_topic(data))
+    if contents.notes:
+        m = replace(m, notes=tuple(contents.notes) + m.notes)
+    return m
+
+
+def _one_valve(spath: str, topic: str, valve: str | None, cols: StateColumns
+               ) -> tuple[StateColumns, str]:
+    """The messages of one valve, and its name."""
+    frames = sorted(set(cols.frame_id.tolist()))
+    if valve is not None:
+        cols = cols.select(cols.frame_id == valve)
+        if not len(cols):
+            raise MeasurementFormatError(
+                spath, None, f'no message on {topic} has frame_id {valve!r}; found {frames}')
+    elif len(frames) > 1:
+        raise MeasurementFormatError(
+            spath, None, f'{topic} carries several valves {frames}; choose one (valve=...)')
+    if len(cols) < MIN_SAMPLES:
+        raise MeasurementFormatError(
+            spath, None, f'has {len(cols)} messages on {topic}; at least {MIN_SAMPLES} '
+            'are needed')
+    return cols, frames[0] if valve is None else valve
+
+
+def _state_time_axis(spath: str, cols: StateColumns, notes: list[str]) -> np.ndarray:
+    """Time since the first message [s] from the header stamps (receive times when the
+    stamps are all zero), rebuilt from the sequence numbers when stamps repeat."""
+    stamps, seq = cols.stamp_s, cols.sequence
+    if np.all(stamps == 0.0):
+        notes.append('all header stamps are zero; the bag receive times are used')
+        stamps = cols.log_time_s
+    t = stamps - stamps[0]
+    n_back = int(np.count_nonzero(np.diff(t) <= 0.0))
+    if n_back and np.all(np.diff(seq) > 0) and t[-1] > t[0]:
+        # A driver on simulation time stamps each state on receipt with a /clock that can
+        # lag a step behind the telemetry, which comes at one message per step (counted
+        # by the sequence numbers). The step is the median over pairs half the record
+        # apart: one-sided lags of single stamps, the end ones included, do not bias it
+        # (a line through the end stamps or a least-squares line would drift against the
+        # model's PWM grid).
+        half = seq.size // 2
+        step = float(np.median((t[half:] - t[:seq.size - half])
+                               / (seq[half:] - seq[:seq.size - half])))
+        t = (seq - seq[0]) * step
+        notes.append(f'{n_back} header stamps do not increase while the sequence numbers '
+                     f'do; the time axis is rebuilt from the sequence numbers at the '
+                     f'step {step * 1e3:.6g} ms (median over half-record spans)')
+    check_time_axis(spath, t, None)
+    return t
+
+
+def _sequence_gaps(seq: np.ndarray, notes: list[str]) -> int:
+    """Number of gaps in the sequence numbers (a note says how many messages were lost)."""
+    dseq = np.diff(seq)
+    lost = int(np.sum(np.clip(dseq - 1, 0, None)))
+    n_gaps = int(np.count_nonzero(dseq > 1))
+    if lost:
+        notes.append(f'{n_gaps} sequence gaps, {lost} messages lost; kept, the model is '
+                     'simulated through them')
+    return n_gaps
+
+
+def measurement_from_state(spath: str, topic: str, valve: str | None,
+                           cols: StateColumns) -> Measurement:
+    """A Measurement from the ``ValveState`` messages of one bag (checks and notes included).
+
+    Parameters
+    ----------
+    spath : str
+        The bag, named in errors and as the source.
+    topic : str
+        The topic read, for the notes.
+    valve : str or None
+        ``frame_id`` to keep; ``None`` when the topic carries one valve.
+    cols : StateColumns
+        The messages in bag order.
+
+    Raises
+    ------
+    MeasurementFormatError
+        Several valves without ``valve``, too few messages, a bad time axis, non-finite
+        voltages, no excitation, PWM without the interval-mean current.
+    """
+    cols, frame = _one_valve(spath, topic, valve, cols)
+    notes: list[str] = []
+    t = _state_time_axis(spath, cols, notes)
+    if np.any(cols.pwm_frequency_hz > 0.0) and np.any(cols.duty > 0.0):
+        if not _bench_steps(cols.duty, cols.coil_voltage_v):
+            return _state_operation(spath, topic, frame, t, cols, notes)
+        notes.append('duty steps between 0 and 1 with an unchopped coil voltage (a bench '
+                     'with the drive electronics bypassed): fitted as a bare coil driven by '
+                     'coil_voltage')
+    voltage, current = cols.coil_voltage_v, cols.coil_current_a
+    bad_v = np.flatnonzero(~np.isfinite(voltage))
+    if bad_v.size:
+        raise MeasurementFormatError(
+            spath, None, f'message {int(bad_v[0])} has a non-finite coil_voltage')
+    check_excitation(spath, voltage, None)
+    n_missing = int(np.count_nonzero(~np.isfinite(current)))
+    if n_missing:
+        notes.append(f'{n_missing} messages with a non-finite coil_current; kept, excluded')
+    n_gaps = _sequence_gaps(cols.sequence, notes)
+    supply_all = cols.supply_pressure_pa
+    supply = float(np.median(supply_all))
+    if np.ptp(supply_all) > 0.01 * max(abs(supply), 1e3):
+        notes.append(f'supply_pressure varies {supply_all.min():.0f}..{supply_all.max():.0f} '
+                     f'Pa; the median {supply:.0f} Pa is used')
+    rate = 1.0 / float(np.median(np.diff(t)))
+    if rate < _COARSE_RATE_HZ:
+        notes.append(f'state stream at {rate:.0f} Hz is coarse for identification (the '
+                     'stroke lasts under 1 ms); fitted on what there is')
+    position = cols.spool_position_m.copy() if np.all(cols.position_measured) else None
+    output = float(np.median(cols.output_pressure_pa))
+    metadata = {
+        'experiment': 'pwm' if np.any(np.abs(np.diff(voltage)) > 0) and
+        np.nanmax(cols.pwm_frequency_hz) > 0 else 'step',
+        'valve': frame,
+        'supply_pressure_pa': f'{supply:g}',
+        'output_pressure_pa': f'{output:g}',
+        'sample_rate_hz': f'{rate:g}',
+        'topic': topic,
+    }
+    for note in notes:
+        _LOG.info('%s: %s', spath, note)
+    return Measurement(
+        source=spath, t_s=t, voltage_v=voltage.copy(), current_a=current.copy(),
+        supply_pressure_pa=supply, output_pressure_pa=output,
+        experiment=metadata['experiment'], position_m=position, metadata=metadata,
+        notes=tuple(notes), n_missing_values=n_missing, n_gaps=n_gaps)
+
+
+def _bench_steps(duty: np.ndarray, coil_voltage_v: np.ndarray) -> bool:
+    """True for a bench record: duty only 0 or 1 and the coil voltage never chopped.
+
+    With the drive electronics on, the chopper holds the current with a 20 kHz voltage
+    that a 1 kHz sample catches low most of the time once the valve is open; a bench with
+    the electronics bypassed applies the supply for as long as the duty is 1.
+    """
+    if not np.all((duty == 0.0) | (duty == 1.0)):
+        return False
+    on = coil_voltage_v[duty == 1.0]
+    on = on[np.isfinite(on)]
+    return bool(on.size) and bool(np.all(on >= 0.5 * np.max(on))) and float(np.max(on)) > 0.0
+
+
+def _state_operation(spath: str, topic: str, frame: str, t: np.ndarray, cols: StateColumns,
+                     notes: list[str]) -> Measurement:
+    """A bag of the suite running PWM: an operational record (drive electronics on)."""
+    mean = cols.coil_current_mean_a
+    if mean is None or not np.any(np.isfinite(mean)):
+        raise MeasurementFormatError(
+            spath, None, f'{topic} carries PWM (pwm_frequency up to '
+            f'{float(np.max(cols.pwm_frequency_hz)):g} Hz) but its messages have no (or only '
+            f'NaN) {MEAN_CURRENT_FIELD!r} field (the mean coil current since the previous '
+            'message): a 1 kHz sample of a chopped current cannot be compared with the '
+            'model; record the bag with a suite whose ValveState carries it')
+    n_gaps = _sequence_gaps(cols.sequence, notes)
+    supply = median_pressure(cols.supply_pressure_pa, 'supply_pressure', None, notes)
+    output = median_pressure(cols.output_pressure_pa, 'output_pressure', 0.0, notes)
+    notes.append(f'the bag does not carry the drive supply voltage: {DEFAULT_BAG_SUPPLY_V:g} V '
+                 '(the suite\'s) is assumed')
+    return operation_measurement(
+        spath, t, cols.duty.copy(), cols.pwm_frequency_hz.copy(), mean.copy(),
+        supply_v=DEFAULT_BAG_SUPPLY_V, supply_pa=supply, output_pa=output, notes=notes,
+        n_gaps=n_gaps, interval_means=True,
+        described=f'from {topic}: the model runs the drive electronics from duty and '
+        f'pwm_frequency and is compared with {MEAN_CURRENT_FIELD} (interval means)',
+        metadata={'experiment': 'operation', 'valve': frame, 'topic': topic})

@@ -1,0 +1,393 @@
+"""Measured valve data in memory: the record every reader returns, and its rules.
+
+A :class:`Measurement` is one measured trace, whatever it was read from: a CSV file of the
+measured-data format (:mod:`.csv_reader`), a rosbag2 bag (:mod:`.bag_reader`,
+:mod:`.topic_map`). Records through the drive electronics carry their main PWM commands
+as a :class:`DriveInput` (reconstructed by :mod:`.pwm_grid`).
+
+Rules every reader applies: at least :data:`MIN_SAMPLES` samples, a time axis that
+increases strictly from at or after zero (:func:`check_time_axis`), some excitation
+(:func:`check_excitation`), one pressure per record (:func:`median_pressure`). Nothing is
+dropped silently: a sample whose current is missing is kept as ``nan`` (and excluded from
+the error integrals), gaps in the time axis are counted, and every such finding is listed
+in :attr:`Measurement.notes`.
+
+Records with different sample rates are combined by keeping each on its own time base:
+the model is simulated at its own step and sampled at each record's sample times, and the
+error integrals are integrals over time, so a 1 kHz record and a 50 kHz one weigh by
+duration, not by sample count.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from valve_model_pkg import dataformat
+
+from ..errors import MeasurementFormatError
+
+__all__ = ['DriveInput', 'MIN_SAMPLES', 'Measurement', 'check_excitation', 'check_time_axis',
+           'hold_out', 'median_pressure', 'refused_bag']
+
+#: Fewest samples a record must have.
+MIN_SAMPLES = 10
+#: A coil voltage at or below this everywhere counts as no excitation [V].
+MIN_EXCITATION_V = 1e-3
+#: A command is given this long before the period start it must be latched at [s] (the
+#: model latches commands at the next period start).
+_LATCH_LEAD_S = 1e-6
+
+
+def _lead(period_s: float) -> float:
+    return min(_LATCH_LEAD_S, 0.25 * period_s)
+
+
+@dataclass(frozen=True)
+class DriveInput:
+    """Main PWM commands through the drive electronics, as the model's ``pwm_commands``.
+
+    Built by the readers so that the model latches each command at the period start the
+    record shows (:func:`~valve_model_pkg.identification.pwm_grid.drive_from_in_force`,
+    :func:`~valve_model_pkg.identification.pwm_grid.drive_from_main_pwm`), through
+    :meth:`from_periods` and :meth:`with_offs`.
+
+    Attributes
+    ----------
+    t_s, duty, pwm_frequency_hz, supply_voltage_v : numpy.ndarray, shape (n,)
+        Arguments of ``InputTrace.pwm_commands``: command times [s], duty [1], main PWM
+        frequency [Hz], drive supply voltage [V].
+    period_starts_s : numpy.ndarray, shape (m,)
+        The main PWM period starts the reader reconstructed [s].
+    high_until_s : numpy.ndarray, shape (m,)
+        End of the high phase of each period [s] (for the phases of the residual).
+    period_duty, period_freq_hz : numpy.ndarray, shape (m,), optional
+        Duty [1] and frequency [Hz] of each period.
+    phase_range_s : tuple of float
+        Shifts of the period grid [s] the record allows (its changes bound the phase).
+    off_times_s, off_freq_hz : numpy.ndarray, optional
+        Immediate switch-offs (duty 0 acts at once) [s] and the frequency then [Hz].
+    """
+
+    t_s: np.ndarray
+    duty: np.ndarray
+    pwm_frequency_hz: np.ndarray
+    supply_voltage_v: np.ndarray
+    period_starts_s: np.ndarray
+    high_until_s: np.ndarray
+    period_duty: np.ndarray | None = None
+    period_freq_hz: np.ndarray | None = None
+    phase_range_s: tuple[float, float] = (0.0, 0.0)
+    off_times_s: np.ndarray | None = None
+    off_freq_hz: np.ndarray | None = None
+
+    def shifted(self, delta_s: float) -> 'DriveInput':
+        """The same commands on a period grid moved by ``delta_s`` [s]."""
+        starts = self.period_starts_s + delta_s
+        keep = starts >= 0.0
+        out = DriveInput.from_periods(list(starts[keep]), list(self.period_duty[keep]),
+                                      list(self.period_freq_hz[keep]),
+                                      float(self.supply_voltage_v[0]))
+        if self.off_times_s is not None and self.off_times_s.size:
+            out = out.with_offs(self.off_times_s, self.off_freq_hz)
+        lo, hi = self.phase_range_s
+        return replace(out, phase_range_s=(lo - delta_s, hi - delta_s))
+
+    def main_pwm_level(self, t_s: np.ndarray) -> np.ndarray:
+        """Supply voltage where the main PWM is high at ``t_s``, else 0 [V], shape (n,)."""
+        k = np.searchsorted(self.period_starts_s, t_s, side='right') - 1
+        ok = k >= 0
+        kk = np.clip(k, 0, None)
+        started = self.high_until_s[kk] > self.period_starts_s[kk]
+        high = ok & (t_s < self.high_until_s[kk]) & started
+        v = np.interp(t_s, self.t_s, self.supply_voltage_v)
+        return np.where(high, v, 0.0)
+
+    @classmethod
+    def from_periods(cls, starts: list[float], duty: list[float], freq: list[float],
+                     supply_v: float) -> 'DriveInput':
+        """Commands that make the model latch each period's (duty, f) at its start.
+
+        Parameters
+        ----------
+        starts : list of float
+            Main PWM period starts [s], increasing.
+        duty, freq : list of float
+            Duty [1] and frequency [Hz] of each period.
+        supply_v : float
+            Drive supply voltage [V].
+        """
+        ts: list[float] = []
+        dd: list[float] = []
+        ff: list[float] = []
+        s0 = starts[0]
+        if s0 > 0.0:
+            # duty 0 until the first period start, with a pre-period that ends exactly there
+            n = max(1, int(math.ceil(s0 / 1e-3)))
+            ts.append(0.0)
+            dd.append(0.0)
+            ff.append(n / s0)
+            prev_f = n / s0
+        else:
+            prev_f = None
+        last = (None, None)
+        for s, d, f in zip(starts, duty, freq):
+            if (d, f) == last:
+                continue
+            t_cmd = 0.0 if s <= 0.0 else s - _lead(1.0 / prev_f)
+            if ts and t_cmd <= ts[-1]:
+                t_cmd = ts[-1] + 0.5 * (s - ts[-1])
+            ts.append(t_cmd)
+            dd.append(d)
+            ff.append(f)
+            last = (d, f)
+            prev_f = f
+        st = np.asarray(starts)
+        high = st + np.asarray(duty) / np.asarray(freq)
+        return cls(t_s=np.asarray(ts), duty=np.asarray(dd), pwm_frequency_hz=np.asarray(ff),
+                   supply_voltage_v=np.full(len(ts), float(supply_v)),
+                   period_starts_s=st, high_until_s=high, period_duty=np.asarray(duty),
+                   period_freq_hz=np.asarray(freq))
+
+    def with_offs(self, t_off: np.ndarray, f_at: np.ndarray) -> 'DriveInput':
+        """These commands with immediate duty-0 commands at ``t_off`` [s] merged in; ``f_at``
+        [Hz] is the record's frequency at each switch-off."""
+        drive = self
+        # A switch-off must not move the period grid, and the model latches its frequency at
+        # the next period start: it carries the frequency of the model's command in force (in
+        # the lead-in before the first period start, the lead-in's, not the record's f_at).
+        k_cmd = np.clip(np.searchsorted(drive.t_s, t_off, side='right') - 1, 0, None)
+        f_cmd = drive.pwm_frequency_hz[k_cmd]
+        # The period commands skip repeats of the (duty, f) before; after a switch-off the
+        # next non-zero period must be commanded again, or the model stays off for it.
+        re_t, re_d, re_f = [], [], []
+        if drive.period_duty is not None:
+            starts = drive.period_starts_s
+            for t0, t1 in zip(t_off, np.append(t_off[1:], np.inf)):
+                j = int(np.searchsorted(starts, t0, side='right'))
+                if j >= starts.size or starts[j] >= t1 or drive.period_duty[j] <= 0.0:
+                    continue
+                if not np.any((drive.t_s > t0) & (drive.t_s < starts[j])):
+                    re_t.append(max(starts[j] - _lead(1.0 / drive.period_freq_hz[j]),
+                                    0.5 * (t0 + starts[j])))
+                    re_d.append(float(drive.period_duty[j]))
+                    re_f.append(float(drive.period_freq_hz[j]))
+        ts = np.concatenate((drive.t_s, t_off, re_t))
+        order = np.argsort(ts, kind='stable')
+        out = replace(
+            drive, t_s=ts[order],
+            duty=np.concatenate((drive.duty, np.zeros(t_off.size), re_d))[order],
+            pwm_frequency_hz=np.concatenate((drive.pwm_frequency_hz, f_cmd, re_f))[order],
+            supply_voltage_v=np.full(ts.size, float(drive.supply_voltage_v[0])),
+            off_times_s=t_off, off_freq_hz=f_at)
+        k = np.searchsorted(out.period_starts_s, t_off, side='right') - 1
+        high = out.high_until_s.copy()
+        ok = k >= 0
+        high[k[ok]] = np.minimum(high[k[ok]], t_off[ok])
+        return replace(out, high_until_s=high)
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One measured trace, whatever file it came from.
+
+    Attributes
+    ----------
+    source : str
+        File (or bag directory) the trace was read from.
+    t_s : numpy.ndarray, shape (n,)
+        Sample times [s], strictly increasing, starting at or after 0.
+    voltage_v : numpy.ndarray, shape (n,)
+        Voltage at the coil terminals [V]. Between samples it is held (zero-order hold).
+    current_a : numpy.ndarray, shape (n,)
+        Measured coil current [A]; ``nan`` marks a missing value.
+    supply_pressure_pa : float or None
+        Supply pressure, gauge [Pa]; ``None`` when the file does not say.
+    output_pressure_pa : float
+        Output port pressure, gauge [Pa] (0 when the file does not say).
+    experiment : str
+        ``step`` or ``pwm`` (``unknown`` when the file does not say).
+    position_m : numpy.ndarray or None, shape (n,)
+        Measured spool position [m] when available.
+    metadata : dict
+        All metadata as read (unknown keys kept).
+    notes : tuple of str
+        Everything the reader noticed and kept: missing values, gaps, rate mismatches.
+    n_missing_values : int
+        Number of samples whose current is missing (``nan``).
+    n_gaps : int
+        Number of steps of the time axis longer than 1.5 nominal periods.
+    """
+
+    source: str
+    t_s: np.ndarray
+    voltage_v: np.ndarray
+    current_a: np.ndarray
+    supply_pressure_pa: float | None
+    output_pressure_pa: float = 0.0
+    experiment: str = 'unknown'
+    position_m: np.ndarray | None = None
+    metadata: dict[str, str] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+    n_missing_values: int = 0
+    n_gaps: int = 0
+    drive: DriveInput | None = None
+    sampling: str = 'instant'
+    exclude_before_s: float = 0.0
+    held_out_from_s: float | None = None
+
+    @property
+    def through_electronics(self) -> bool:
+        """True when the model runs the drive electronics from the main PWM commands."""
+        return self.drive is not None
+
+    @property
+    def name(self) -> str:
+        """Short name of the source (file name without directories)."""
+        return Path(self.source).name
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples (rows), missing values included."""
+        return int(self.t_s.size)
+
+    @property
+    def duration_s(self) -> float:
+        """Time span of the trace [s]."""
+        return float(self.t_s[-1] - self.t_s[0]) if self.t_s.size else 0.0
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """Actual sample rate [Hz] from the median sampling period."""
+        if self.t_s.size < 2:
+            return float('nan')
+        return 1.0 / float(np.median(np.diff(self.t_s)))
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Samples that enter the errors, shape (n,): a measured current, and not in the
+        discarded start (``exclude_before_s``: a record that starts in motion, or the fit
+        part of a record whose hold-out this is)."""
+        return np.isfinite(self.current_a) & (self.t_s >= self.exclude_before_s)
+
+    def with_current(self, current_a: np.ndarray, source: str | None = None) -> 'Measurement':
+        """Return a copy whose current is replaced (used for residuals and for tests).
+
+        Parameters
+        ----------
+        current_a : numpy.ndarray, shape (n,)
+            New current trace [A].
+        source : str, optional
+            New source name; by default the old one.
+        """
+        cur = np.asarray(current_a, dtype=float)
+        if cur.shape != self.t_s.shape:
+            raise ValueError(f'current has shape {cur.shape}, expected {self.t_s.shape}')
+        return replace(self, source=self.source if source is None else source,
+                       current_a=cur, metadata=dict(self.metadata),
+                       n_missing_values=int(np.count_nonzero(~np.isfinite(cur))))
+
+    def summary(self) -> str:
+        """One line a person can read in a progress log."""
+        p = ('unknown' if self.supply_pressure_pa is None
+             else f'{self.supply_pressure_pa / 1e5:.2f} bar')
+        v = self.voltage_v
+        return (f'{self.name}: {self.n_samples} samples, {self.duration_s * 1e3:.1f} ms at '
+                f'{self.sample_rate_hz / 1e3:.3g} kHz, voltage {v.min():.3g}..{v.max():.3g} V, '
+                f'supply {p}, {self.n_missing_values} missing values, {self.n_gaps} gaps')
+
+
+def check_time_axis(path: str, t: np.ndarray, linenos: Sequence[int] | None) -> None:
+    """Refuse a time axis that does not increase strictly from at or after zero.
+
+    The measured-data format's rule (:func:`valve_model_pkg.dataformat.check_time_axis`),
+    raised as :class:`~valve_model_pkg.errors.MeasurementFormatError`.
+
+    Parameters
+    ----------
+    path : str
+        Named in the error.
+    t : numpy.ndarray, shape (n,)
+        Sample times [s].
+    linenos : sequence of int or None
+        File line of each sample; ``None`` for bag messages (the message is named).
+    """
+    try:
+        dataformat.check_time_axis(path, t, linenos)
+    except dataformat.DataFormatError as err:
+        raise MeasurementFormatError(err.path, err.line, err.reason) from err
+
+
+def check_excitation(source: str, voltage: np.ndarray, line_numbers: np.ndarray | None
+                     ) -> None:
+    """Refuse a record whose coil voltage is zero throughout: it excites nothing to fit.
+
+    Checked before any simulation, so such a record is refused at once instead of being
+    fitted for minutes.
+    """
+    if np.any(np.abs(voltage) > MIN_EXCITATION_V):
+        return
+    where = (f' (lines {int(line_numbers[0])}..{int(line_numbers[-1])})'
+             if line_numbers is not None and len(line_numbers) else '')
+    raise MeasurementFormatError(
+        source, None, f'has no excitation: the coil voltage is 0 V in all {voltage.size} '
+        f'samples{where}; nothing to identify')
+
+
+def median_pressure(values: np.ndarray | None, name: str, default: float | None,
+                    notes: list[str]) -> float | None:
+    """The one pressure [Pa] the model takes per record: the median of ``values`` [Pa].
+
+    ``default`` when there is no finite value; a note is appended to ``notes`` when the
+    values vary by more than 1 % (of at least 1 kPa).
+    """
+    if values is None:
+        return default
+    ok = values[np.isfinite(values)]
+    if ok.size == 0:
+        return default
+    med = float(np.median(ok))
+    if np.ptp(ok) > 0.01 * max(abs(med), 1e3):
+        notes.append(f'{name} varies {ok.min():.0f}..{ok.max():.0f} Pa; the model takes one '
+                     f'pressure per run: the median {med:.0f} Pa is used')
+    return med
+
+
+def hold_out(m: Measurement, fraction: float = 0.3, fit_window_s: float | None = None
+             ) -> tuple[Measurement, Measurement]:
+    """Split one record into a fit part and a hold-out for validation.
+
+    The last ``fraction`` of the record (by time) is held out. The fit part is the record
+    up to there (at most ``fit_window_s`` after its discarded start); the validation part
+    is the whole record with everything before the hold-out left out of its errors (the
+    model is simulated from t = 0 through the fit part, so the hold-out starts from the
+    state the fitted model reaches).
+    """
+    t = m.t_s
+    split = float(t[0] + (1.0 - fraction) * (t[-1] - t[0]))
+    end = split if fit_window_s is None else min(split, m.exclude_before_s + fit_window_s)
+    keep = t <= end
+    fit = replace(m, t_s=t[keep], voltage_v=m.voltage_v[keep], current_a=m.current_a[keep],
+                  position_m=None if m.position_m is None else m.position_m[keep],
+                  n_missing_values=int(np.count_nonzero(~np.isfinite(m.current_a[keep]))),
+                  notes=m.notes + (f'fit part: {t[0]:.3g}..{end:.3g} s of the record '
+                                   f'(the last {100 * fraction:.0f} % from {split:.3g} s is '
+                                   'held out for validation)',),
+                  held_out_from_s=split)
+    val = replace(m, exclude_before_s=max(m.exclude_before_s, split), held_out_from_s=split,
+                  notes=m.notes + (f'validation part: the hold-out {split:.3g}..'
+                                   f'{t[-1]:.3g} s (the last {100 * fraction:.0f} %), never '
+                                   'seen by the fit',))
+    return fit, val
+
+
+def refused_bag(source: str, err: BaseException) -> MeasurementFormatError:
+    """A bag's refusal by :mod:`valve_model_pkg.recording` as the identification's error:
+    one line naming ``source``."""
+    reason = ' '.join(str(err).split())
+    if reason.startswith(source):
+        reason = reason[len(source):].lstrip(':').lstrip()
+    return MeasurementFormatError(source, None, reason)
