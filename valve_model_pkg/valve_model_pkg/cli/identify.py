@@ -50,6 +50,8 @@ def _parser() -> argparse.ArgumentParser:
                    help='smaller search effort (for tests and previews)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
     p.add_argument('--quiet', action='store_true', help='no progress output')
+    from valve_model_pkg.instruments import add_import_options
+    add_import_options(p)
     return p
 
 
@@ -57,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``valve_identify``."""
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s: %(message)s')
-    from ..errors import IdentificationError, MeasurementFormatError
+    from ..errors import IdentificationError, InstrumentFormatError, MeasurementFormatError
+    from ..instruments import options_from_args, records_for
     from ..identification.measurements import read_measurements
     from ..identification.pipeline import IdentifySettings, identify
     from ..identification.report import write_report
@@ -71,8 +74,11 @@ def main(argv: list[str] | None = None) -> int:
                   flush=True)
 
     try:
-        fit = read_measurements(args.fit, topic=args.topic, valve=args.valve)
-        val = read_measurements(args.validate, topic=args.topic, valve=args.valve)
+        imports = options_from_args(args)
+        fit = read_measurements(records_for(args.fit, imports, args.out, progress),
+                                topic=args.topic, valve=args.valve)
+        val = read_measurements(records_for(args.validate, imports, args.out, progress),
+                                topic=args.topic, valve=args.valve)
         for m in fit + val:
             if m.supply_pressure_pa is None:
                 raise MeasurementFormatError(
@@ -80,7 +86,8 @@ def main(argv: list[str] | None = None) -> int:
             for note in m.notes:
                 progress(f'{m.name}: {note}')
         base = load_parameters(args.params, allow_implausible=args.allow_implausible)
-    except (MeasurementFormatError, ParameterError, FileNotFoundError) as err:
+    except (MeasurementFormatError, InstrumentFormatError, ParameterError,
+            FileNotFoundError) as err:
         print(f'valve_identify: error: {err}', file=sys.stderr)
         return 2
     settings = IdentifySettings(diagnose=not args.no_diagnosis)
