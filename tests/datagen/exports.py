@@ -192,12 +192,13 @@ def write_keysight(path: Path, tr: ScopeTrace, *, volts_per_div: float = 5.0,
 # --- PicoScope --------------------------------------------------------------------------------
 def write_pico_csv(path: Path, tr: ScopeTrace, *, tab: bool = False,
                    over_range_at: int | None = None) -> dict[str, float]:
-    """PicoScope CSV (or tab text with a BOM): time in ms, A in V, B in mA (12-bit).
+    """PicoScope CSV (or tab text with a BOM): time in ms, A in V (+-50 V), B in mA (+-2 A),
+    12-bit.
 
     ``over_range_at``: a current sample written as the infinity sign (over range).
     """
-    lsbs = {'voltage': 40.0 / 4096, 'current': 4.0 / 4096}
-    v = quantise(tr.voltage_v, lsbs['voltage'], -20.0, 20.0)
+    lsbs = {'voltage': 100.0 / 4096, 'current': 4.0 / 4096}
+    v = quantise(tr.voltage_v, lsbs['voltage'], -50.0, 50.0)
     i = quantise(tr.current_a, lsbs['current'], -2.0, 2.0) * 1e3
     sep = '\t' if tab else ','
     rows = []
@@ -216,8 +217,8 @@ def write_pico_mat(path: Path, tr: ScopeTrace, *, version: str = '5') -> dict[st
     ``version``: ``'4'`` and ``'5'`` written by scipy, ``'7.3'`` by h5py as MATLAB does
     (512-byte header block, then HDF5; column vectors stored as (1, n) datasets).
     """
-    lsbs = {'voltage': 40.0 / 65536, 'current': 4.0 / 65536}
-    a = quantise(tr.voltage_v, lsbs['voltage'], -20.0, 20.0).astype(np.float32)
+    lsbs = {'voltage': 100.0 / 65536, 'current': 4.0 / 65536}
+    a = quantise(tr.voltage_v, lsbs['voltage'], -50.0, 50.0).astype(np.float32)
     b = quantise(tr.current_a, lsbs['current'], -2.0, 2.0).astype(np.float32)
     variables = {'Tstart': float(tr.t_s[0]), 'Tinterval': float(tr.dt_s),
                  'Length': float(tr.t_s.size), 'ExtraSamples': 0.0,

@@ -22,7 +22,7 @@ from .plain import TIME_NAMES, PlainCsvReader
 from .rigol import RigolReader
 from .tdms import TdmsReader
 from .tektronix import MsoReader, TdsReader
-from .text import MAX_LINE_CHARS, split_fields
+from .text import MAX_LINE_CHARS
 
 __all__ = ['READERS', 'SUITE_FORMAT', 'read_head', 'detect', 'open_export', 'read_capture',
            'is_suite_record']
@@ -62,13 +62,8 @@ def _text_lines(raw: bytes) -> tuple[str, ...]:
     if b'\x00' in raw[:4096]:
         return ()
     body = raw if len(raw) < _HEAD_BYTES else raw[:raw.rfind(b'\n') + 1]
-    try:
-        text = body.decode('utf-8-sig')
-    except UnicodeDecodeError:
-        try:
-            text = body[:body.rfind(b'\n', 0, 4096) + 1].decode('utf-8-sig')
-        except UnicodeDecodeError:
-            return ()
+    # Bytes that are not UTF-8 are replaced here; reading the rows refuses them by row.
+    text = body.decode('utf-8-sig', errors='replace')
     lines = text.replace('\r', '').split('\n')[:_HEAD_LINES]
     if lines and any(len(ln) > MAX_LINE_CHARS for ln in lines):
         return ()
@@ -207,8 +202,3 @@ def _same_base(path: str, first: str, a, b) -> None:  # noqa: ANN001 - TimeAxis
                                     f'every {b.dt_s or 0:.6g} s differs from {first} ({a.n} '
                                     f'samples from {a.t0_s:.9g} s every {a.dt_s or 0:.6g} s): '
                                     'not files of one capture')
-
-
-def fields_of(line: str) -> list[str]:
-    """Comma-separated fields of a row (for callers sniffing exports)."""
-    return split_fields(line, ',')
