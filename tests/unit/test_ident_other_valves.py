@@ -78,9 +78,9 @@ def user_params(valve: TruthValve, path: Path, seed: int) -> Path:
     for field, key in _TABLE1.items():
         doc['valve'][key] = float(getattr(valve, field))
     for field, key in _TABLE2.items():
-        doc['valve'][key] = float(getattr(valve, field)) * (1.0 + rng.choice([-0.08, 0.08]))
-    doc['valve']['total_air_gap_m'] = max(doc['valve']['total_air_gap_m'],
-                                          1.2 * doc['valve']['stroke_m'])
+        doc['valve'][key] = float(getattr(valve, field) * (1.0 + rng.choice([-0.08, 0.08])))
+    doc['valve']['total_air_gap_m'] = float(max(doc['valve']['total_air_gap_m'],
+                                                1.2 * doc['valve']['stroke_m']))
     path.write_text(yaml.safe_dump(doc), encoding='utf-8')
     return path
 
@@ -91,8 +91,8 @@ def test_a_valve_not_the_papers_is_identified_with_its_own_params(name: str,
     case = CASES[name]
     rng = np.random.default_rng(sorted(CASES).index(name) + 40)
     files = {}
-    for role, volts, pressure in (('fit', case.fit_v, 4e5), ('validate', case.validate_v,
-                                                               3e5)):
+    runs = (('fit', case.fit_v, 4e5), ('validate', case.validate_v, 3e5))
+    for role, volts, pressure in runs:
         spec = FileSpec(f'{role}_{volts:g}v_step', volts, 1e-3, 1e-3 + 0.4 * case.duration_s,
                         case.duration_s, case.rate_hz, pressure)
         path = tmp_path / f'{spec.name}.csv'

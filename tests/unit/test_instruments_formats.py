@@ -41,9 +41,8 @@ def exports(base: ScopeTrace, tmp_path_factory: pytest.TempPathFactory) -> dict:
         out[key] = (path, tr, lsbs, vch, ich, extra)
     for version in ('4', '7.3'):
         path = d / f'pico{version}.mat'
-        out[f'picoscope-mat-v{version}'] = (path, base, write_pico_mat(path, base,
-                                                                        version=version),
-                                            'a', 'channel b', [])
+        lsbs = write_pico_mat(path, base, version=version)
+        out[f'picoscope-mat-v{version}'] = (path, base, lsbs, 'a', 'channel b', [])
     tab = d / 'pico.txt'
     out['picoscope-text'] = (tab, base.every(4), write_pico_csv(tab, base.every(4), tab=True),
                              'A', 'B', [])

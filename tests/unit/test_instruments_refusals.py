@@ -60,7 +60,8 @@ def test_a_rigol_file_cut_mid_row_names_the_row(trace: ScopeTrace, tmp_path: Pat
 
 
 def test_a_truncated_tds_file_names_the_stated_record_length(trace: ScopeTrace,
-                                                            tmp_path: Path, capsys) -> None:
+                                                             tmp_path: Path,
+                                                             capsys) -> None:
     ch1, ch2, _ = write_tds_pair(tmp_path, trace)
     lines = ch2.read_text(encoding='ascii').splitlines(keepends=True)
     ch2.write_text(''.join(lines[:1500]), encoding='ascii', newline='')
@@ -97,7 +98,7 @@ def test_a_truncated_tdms_file_is_refused(trace: ScopeTrace, tmp_path: Path, cap
 
 
 def test_a_wrong_channel_lists_the_channels_of_the_file(trace: ScopeTrace, tmp_path: Path,
-                                                       capsys) -> None:
+                                                        capsys) -> None:
     path = tmp_path / 'rigol.csv'
     write_rigol(path, trace)
     line = _refused(capsys, [str(path), '--voltage', 'CH1', '--current', 'CH3'],

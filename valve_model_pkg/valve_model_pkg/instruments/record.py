@@ -221,24 +221,29 @@ class Step:
 
 
 def find_step(voltage_v: np.ndarray) -> Step | None:
-    """The first edge of the voltage: where it first passes half-way from the level
-    before (median of the first 2 % of samples) to its largest excursion.
+    """The first voltage edge: the first of three samples in a row beyond half-way from
+    the level before (median of the first samples, at most 2 % and 64 of them) to the
+    largest excursion from it.
 
     Returns
     -------
     Step or None
-        ``None`` when the voltage never moves by more than 0.5 V.
+        ``None`` when the voltage never moves by more than 0.5 V for three samples.
     """
     n = voltage_v.size
-    before = float(np.median(voltage_v[:max(5, n // 50)]))
-    probe = voltage_v[:: max(1, n // 1_000_000)] - before
-    hi, lo = float(np.percentile(probe, 99.5)), float(np.percentile(probe, 0.5))
+    before = float(np.median(voltage_v[:max(3, min(n // 50, 64))]))
+    dev = voltage_v - before
+    hi, lo = float(np.max(dev)), float(np.min(dev))
     amp = hi if abs(hi) >= abs(lo) else lo
     if abs(amp) < _MIN_STEP_V:
         return None
-    crossed = np.flatnonzero((voltage_v - before) * math.copysign(1.0, amp) > 0.5 * abs(amp))
+    beyond = dev * math.copysign(1.0, amp) > 0.5 * abs(amp)
+    run = beyond[:-2] & beyond[1:-1] & beyond[2:]
+    crossed = np.flatnonzero(run)
+    if not crossed.size:
+        return None
     k = int(crossed[0])
-    after = voltage_v[k:k + max(5, (n - k) // 50)]
+    after = voltage_v[k:k + max(5, min((n - k) // 50, 64))]
     return Step(k, before, float(np.median(after)))
 
 
@@ -326,8 +331,8 @@ def pwm_in_force(path: str, t: np.ndarray, v: np.ndarray) -> PwmInForce:
 
     A period runs from a rising edge (half-way between the 5th and 95th percentile) to
     the next; its duty is the high time over the period. Before the first rising edge the
-    duty is 0 at the first period's frequency; after the last one, the last period's
-    duty and frequency hold. The supply voltage is the median of the high samples.
+    first period's duty and frequency hold if the voltage is high there (the PWM was
+    running), else the duty is 0; after the last one, the last period's hold. The supply voltage is the median of the high samples.
 
     Raises
     ------
@@ -354,6 +359,8 @@ def pwm_in_force(path: str, t: np.ndarray, v: np.ndarray) -> PwmInForce:
         duty[a:b] = high_s / period
         freq[a:b] = 1.0 / period
     freq[:rises[0]] = freq[rises[0]]
+    if high[:rises[0]].any():
+        duty[:rises[0]] = duty[rises[0]]
     duty[rises[-1]:] = duty[rises[-1] - 1]
     freq[rises[-1]:] = freq[rises[-1] - 1]
     return PwmInForce(duty, freq, float(np.median(v[high])), int(rises.size - 1))

@@ -213,7 +213,6 @@ class MsoReader:
         return Loaded(time=axis, values=values, over_range=over, first_row=cols.first_row)
 
 
-
 def _is_number(text: str) -> bool:
     try:
         float(text)

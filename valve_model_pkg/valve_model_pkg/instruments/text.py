@@ -79,8 +79,9 @@ class TextFile:
         if not raw:
             return None
         self.row += 1
-        if len(raw) > MAX_LINE_CHARS + 1 or (len(raw) == MAX_LINE_CHARS + 1
-                                              and not raw.endswith(b'\n')):
+        too_long = len(raw) == MAX_LINE_CHARS + 2 or (
+            len(raw) == MAX_LINE_CHARS + 1 and not raw.endswith(b'\n'))
+        if too_long:
             raise self.error(self.row, f'line is longer than {MAX_LINE_CHARS} characters; '
                              'expected a line of an instrument export')
         return self._decode(raw, self.row).rstrip('\r\n')
