@@ -247,9 +247,13 @@ def write_pico_mat(path: Path, tr: ScopeTrace, *, version: str = '5') -> dict[st
 
 # --- NI TDMS, plain CSV -----------------------------------------------------------------------
 def write_tdms(path: Path, tr: ScopeTrace, *, segment: int = 100_000,
-               group: str = 'Measurement') -> dict[str, float]:
+               group: str = 'Measurement', spare_group: str | None = None
+               ) -> dict[str, float]:
     """A TDMS file as a DAQ writes it: one group, voltage and current channels with
-    ``wf_start_offset``, ``wf_increment``, ``unit_string`` (16-bit, +-10 V / +-5 A)."""
+    ``wf_start_offset``, ``wf_increment``, ``unit_string`` (16-bit, +-30 V / +-5 A).
+
+    ``spare_group``: a second group with a channel of the same name (``Coil current``).
+    """
     from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
     lsbs = {'voltage': 60.0 / 65536, 'current': 10.0 / 65536}
     v = quantise(tr.voltage_v, lsbs['voltage'], -30.0, 30.0)
@@ -267,6 +271,10 @@ def write_tdms(path: Path, tr: ScopeTrace, *, segment: int = 100_000,
                               {**props, 'unit_string': 'V'} if not a else {}),
                 ChannelObject(group, 'Coil current', i[a:b],
                               {**props, 'unit_string': 'A'} if not a else {})])
+        if spare_group is not None:
+            writer.write_segment([ChannelObject(spare_group, 'Coil current',
+                                                np.zeros(tr.t_s.size),
+                                                {**props, 'unit_string': 'A'})])
     return lsbs
 
 

@@ -81,9 +81,8 @@ def test_a_pwm_record_keeps_the_main_pwm_voltage(tmp_path: Path) -> None:
     np.testing.assert_array_equal(rec.voltage_v, v)
 
 
-def test_valve_identify_names_the_channels_an_export_needs(tmp_path: Path,
-                                                          capsys: pytest.CaptureFixture
-                                                          ) -> None:
+def test_valve_identify_names_the_channels_an_export_needs(
+        tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     t = np.arange(-100, 2000) * 20e-6
     path = _plain(tmp_path / 'log.csv', t, np.where(t >= 0, 24.0, 0.0), _rl(t, 7e-3))
     code = valve_identify(['--fit', str(path), '-o', str(tmp_path / 'report'), '--quick'])

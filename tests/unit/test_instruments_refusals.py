@@ -110,11 +110,7 @@ def test_a_wrong_channel_lists_the_channels_of_the_file(trace: ScopeTrace, tmp_p
 def test_an_ambiguous_channel_is_never_guessed(trace: ScopeTrace, tmp_path: Path,
                                                capsys) -> None:
     path = tmp_path / 'two_groups.tdms'
-    write_tdms(path, trace)
-    from nptdms import ChannelObject, TdmsWriter
-    with TdmsWriter(str(path), mode='a') as w:
-        w.write_segment([ChannelObject('Spare', 'Coil current', np.zeros(trace.t_s.size),
-                                       {'unit_string': 'A', 'wf_increment': trace.dt_s})])
+    write_tdms(path, trace, spare_group='Spare')
     line = _refused(capsys, [str(path), '--voltage', 'coil voltage', '--current',
                              'coil current'], tmp_path / 'o.csv')
     assert 'ambiguous' in line and 'Measurement/Coil current' in line \
