@@ -20,7 +20,7 @@ from ..errors import InstrumentFormatError
 __all__ = [
     'UNITS', 'TIME_UNITS', 'OVER_RANGE_ABS', 'ChannelInfo', 'CaptureHeader', 'TimeAxis',
     'Capture', 'unit_factor', 'time_unit_factor', 'normalise_name', 'axis_from_printed',
-    'infer_lsb', 'MAX_SAMPLES',
+    'infer_lsb', 'MAX_SAMPLES', 'Resolution', 'parse_number', 'split_unit', 'resolve',
 ]
 
 #: Units of a vertical channel as instruments write them -> (SI unit, factor to SI).

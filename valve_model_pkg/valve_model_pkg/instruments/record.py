@@ -332,7 +332,8 @@ def pwm_in_force(path: str, t: np.ndarray, v: np.ndarray) -> PwmInForce:
     A period runs from a rising edge (half-way between the 5th and 95th percentile) to
     the next; its duty is the high time over the period. Before the first rising edge the
     first period's duty and frequency hold if the voltage is high there (the PWM was
-    running), else the duty is 0; after the last one, the last period's hold. The supply voltage is the median of the high samples.
+    running), else the duty is 0; after the last one, the last period's hold. The supply
+    voltage is the median of the high samples.
 
     Raises
     ------
