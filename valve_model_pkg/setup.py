@@ -40,6 +40,7 @@ setup(
             'valve_map = valve_model_pkg.cli.map:main',
             'valve_flow_check = valve_model_pkg.cli.flow_check:main',
             'valve_identify = valve_model_pkg.cli.identify:main',
+            'valve_import = valve_model_pkg.cli.import_record:main',
             'valve_identify_batch = valve_model_pkg.cli.identify_batch:main',
             'valve_report = valve_model_pkg.cli.report:main',
             # valve_demo and valve_bench_loop start the whole suite: package valve_bringup

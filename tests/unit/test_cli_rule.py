@@ -22,6 +22,8 @@ COMMANDS = {
     'valve_report': [MISSING, '-o', 'OUT/report'],
     'valve_recorder': ['--info', MISSING],
     'valve_identify_batch': [f'{MISSING}.csv', '-o', 'OUT/fleet'],
+    'valve_import': [f'{MISSING}.csv', '--voltage', 'CH1', '--current', 'CH2', '-o',
+                     'OUT/rec.csv'],
 }
 
 

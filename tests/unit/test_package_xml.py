@@ -29,7 +29,7 @@ ROSDEP_PYTHON_KEYS = frozenset({
     'python3-numpy', 'python3-scipy', 'python3-yaml', 'python3-matplotlib', 'python3-numba',
     'python3-can', 'python3-cantools-pip', 'python3-rosbags-pip', 'python-crccheck-pip',
     'mcap-ros2-support', 'python3-pytest', 'python3-hypothesis', 'python3-setuptools',
-    'python3-tqdm', 'python3-pytest-xdist',
+    'python3-tqdm', 'python3-pytest-xdist', 'python3-h5py',
 })
 #: rosdistro jazzy/distribution.yaml (commit 8468e88c): released ROS packages.
 JAZZY_PACKAGES = frozenset({
@@ -48,14 +48,16 @@ IMPORT_KEYS = {
     'crccheck': 'python-crccheck-pip', 'mcap': 'mcap-ros2-support',
     'mcap_ros2': 'mcap-ros2-support', 'setuptools': 'python3-setuptools',
     'pytest': 'python3-pytest', 'hypothesis': 'python3-hypothesis', 'tqdm': 'python3-tqdm',
+    'h5py': 'python3-h5py',
     **{name: name for name in JAZZY_PACKAGES | set(SUITE_PACKAGES)},
 }
 #: Optional modules with no rosdep key in rosdistro (commit 8468e88c): imported lazily, only
-#: by the fleet identification (valve_identify_batch) or the live view (foxglove), installed
-#: with pip from
+#: by the fleet identification (valve_identify_batch), the live view (foxglove) or the TDMS
+#: import (nptdms), installed with pip from
 #: requirements/python.txt; valve_model_pkg/package.xml says so in a comment.
 PIP_ONLY_OPTIONAL = {'dask', 'distributed', 'pyarrow',
-                     'foxglove'}  # foxglove-sdk: valve_bringup's live view (no key)
+                     'foxglove',  # foxglove-sdk: valve_bringup's live view (no key)
+                     'nptdms'}  # npTDMS: instruments.tdms, imported when a TDMS file is read
 # Modules the tests import from the tests/ folder itself.
 LOCAL_TEST_MODULES = {p.stem for p in (REPO_ROOT / 'tests').glob('*.py')} | {
     p.name for p in (REPO_ROOT / 'tests').iterdir() if (p / '__init__.py').is_file()} | {

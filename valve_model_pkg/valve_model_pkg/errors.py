@@ -11,6 +11,7 @@ for a file that cannot be written, ...), as python-can's ``can.exceptions`` does
     ValveModelError
     +-- ParameterError (ValueError)             model parameters and simulation inputs
     +-- DataFormatError (ValueError)            the measured-data CSV format
+    +-- InstrumentFormatError (ValueError)      instrument exports (oscilloscopes, DAQ)
     +-- MapError                                static duty maps
     |   +-- MapFormatError (ValueError)
     |   +-- MapParameterMismatchError (ValueError)
@@ -38,6 +39,7 @@ __all__ = [
     'ValveModelError',
     'ParameterError',
     'DataFormatError',
+    'InstrumentFormatError',
     'MapError', 'MapFormatError', 'MapParameterMismatchError', 'FlowMapFormatError',
     'MapGenerationError', 'FlowIdentificationError',
     'RecordingError', 'BagWriteError', 'BagFormatError', 'UnknownMessageTypeError',
@@ -98,6 +100,27 @@ class DataFormatError(ValveModelError, ValueError):
         self.reason = reason
         self.key = key
         self.value = value
+        super().__init__(f'{_where(self.path, line)}: {reason}')
+
+
+class InstrumentFormatError(ValveModelError, ValueError):
+    """An instrument export (oscilloscope or DAQ file) that cannot be imported.
+
+    Parameters
+    ----------
+    path : str
+        The file that was refused.
+    line : int or None
+        1-based row (text files) of the problem; ``None`` when it concerns the whole file
+        or a binary file (the reason then names the variable or channel).
+    reason : str
+        What was found and what was expected there.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], line: int | None, reason: str) -> None:
+        self.path = str(path)
+        self.line = line
+        self.reason = reason
         super().__init__(f'{_where(self.path, line)}: {reason}')
 
 

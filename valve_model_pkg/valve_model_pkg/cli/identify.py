@@ -72,6 +72,8 @@ def _parser() -> argparse.ArgumentParser:
                    help='smaller search effort (for tests and previews)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
     p.add_argument('--quiet', action='store_true', help='no progress output')
+    from valve_model_pkg.instruments import add_import_options
+    add_import_options(p)
     return p
 
 
@@ -79,7 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``valve_identify``."""
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s: %(message)s')
-    from ..errors import IdentificationError, MeasurementFormatError
+    from ..errors import IdentificationError, InstrumentFormatError, MeasurementFormatError
+    from ..instruments import options_from_args, records_for
     from ..identification.readers import read_measurements
     from ..identification.topic_map import parse_topic_map
     from ..identification.pipeline import IdentifySettings, identify
@@ -95,9 +98,11 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         mapping = parse_topic_map(args.map) or None
-        fit = read_measurements(args.fit, topic=args.topic, valve=args.valve, mapping=mapping)
-        val = read_measurements(args.validate, topic=args.topic, valve=args.valve,
-                                mapping=mapping)
+        imports = options_from_args(args)
+        fit = read_measurements(records_for(args.fit, imports, args.out, progress),
+                                topic=args.topic, valve=args.valve, mapping=mapping)
+        val = read_measurements(records_for(args.validate, imports, args.out, progress),
+                                topic=args.topic, valve=args.valve, mapping=mapping)
         for m in fit + val:
             if m.supply_pressure_pa is None:
                 raise MeasurementFormatError(
@@ -105,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
             for note in m.notes:
                 progress(f'{m.name}: {note}')
         base = load_parameters(args.params, allow_implausible=args.allow_implausible)
-    except (MeasurementFormatError, ParameterError, FileNotFoundError) as err:
+    except (MeasurementFormatError, InstrumentFormatError, ParameterError,
+            FileNotFoundError) as err:
         print(f'valve_identify: error: {err}', file=sys.stderr)
         return 2
     settings = IdentifySettings(diagnose=not args.no_diagnosis)
