@@ -8,6 +8,9 @@ import subprocess
 
 import pytest
 
+from valve_bringup.operation_loop import OPERATION_DEFAULT_EFFECT
+from valve_model_pkg.pneumatics.goals import OPERATION_QUICK_GOALS
+
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 
@@ -33,7 +36,7 @@ def test_bench_loop_names_the_injected_effect_and_improves_the_error(tmp_path):
 
 #: The operation loop's effect: one the identification names from an operational record
 #: (docs/loop.md says why this one).
-OPERATION_EFFECT = 'eddy_current'
+OPERATION_EFFECT = OPERATION_DEFAULT_EFFECT
 
 
 def test_operation_loop_names_the_effect_and_improves_the_error(tmp_path):
@@ -44,6 +47,8 @@ def test_operation_loop_names_the_effect_and_improves_the_error(tmp_path):
     text = proc.stdout + proc.stderr
     assert proc.returncode == 0, text[-5000:]
     loop = json.loads((out / 'loop.json').read_text())
+    assert loop['goals'] == [{'position_mm': g * 1e3, 'hold_s': h}
+                             for g, h in OPERATION_QUICK_GOALS]
     assert loop['diagnosis']['effect'] == OPERATION_EFFECT, loop['diagnosis']
     base, aug = loop['baseline']['validation'], loop['augmented']['validation']
     assert aug['iae'] < base['iae'], (base, aug)
@@ -51,7 +56,7 @@ def test_operation_loop_names_the_effect_and_improves_the_error(tmp_path):
     assert 0.0 < before and 0.0 < after
     # The valve in service discharges with C_d 0.62 where the suite's set says 0.8: in the
     # before run it delivers 0.78 of the commanded flow, in the after run (calibrated) all
-    # (docs/loop.md; 2026-11-25: 10.37 -> 8.90 mm).
+    # (docs/loop.md).
     assert after < before, (before, after)
     for side in ('before', 'after'):
         assert loop['flow'][side]['rms_pct'] >= 0.0
@@ -75,7 +80,7 @@ def test_operation_loop_names_the_effect_and_improves_the_error(tmp_path):
     # the flow area at full opening of the set in force is the valve in service's, within
     # a few per cent (the suite's own set is 29 % off it)
     assert loop['plant']['discharge_coefficient'] == 0.62
-    assert abs(cal['suite_full_opening_error_pct'] - 29.03) < 0.1, cal
+    assert cal['suite_full_opening_error_pct'] == pytest.approx(100.0 * (0.8 / 0.62 - 1.0)), cal
     assert abs(cal['full_opening_error_pct']) < 10.0, cal
     assert cal['balance_error_pct']['after'] <= cal['balance_error_pct']['before'] + 1e-9
     assert f'params_file:={(out / "params_identified.yaml").resolve()}' in text

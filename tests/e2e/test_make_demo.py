@@ -3,58 +3,33 @@ records a bag that loses nothing, writes a report, exits, and leaves no process 
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import time
-import uuid
-from pathlib import Path
 
 import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from suite_paths import REPO_ROOT
+from valve_bringup.demo import demo_goals
 
 pytestmark = pytest.mark.e2e
 
 
-def _processes_with(token: str) -> list[int]:
-    """Pids of live processes whose environment carries ``token``."""
-    pids = []
-    for proc in Path('/proc').iterdir():
-        if not proc.name.isdigit() or int(proc.name) == os.getpid():
-            continue
-        try:
-            if token.encode() in (proc / 'environ').read_bytes():
-                if (proc / 'stat').read_text().split()[2] != 'Z':
-                    pids.append(int(proc.name))
-        except (OSError, IndexError):
-            continue
-    return pids
+def _setpoints_mm(goals) -> list[int]:  # noqa: ANN001 - a goal sequence
+    return [round(g * 1e3) for g, _ in goals]
 
 
 # One worker at a time: each `make demo` runs `make setup` (pip, colcon) in this tree.
 @pytest.mark.xdist_group('make_demo')
 @pytest.mark.parametrize('backend', ['sim', 'can'])
-def test_make_demo_runs_records_reports_and_leaves_nothing(tmp_path, backend):
-    token = f'VALVE_DEMO_TEST_{uuid.uuid4().hex}'
-    env = dict(os.environ, VALVE_TEST_TOKEN=token)
-    env.pop('MAKEFLAGS', None)
+def test_make_demo_runs_records_reports_and_leaves_nothing(tmp_path, backend, make_demo):
     # Short holds keep the suite's CI budget; both backends run in lockstep as fast as the
     # computer allows (the same run, only sooner; with the CAN backend the emulator's valve
     # advances on the simulation clock).
-    fast = ' --as-fast-as-possible'
-    out = subprocess.run(['make', '-C', str(REPO_ROOT), 'demo', f'BACKEND={backend}',
-                          f'DEMO_ARGS=--out {tmp_path} --hold 1.5{fast}'],
-                         env=env, capture_output=True, text=True, timeout=900)
-    text = out.stdout + out.stderr
-    assert out.returncode == 0, text[-4000:]
+    goals = demo_goals(hold_s=1.5)
+    text = make_demo(f'BACKEND={backend}',
+                     demo_args=f'--out {tmp_path} --hold 1.5 --as-fast-as-possible')
     assert 'the suite is up' in text
-    assert 'moving the piston to 80 mm' in text
+    assert f'moving the piston to {max(_setpoints_mm(goals))} mm' in text
     assert 'stopped:' in text
-    assert 'Traceback' not in text, 'a process ended with a traceback: ' + text[-4000:]
-    time.sleep(1.0)
-    assert _processes_with(token) == [], 'the demo left processes running'
 
     # The report, with its plots.
     report = tmp_path / 'report' / 'report.md'
@@ -68,12 +43,15 @@ def test_make_demo_runs_records_reports_and_leaves_nothing(tmp_path, backend):
         assert {'setpoint_mm', 'final_mm', 'overshoot_mm', 'settling_s', 'steady_error_mm',
                 'settled'} <= set(step)
     # Lockstep: every step is there (no pre-roll row) whatever the computer's load.
-    assert [round(s['setpoint_mm']) for s in summary['steps']] == [20, 60, 40, 80, 30]
+    assert [round(s['setpoint_mm']) for s in summary['steps']] == _setpoints_mm(goals)
+    assert summary['goals'] == [{'position_mm': g * 1e3, 'hold_s': h} for g, h in goals]
     assert summary['clock'] == 'simulation (lockstep)'
     assert summary['lockstep_timeouts'] == 0
     # valve/state at the configured rate (1 kHz of simulation time), through the driver
     # with the CAN backend
     assert summary['valve_state']['rate_hz'] == pytest.approx(1000.0, rel=0.01)
+    assert summary['valve']['backend'] == ('CAN driver' if backend == 'can' else 'simulator')
+    assert {t['topic'] for t in summary['topics']} >= {'/valve/state', '/cylinder/joint_states'}
 
     # The bag, opened with the rosbags reader: every valve state the backend published
     # between the first and the last recorded one is there (sequence continuity).
@@ -92,26 +70,18 @@ def test_make_demo_runs_records_reports_and_leaves_nothing(tmp_path, backend):
 
 
 @pytest.mark.xdist_group('make_demo')
-def test_make_demo_double_cylinder_moves_both_valves(tmp_path):
+def test_make_demo_double_cylinder_moves_both_valves(tmp_path, make_demo):
     """`make demo CYLINDER=double`: two valve namespaces, one flow_to_duty each, one
-    controller commanding both; short (CI budget): three goals held 1 s each."""
-    token = f'VALVE_DEMO_TEST_{uuid.uuid4().hex}'
-    env = dict(os.environ, VALVE_TEST_TOKEN=token)
-    env.pop('MAKEFLAGS', None)
-    out = subprocess.run(['make', '-C', str(REPO_ROOT), 'demo', 'CYLINDER=double',
-                          f'DEMO_ARGS=--out {tmp_path} --quick --hold 1 '
-                          '--as-fast-as-possible'],
-                         env=env, capture_output=True, text=True, timeout=600)
-    text = out.stdout + out.stderr
-    assert out.returncode == 0, text[-4000:]
-    assert 'Traceback' not in text, text[-4000:]
+    controller commanding both; short (CI budget): the quick goals held 1 s each."""
+    text = make_demo('CYLINDER=double',
+                     demo_args=f'--out {tmp_path} --quick --hold 1 --as-fast-as-possible',
+                     timeout_s=600.0)
     assert 'flow_to_duty_cap exit 0' in text and 'flow_to_duty_rod exit 0' in text
-    time.sleep(1.0)
-    assert _processes_with(token) == [], 'the demo left processes running'
     summary = json.loads((tmp_path / 'report' / 'report.json').read_text())
     assert summary['cylinder'] == 'double'
     assert summary['lockstep_timeouts'] == 0
-    assert [round(s['setpoint_mm']) for s in summary['steps']] == [20, 60, 40]
+    assert [round(s['setpoint_mm']) for s in summary['steps']] == \
+        _setpoints_mm(demo_goals(quick=True))
     for step in summary['steps']:
         assert step['settled'], step
         assert abs(step['steady_error_mm']) <= 0.5, step

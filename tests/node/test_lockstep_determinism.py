@@ -1,7 +1,7 @@
-"""Simulation time in lockstep (issue 14, items 1-2): the same demo twice gives the same
-step metrics, because the simulation waits for the controller at every control tick and
-the demo sends each goal while the simulation is held. Asserts the determinism (two short
-runs as fast as possible, same metrics), not a timing."""
+"""Simulation time in lockstep: the same demo twice gives the same step metrics, because the
+simulation waits for the controller at every control tick and the demo sends each goal
+while the simulation is held. Asserts the determinism (two short runs as fast as possible,
+same metrics), not a timing."""
 from __future__ import annotations
 
 import json
@@ -11,6 +11,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from valve_bringup.demo import demo_goals
 
 
 def _demo(out: Path) -> dict:
@@ -23,12 +25,11 @@ def _demo(out: Path) -> dict:
     return json.loads((out / 'report' / 'report.json').read_text())
 
 
-@pytest.mark.slow   # two demo runs: 40-70 s
+@pytest.mark.slow   # two demo runs
 # serial: the simulation is deterministic, but the run report places the controller's
-# setpoint (std_msgs/Float64, no header) at the last joint state the recorder RECEIVED
-# before it; with a CPU-bound test beside it the recorder's joint states lag and a step
-# start moved by 22 ms (0.499 vs 0.477 s, CI 2026-11-24 on 2 xdist workers). Known
-# limit of that placement (README), not of the lockstep.
+# setpoint (std_msgs/Float64, no header) at the last joint state the recorder received
+# before it, so a recorder slowed by a CPU-bound test beside it can move a step's start
+# by a few control ticks: a limit of that placement, not of the lockstep.
 @pytest.mark.serial
 def test_two_lockstep_runs_give_the_same_step_metrics(tmp_path: Path) -> None:
     first, second = _demo(tmp_path / 'a'), _demo(tmp_path / 'b')
@@ -36,7 +37,9 @@ def test_two_lockstep_runs_give_the_same_step_metrics(tmp_path: Path) -> None:
         assert run['clock'] == 'simulation (lockstep)'
         assert run['lockstep_timeouts'] == 0, run.get('last_lockstep_timeout')
         assert run['real_time_factor'] > 0.0
-        assert len(run['steps']) == 3   # no pre-roll row
+        # every quick goal, no pre-roll row
+        assert [round(st['setpoint_mm']) for st in run['steps']] == \
+            [round(g * 1e3) for g, _ in demo_goals(quick=True)]
     for a, b in zip(first['steps'], second['steps']):
         assert a['setpoint_mm'] == b['setpoint_mm']
         assert a['start_s'] == pytest.approx(b['start_s'], abs=0.010)

@@ -1,6 +1,6 @@
-"""The live view (issue 14, item 6): `valve_demo --live` (make demo LIVE=1) serves the
-suite's topics on a Foxglove WebSocket on 127.0.0.1; the port answers a WebSocket
-handshake while the demo runs."""
+"""The live view: `valve_demo --live` (make demo LIVE=1) serves the suite's topics on a
+Foxglove WebSocket on 127.0.0.1; the port answers a WebSocket handshake while the demo
+runs."""
 from __future__ import annotations
 
 import base64
@@ -8,12 +8,16 @@ import os
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
+from polling import poll_until
+
 pytest.importorskip('foxglove')
+
+#: Pause between two handshake attempts while the demo starts [s].
+HANDSHAKE_INTERVAL_S = 0.5
 
 
 def _free_port() -> int:
@@ -42,18 +46,20 @@ def test_live_view_answers_a_websocket_handshake_while_the_demo_runs(tmp_path: P
                              str(tmp_path / 'run'), '--live', '--live-port', str(port),
                              '--quick', '--hold', '2.0'],
                             stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-    status = ''
+    status = {'line': ''}
+
+    def answered_or_ended() -> bool:
+        if demo.poll() is not None:
+            return True    # the assertion below shows the demo's output
+        try:
+            status['line'] = _handshake(port)
+        except OSError:    # not listening yet
+            return False
+        return ' 101 ' in status['line']
     try:
-        end = time.monotonic() + 120.0
-        while time.monotonic() < end and demo.poll() is None:
-            try:
-                status = _handshake(port)
-                if ' 101 ' in status:
-                    break
-            except OSError:
-                pass
-            time.sleep(0.5)
-        assert ' 101 ' in status, (status, (tmp_path / 'demo.log').read_text()[-3000:])
+        poll_until(answered_or_ended, 120.0, 'the live view\'s WebSocket handshake',
+                   interval_s=HANDSHAKE_INTERVAL_S)
+        assert ' 101 ' in status['line'], (status, (tmp_path / 'demo.log').read_text()[-3000:])
         assert demo.wait(timeout=300) == 0, (tmp_path / 'demo.log').read_text()[-3000:]
     finally:
         if demo.poll() is None:

@@ -1,8 +1,9 @@
 """The CAN lockstep chain's start (emulator on /clock -> CAN -> driver -> valve/state ->
 valve_lockstep_sim): the simulation is asked to run before the CAN driver exists, and its
-first step must not be lost. Before the start handshake the first step's telemetry frame
-reached no driver, nothing could bring it back, and the run counted a lockstep timeout
-("no valve/state for t = 0.001 s"), one per demo run when the driver came up last.
+first step must not be lost. A telemetry frame sent before the driver is on the bus reaches
+nobody and cannot be sent again; the start handshake holds step 1 until the t = 0 state
+has gone the whole chain, so a driver that comes up last costs no lockstep timeout ("no
+valve/state for t = 0.001 s").
 
 Asserts counts (at most the handshake's own timeout, the steps reached), not a timing: the
 driver starts only after the simulation was told to run (an order of events); the
@@ -69,11 +70,10 @@ def test_first_step_is_not_lost_when_the_driver_comes_up_last(start_node, ros):
     ros.wait_for(lambda: int(seen['values'].get('steps', '0')) >= steps, 10.0,
                  'diagnostics at the hold')
     values = seen['values']
-    # The one loss left: the driver's t = 0 state published before its DDS writer matched
-    # the simulation's reader (the simulation sees the writer first; fresh-clone CI run 12,
-    # twice, 1.8 s after the driver came up). It is counted once, as the start handshake's
-    # timeout, and the run goes on; never a step's ("no valve/state for t = 0.001 s", the
-    # loss before the handshake) and never more than one.
+    # The one loss the handshake cannot prevent: the driver's t = 0 state published before
+    # its DDS writer matched the simulation's reader (the simulation sees the writer
+    # first). It is counted once, as the start handshake's timeout, and the run goes on;
+    # never a step's ("no valve/state for t = 0.001 s") and never more than one.
     timeouts = int(values['lockstep_timeouts'])
     assert timeouts <= 1, values.get('last_lockstep_timeout')
     if timeouts:

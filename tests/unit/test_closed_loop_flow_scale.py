@@ -17,10 +17,10 @@ from valve_model_pkg.maps.flow_identification import recalibrated_map
 from valve_model_pkg.maps.inversion import OrificeConstants
 from valve_model_pkg.model import load_parameters
 from valve_model_pkg.pneumatics.closed_loop import simulate_closed_loop
+from valve_model_pkg.pneumatics.goals import OPERATION_QUICK_GOALS, with_pre_roll
 
-#: The loop's quick goals (valve_bringup.bench_loop.OPERATION_GOALS_QUICK) after its
-#: 0.5 s pre-roll at 0 mm.
-GOALS = [(0.0, 0.5), (0.020, 1.5), (0.060, 1.5), (0.035, 1.5)]
+#: The loop's quick goals after its pre-roll at 0 mm.
+GOALS = with_pre_roll(OPERATION_QUICK_GOALS)
 
 
 def _rms_mm(duty_map, valve) -> float:

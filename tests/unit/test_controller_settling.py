@@ -6,12 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from valve_model_pkg.cli.report import step_results
+from valve_model_pkg.analysis import step_results
 from valve_model_pkg.pneumatics.closed_loop import simulate_closed_loop
 from valve_model_pkg.pneumatics.controller import ControllerGains, PositionController
+from valve_model_pkg.pneumatics.goals import DEMO_GOALS, with_pre_roll
 
-#: The demo's goals (valve_bringup.demo.GOALS) after its 0.5 s pre-roll at 0 mm.
-DEMO = [(0.0, 0.5), (0.020, 3.0), (0.060, 3.0), (0.040, 3.0), (0.080, 3.0), (0.030, 3.0)]
+#: The demo's goals after its pre-roll at 0 mm.
+DEMO = with_pre_roll(DEMO_GOALS)
 
 
 @pytest.mark.parametrize('delay_s', [0.0, 0.020])

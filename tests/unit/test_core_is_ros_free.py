@@ -13,7 +13,7 @@ from suite_paths import REPO_ROOT
 CORE_DIRS = [
     REPO_ROOT / 'valve_model_pkg' / 'valve_model_pkg' / name
     for name in ('model', 'maps', 'identification', 'pneumatics', 'recording', 'cli',
-                 'dataformat')
+                 'dataformat', 'analysis')
 ] + [
     REPO_ROOT / 'valve_driver_pkg' / 'valve_driver_pkg' / name
     for name in ('protocol', 'emulator', 'driver', 'canbus')
@@ -66,7 +66,7 @@ def test_importing_the_cores_loads_no_ros_module() -> None:
         'import valve_model_pkg, valve_driver_pkg, valve_bringup\n'
         'for pkg in ("valve_model_pkg.model", "valve_model_pkg.maps",\n'
         '            "valve_model_pkg.identification", "valve_model_pkg.pneumatics",\n'
-        '            "valve_model_pkg.recording",\n'
+        '            "valve_model_pkg.recording", "valve_model_pkg.analysis",\n'
         '            "valve_driver_pkg.protocol", "valve_driver_pkg.emulator",\n'
         '            "valve_driver_pkg.driver", "valve_driver_pkg.canbus",\n'
         '            "valve_bringup.supervisor", "valve_bringup.backend"):\n'

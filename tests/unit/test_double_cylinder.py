@@ -7,16 +7,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from valve_model_pkg.cli.report import step_results
+from valve_model_pkg.analysis import step_results
 from valve_model_pkg.model import load_parameters
 from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
 from valve_model_pkg.pneumatics.closed_loop import simulate_closed_loop_double
 from valve_model_pkg.pneumatics.controller import DoublePositionController
 from valve_model_pkg.pneumatics.double_cylinder import (DoubleCylinder, three_way_fill_flow,
                                                         three_way_flow)
+from valve_model_pkg.pneumatics.goals import DEMO_GOALS, with_pre_roll
 
-#: The demo's goals after its 0.5 s pre-roll at 0 mm (as test_controller_settling.DEMO).
-DEMO = [(0.0, 0.5), (0.020, 3.0), (0.060, 3.0), (0.040, 3.0), (0.080, 3.0), (0.030, 3.0)]
+#: The demo's goals after its pre-roll at 0 mm.
+DEMO = with_pre_roll(DEMO_GOALS)
 
 
 @pytest.mark.parametrize('delay_s', [0.0, 0.020])

@@ -15,7 +15,7 @@ from datagen.suite_records import suite_operation_record
 from valve_model_pkg.cli.identify import main as identify_main
 from valve_model_pkg.model import load_parameters
 
-R_TH_K_PER_W, TAU_S = 40.0, 3.0   # the loop's emulated coil (bench_loop.OPERATION_EFFECT_PARAMS)
+R_TH_K_PER_W, TAU_S = 40.0, 3.0   # the loop's coil (operation_loop.OPERATION_EFFECT_PARAMS)
 
 
 @pytest.mark.slow

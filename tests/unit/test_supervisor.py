@@ -7,10 +7,10 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
 
 import pytest
 
+from polling import poll_until
 from valve_bringup.supervisor import ChildExited, ProcessSpec, Supervisor
 
 PY = sys.executable
@@ -29,13 +29,11 @@ def _alive(pid: int) -> bool:
         return False
 
 
-def _wait_dead(pid: int, timeout: float = 10.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if not _alive(pid):
-            return True
-        time.sleep(0.05)
-    return False
+def _pid_written(pidfile) -> int:  # noqa: ANN001 - a Path
+    """The pid a child writes to ``pidfile``, once it is there."""
+    poll_until(lambda: pidfile.exists() and pidfile.read_text().strip() != '', 20.0,
+               f'a pid in {pidfile}')
+    return int(pidfile.read_text())
 
 
 def test_output_is_prefixed_and_children_stop_on_sigint() -> None:
@@ -43,14 +41,15 @@ def test_output_is_prefixed_and_children_stop_on_sigint() -> None:
     with Supervisor(out=out, stop_timeout_s=3.0) as sup:
         proc = sup.start(ProcessSpec('talker', [PY, '-c', textwrap.dedent('''
             import time, sys
-            print("hello from child", flush=True)
             try:
+                print("hello from child", flush=True)
                 time.sleep(60)
             except KeyboardInterrupt:
                 print("got SIGINT", flush=True)
                 sys.exit(0)
         ''')]))
-        time.sleep(1.0)
+        # the child's own line (its command line, which the supervisor echoes, has the text)
+        poll_until(lambda: '] hello from child' in out.getvalue(), 20.0, 'the child\'s line')
         assert 'running' in sup.table()
     assert proc.returncode == 0
     text = out.getvalue()
@@ -59,12 +58,15 @@ def test_output_is_prefixed_and_children_stop_on_sigint() -> None:
 
 
 def test_a_child_that_ignores_sigint_is_terminated() -> None:
-    sup = Supervisor(out=io.StringIO(), stop_timeout_s=0.5)
+    out = io.StringIO()
+    sup = Supervisor(out=out, stop_timeout_s=0.5)
     proc = sup.start(ProcessSpec('stubborn', [PY, '-c',
                                               'import signal, time\n'
                                               'signal.signal(signal.SIGINT, signal.SIG_IGN)\n'
+                                              'print("ignoring SIGINT", flush=True)\n'
                                               'time.sleep(60)']))
-    time.sleep(0.5)
+    poll_until(lambda: '] ignoring SIGINT' in out.getvalue(), 20.0,
+               'the child to ignore SIGINT')
     codes = sup.stop()
     assert codes['stubborn'] == -signal.SIGTERM
     assert not _alive(proc.pid)
@@ -80,14 +82,10 @@ def test_grandchildren_are_stopped_with_their_parent(tmp_path) -> None:
         open({str(pidfile)!r}, "w").write(str(p.pid))
         time.sleep(60)
     ''')]))
-    end = time.monotonic() + 10
-    while not pidfile.exists() or not pidfile.read_text():
-        assert time.monotonic() < end
-        time.sleep(0.05)
-    grandchild = int(pidfile.read_text())
+    grandchild = _pid_written(pidfile)
     assert _alive(grandchild)
     sup.stop()
-    assert _wait_dead(grandchild)
+    poll_until(lambda: not _alive(grandchild), 10.0, 'the grandchild to end')
 
 
 def test_children_die_when_the_supervisor_is_killed(tmp_path) -> None:
@@ -104,21 +102,17 @@ def test_children_die_when_the_supervisor_is_killed(tmp_path) -> None:
         time.sleep(60)
     ''')
     parent = subprocess.Popen([PY, '-c', script], stdout=subprocess.DEVNULL)
-    end = time.monotonic() + 20
-    while not pidfile.exists() or not pidfile.read_text():
-        assert time.monotonic() < end
-        time.sleep(0.05)
-    child = int(pidfile.read_text())
+    child = _pid_written(pidfile)
     assert _alive(child)
     parent.kill()
     parent.wait()
-    assert _wait_dead(child), 'child outlived its killed supervisor'
+    poll_until(lambda: not _alive(child), 10.0, 'the child of the killed supervisor to end')
 
 
 def test_check_alive_reports_a_crashed_child() -> None:
     sup = Supervisor(out=io.StringIO())
-    sup.start(ProcessSpec('crasher', [PY, '-c', 'raise SystemExit(3)']))
-    time.sleep(1.0)
+    proc = sup.start(ProcessSpec('crasher', [PY, '-c', 'raise SystemExit(3)']))
+    proc.wait(timeout=20)
     with pytest.raises(ChildExited, match='crasher .* exited with code 3'):
         sup.check_alive()
     sup.stop()

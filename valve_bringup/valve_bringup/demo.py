@@ -10,16 +10,19 @@ package is not in the ROS 2 wheels; users with a full ROS install have
   ``--backend can`` the CAN driver (``use_sim_time``) with the controller emulator, whose
   valve model advances on the simulation clock (``--clock sim``), and the cylinder in
   ``valve_lockstep_sim`` (``valve_source:=external``); ``--backend can --clock wall`` the
-  earlier wall-clock loop (emulator in real time, as firmware, + ``pneumatic_cylinder``);
+  wall-clock loop (emulator in real time, as firmware, + ``pneumatic_cylinder``);
 - ``flow_to_duty`` (one per valve), ``position_controller``, all with ``use_sim_time``
   in lockstep;
 - ``valve_recorder`` writing every topic of the suite to ``RUN/bag_*`` (rosbag2, MCAP);
 - with ``--live``, a Foxglove WebSocket server on 127.0.0.1 (``valve_bringup.live``);
 
-shows what is running, moves the cylinder through a sequence of position goals while
-printing what happens, stops every process (also on Ctrl-C), and writes
-``RUN/report/report.md`` and ``RUN/report/report.json`` from the recorded bag. ``RUN`` is
-a new directory per backend and run under ``demo_output/`` (or ``--out``).
+shows what is running, moves the cylinder through a sequence of position goals
+(:data:`valve_model_pkg.pneumatics.goals.DEMO_GOALS`) while printing what happens, stops
+every process (also on Ctrl-C), and writes
+``RUN/report/report.md`` and ``RUN/report/report.json`` from the recorded bag
+(:func:`valve_model_pkg.analysis.write_run_report`; report.json also carries the goals,
+the exit codes and the machine's load). ``RUN`` is a new directory per backend and run
+under ``demo_output/`` (or ``--out``).
 
 In lockstep the demo drives the simulation's time: it holds it (``simulation/run_until``)
 while it sends a goal and waits for the controller's acknowledgement, then lets it run
@@ -36,13 +39,36 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
+from valve_bringup.backend import can_backend_processes
 from valve_bringup.supervisor import ChildExited, ProcessSpec, Supervisor
+from valve_bringup.watcher import DemoWatcher, valve_topic
+from valve_model_pkg.analysis import write_run_report
+from valve_model_pkg.interface import (SUITE_TOPICS, TOPIC_CLOCK, TOPIC_DUTY_COMMAND,
+                                       TOPIC_FLOW_COMMAND, TOPIC_JOINT_STATES,
+                                       TOPIC_OUTPUT_PRESSURE, TOPIC_POSITION_GOAL,
+                                       TOPIC_POSITION_SETPOINT, TOPIC_STATE)
+from valve_model_pkg.pneumatics.goals import (DEMO_GOALS, DEMO_QUICK_GOALS, PRE_ROLL_S,
+                                              GoalSequence, with_hold)
 
-__all__ = ['main', 'backend_processes', 'suite_processes', 'GOALS', 'DemoConfig']
+__all__ = ['main', 'run', 'DemoConfig', 'backend_processes', 'suite_processes',
+           'recorded_topics', 'lockstep_readiness', 'Readiness', 'demo_goals',
+           'run_directory']
 
-#: Position goals [m] and how long each is held [s].
-GOALS = ((0.020, 3.0), (0.060, 3.0), (0.040, 3.0), (0.080, 3.0), (0.030, 3.0))
+#: How long the suite may take to come up [s of wall time].
+SUITE_UP_TIMEOUT_S = 120.0
+#: How long the controller may take to acknowledge a goal [s of wall time].
+GOAL_ACK_TIMEOUT_S = 30.0
+#: How long the controller chain may take to answer the tick the simulation is held at
+#: [s of wall time].
+TICK_ANSWER_TIMEOUT_S = 2.0
+
+
+def demo_goals(quick: bool = False, hold_s: float | None = None) -> GoalSequence:
+    """The goals of ``valve_demo [--quick] [--hold S]``: the demo's, each held ``hold_s``."""
+    goals = DEMO_QUICK_GOALS if quick else DEMO_GOALS
+    return goals if hold_s is None else with_hold(goals, hold_s)
 
 
 @dataclass(frozen=True)
@@ -53,7 +79,7 @@ class DemoConfig:
     out: Path = Path('demo_output')
     rate_hz: float = 1000.0
     effect_args: tuple[str, ...] = ()
-    goals: tuple[tuple[float, float], ...] = GOALS
+    goals: GoalSequence = DEMO_GOALS
     clock: str = 'lockstep'            # lockstep | wall
     real_time_factor_max: float = 1.0  # lockstep pace cap; 0 = as fast as possible
     cylinder: str = 'single'           # single | double (lockstep only)
@@ -87,7 +113,6 @@ def backend_processes(backend: str, *, rate_hz: float = 1000.0,
         return [ProcessSpec('valve_simulator', [
             'valve_simulator', '--ros-args', '-p', f'publish_rate_hz:={rate_hz}'])]
     if backend == 'can':
-        from valve_bringup.backend import can_backend_processes  # only when asked for
         return can_backend_processes(rate_hz=rate_hz, emulator_args=emulator_args)
     raise ValueError(f'unknown backend {backend!r}: expected "sim" or "can"')
 
@@ -97,17 +122,12 @@ def _plant_emulator_args(cfg: DemoConfig) -> tuple[str, ...]:
     return ('--params-file', str(cfg.plant_params_file)) if cfg.plant_params_file else ()
 
 
-def _topic(ns: str, topic: str) -> str:
-    return f'{ns}/{topic}' if ns else topic
-
-
 def recorded_topics(cfg: DemoConfig) -> list[str]:
     """What the recorder records: the suite's topics (per valve) and the simulation's."""
-    from valve_model_pkg.interface import SUITE_TOPICS
     topics = []
     for name, msgtype in SUITE_TOPICS.items():
         spaces = cfg.valves if name.startswith('valve/') else ('',)
-        topics += [f'{_topic(ns, name)}:{msgtype}' for ns in spaces]
+        topics += [f'{valve_topic(ns, name)}:{msgtype}' for ns in spaces]
     if cfg.lockstep:
         topics.append('simulation/real_time_factor:std_msgs/msg/Float64')
     return topics
@@ -139,7 +159,6 @@ def suite_processes(cfg: DemoConfig, bag: Path) -> list[ProcessSpec]:
     if cfg.backend == 'can':
         # The valve runs in the controller emulator, stepped on the simulation clock
         # (valve_driver_pkg.emulator.lockstep); the driver stamps with simulation time.
-        from valve_bringup.backend import can_backend_processes
         procs += can_backend_processes(
             rate_hz=cfg.rate_hz,
             emulator_args=('--clock', 'sim', '--step-s', f'{1.0 / cfg.rate_hz:g}',
@@ -170,201 +189,109 @@ def suite_processes(cfg: DemoConfig, bag: Path) -> list[ProcessSpec]:
     return procs
 
 
-class _Watcher:
-    """The demo's own rclpy node: sends goals, watches the suite's topics."""
-
-    def __init__(self, valve_ns: str = '') -> None:
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
-        from sensor_msgs.msg import FluidPressure, JointState
-        from std_msgs.msg import Float64
-        from valve_msgs.msg import DutyCommand, FlowCommand
-
-        from valve_msgs.msg import ValveState
-
-        from valve_model_pkg.interface import (TOPIC_DUTY_COMMAND, TOPIC_FLOW_COMMAND,
-                                               TOPIC_JOINT_STATES, TOPIC_OUTPUT_PRESSURE,
-                                               TOPIC_POSITION_GOAL, TOPIC_STATE,
-                                               gauge_from_absolute)
-        from valve_model_pkg.interface.ros import (COMMAND_QOS, JOINT_STATES_QOS,
-                                                   PRESSURE_QOS, STATE_QOS)
-
-        rclpy.init()
-        self.probe = rclpy.create_node('valve_demo')
-        self.executor = SingleThreadedExecutor()
-        self.executor.add_node(self.probe)
-        self.states = 0
-
-        # valve/state only tells that the backend is up: 1 kHz in this process would take
-        # CPU from the suite, so the subscription goes once the first state arrived.
-        def on_state(msg: ValveState) -> None:
-            self.states += 1
-        self._state_sub = self.probe.create_subscription(ValveState, TOPIC_STATE, on_state,
-                                                         STATE_QOS)
-        self._goal_pub = self.probe.create_publisher(Float64, TOPIC_POSITION_GOAL,
-                                                     COMMAND_QOS)
-        self.position_m = math.nan
-        self.pressure_pa = math.nan
-        self.flow_cmd_sum = 0.0
-        self.flow_cmd_n = 0
-        self.duty_sum = 0.0
-        self.duty_n = 0
-
-        def on_joint(msg: JointState) -> None:
-            if msg.position:
-                self.position_m = msg.position[0]
-
-        def on_pressure(msg: FluidPressure) -> None:
-            self.pressure_pa = gauge_from_absolute(msg.fluid_pressure)
-
-        self.flow_stamp_ns = -1   # of the newest flow command (lockstep: the tick answered)
-
-        def on_flow(msg: FlowCommand) -> None:
-            self.flow_cmd_sum += msg.mass_flow
-            self.flow_cmd_n += 1
-            self.flow_stamp_ns = max(self.flow_stamp_ns, msg.header.stamp.sec * 1_000_000_000
-                                     + msg.header.stamp.nanosec)
-
-        def on_duty(msg: DutyCommand) -> None:
-            self.duty_sum += msg.duty
-            self.duty_n += 1
-
-        self.probe.create_subscription(JointState, TOPIC_JOINT_STATES, on_joint,
-                                       JOINT_STATES_QOS)
-        self.probe.create_subscription(FluidPressure, _topic(valve_ns, TOPIC_OUTPUT_PRESSURE),
-                                       on_pressure, PRESSURE_QOS)
-        self.probe.create_subscription(FlowCommand, _topic(valve_ns, TOPIC_FLOW_COMMAND),
-                                       on_flow, COMMAND_QOS)
-        self.probe.create_subscription(DutyCommand, _topic(valve_ns, TOPIC_DUTY_COMMAND),
-                                       on_duty, COMMAND_QOS)
-
-        # Lockstep: the simulation's clock, the controller's acknowledgement of a goal,
-        # the simulation's real-time factor and its lockstep diagnostics.
-        from diagnostic_msgs.msg import DiagnosticArray
-        from rosgraph_msgs.msg import Clock
-        from valve_model_pkg.interface import (TOPIC_CLOCK, TOPIC_DIAGNOSTICS,
-                                               TOPIC_POSITION_SETPOINT,
-                                               TOPIC_REAL_TIME_FACTOR, TOPIC_RUN_UNTIL)
-        from valve_model_pkg.interface.ros import CLOCK_QOS, DIAGNOSTICS_QOS
-        self.clock_ns = -1
-        self.setpoint_m = math.nan
-        self.rtf = math.nan
-        self.sim_values: dict[str, str] = {}
-
-        def on_clock(msg: Clock) -> None:
-            self.clock_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
-
-        def on_setpoint(msg: Float64) -> None:
-            self.setpoint_m = msg.data
-
-        def on_rtf(msg: Float64) -> None:
-            if msg.data > 0.0:
-                self.rtf = msg.data
-
-        def on_diag(msg: DiagnosticArray) -> None:
-            for status in msg.status:
-                if 'lockstep simulation' in status.name:
-                    self.sim_values = {kv.key: kv.value for kv in status.values}
-        self.probe.create_subscription(Clock, TOPIC_CLOCK, on_clock, CLOCK_QOS)
-        self.probe.create_subscription(Float64, TOPIC_POSITION_SETPOINT, on_setpoint,
-                                       COMMAND_QOS)
-        self.probe.create_subscription(Float64, TOPIC_REAL_TIME_FACTOR, on_rtf,
-                                       COMMAND_QOS)
-        self.probe.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, on_diag,
-                                       DIAGNOSTICS_QOS)
-        self._run_until_pub = self.probe.create_publisher(Float64, TOPIC_RUN_UNTIL,
-                                                          COMMAND_QOS)
-
-    def run_until(self, t_s: float) -> None:
-        from std_msgs.msg import Float64
-        self._run_until_pub.publish(Float64(data=float(t_s)))
-
-    def subscribers(self, topic: str) -> int:
-        """Subscriptions to ``topic`` in the graph, this watcher's own included."""
-        return self.probe.count_subscribers(topic)
-
-    def publishers(self, topic: str) -> int:
-        return self.probe.count_publishers(topic)
-
-    def goal(self, position_m: float) -> None:
-        from std_msgs.msg import Float64
-        self._goal_pub.publish(Float64(data=float(position_m)))
-
-    def stop_watching_state(self) -> None:
-        if self._state_sub is not None:
-            self.probe.destroy_subscription(self._state_sub)
-            self._state_sub = None
-
-    def reset(self) -> None:
-        self.flow_cmd_sum = self.duty_sum = 0.0
-        self.flow_cmd_n = self.duty_n = 0
-
-    def spin_for(self, seconds: float, sup: Supervisor) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.05)
-            sup.check_alive()
-
-    def close(self) -> None:
-        import rclpy
-        self.executor.shutdown()
-        self.probe.destroy_node()
-        rclpy.try_shutdown()
+def _run_to(w: DemoWatcher, sup: Supervisor, t_s: float) -> float:
+    """Let the held simulation run to ``t_s`` (rounded to 1 ms) and wait until it is there."""
+    t_s = round(t_s, 3)
+    w.run_until(t_s)
+    target_ns = int(round(t_s * 1e9))
+    last_sent = time.monotonic()
+    while w.clock_ns < target_ns:
+        w.spin_for(0.02, sup)
+        if time.monotonic() - last_sent > 1.0:
+            w.run_until(t_s)  # lost or not yet matched: say it again (idempotent)
+            last_sent = time.monotonic()
+    # ... and until the controller chain has answered the tick it is held at (its flow
+    # command stamped with it), so that the next goal takes effect at the next tick in
+    # every run, whenever the controller reads it. A controller without feedback never
+    # answers: at most TICK_ANSWER_TIMEOUT_S.
+    deadline = time.monotonic() + TICK_ANSWER_TIMEOUT_S
+    while w.flow_stamp_ns < target_ns and time.monotonic() < deadline:
+        w.spin_for(0.01, sup)
+    return t_s
 
 
-def _step_line(w: _Watcher, goal_m: float, extra: str = '') -> str:
-    flow_cmd = w.flow_cmd_sum / w.flow_cmd_n if w.flow_cmd_n else math.nan
-    duty = w.duty_sum / w.duty_n if w.duty_n else math.nan
-    return (f'{goal_m * 1e3:6.1f}mm {w.position_m * 1e3:7.2f}mm '
-            f'{(w.position_m - goal_m) * 1e3:+6.2f} {w.pressure_pa / 1e5:6.2f}bar '
-            f'{flow_cmd * 1e3:6.3f}g/s {duty * 100:5.1f}%{extra}')
+class Readiness(NamedTuple):
+    """What a lockstep run waits for before it starts: (topic, least count) pairs."""
+
+    subscribers: list[tuple[str, int]]
+    publishers: list[tuple[str, int]]
 
 
-#: Simulated time before the first goal [s]: the suite settles at the initial setpoint.
-PRE_ROLL_S = 0.5
+def lockstep_readiness(cfg: DemoConfig) -> Readiness:
+    """The subscriptions and publishers every node of a lockstep run has made.
+
+    The counts include the demo's own subscriptions. The setpoint needs the demo and the
+    recorder: the report finds the steps from the recorded setpoints, the first included.
+    With the CAN backend the valve is the emulator's, on /clock: the simulation and the
+    recorder read its state; the driver and the emulator's clock bridge take duty
+    commands (simulation, recorder, emulator, driver, demo); /clock goes to the emulator,
+    driver, controller, flow_to_duty and demo. The driver's /clock subscription exists
+    before it is configured, so its state publisher (made when it is configured, then it
+    activates) is waited for too: without it the run could start before the driver is on
+    the bus and lose the first step's state.
+    """
+    state_topic = '/' + valve_topic(cfg.valves[0], TOPIC_STATE)
+    needs = [('/' + TOPIC_JOINT_STATES, 2),        # controller + recorder
+             ('/' + TOPIC_POSITION_GOAL, 2),       # controller + recorder
+             ('/' + TOPIC_POSITION_SETPOINT, 2)]   # demo + recorder
+    for ns in cfg.valves:
+        needs += [('/' + valve_topic(ns, TOPIC_FLOW_COMMAND), 2),   # flow_to_duty + recorder
+                  ('/' + valve_topic(ns, TOPIC_OUTPUT_PRESSURE), 2),
+                  ('/' + valve_topic(ns, TOPIC_DUTY_COMMAND), 2)]   # simulation + recorder
+    publishers = []
+    if cfg.backend == 'can':
+        needs += [(state_topic, 2), ('/' + TOPIC_DUTY_COMMAND, 5), (TOPIC_CLOCK, 5)]
+        publishers.append((state_topic, 1))                       # the driver
+    else:
+        needs.append((state_topic, 1))                            # recorder
+    return Readiness(needs, publishers)
+
+
+def _wait_until_up(w: DemoWatcher, sup: Supervisor, ready: Readiness) -> bool:
+    """Spin until the simulation's clock runs and the graph has every node's endpoints."""
+    def missing() -> list[str]:
+        return [t for t, n in ready.subscribers if w.subscribers(t) < n] + \
+            [f'{t} (publisher)' for t, n in ready.publishers if w.publishers(t) < n]
+    deadline = time.monotonic() + SUITE_UP_TIMEOUT_S
+    while w.clock_ns < 0 or missing():
+        w.spin_for(0.1, sup)
+        if time.monotonic() > deadline:
+            sup.say(f'the suite did not come up within {SUITE_UP_TIMEOUT_S:g} s (waiting for '
+                    f'{missing()}): giving up')
+            return False
+    return True
+
+
+def _send_goal(w: DemoWatcher, sup: Supervisor, goal_m: float) -> bool:
+    """Send a goal and wait for the controller's acknowledgement (its setpoint).
+
+    A goal lost or not yet matched (the readiness counts can be met by other subscribers,
+    e.g. the live view) is said again, the same goal, every second.
+    """
+    w.goal(goal_m)
+    deadline = time.monotonic() + GOAL_ACK_TIMEOUT_S
+    last_sent = time.monotonic()
+    while w.setpoint_m != goal_m:
+        w.spin_for(0.02, sup)
+        if time.monotonic() - last_sent > 1.0:
+            w.goal(goal_m)
+            last_sent = time.monotonic()
+        if time.monotonic() > deadline:
+            sup.say(f'the controller did not acknowledge the goal within '
+                    f'{GOAL_ACK_TIMEOUT_S:g} s')
+            return False
+    return True
 
 
 def _drive_lockstep(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
     """Drive the held simulation: goal, acknowledgement, run for the hold time; repeat."""
-    w = _Watcher(cfg.valves[0])
+    w = DemoWatcher(cfg.valves[0])
     info: dict = {'clock': 'simulation (lockstep)',
                   'real_time_factor_max': cfg.real_time_factor_max or None}
     try:
         sup.say('waiting for the simulation and for every node to subscribe ...')
-        from valve_model_pkg import interface as itf
-        state_topic = '/' + _topic(cfg.valves[0], itf.TOPIC_STATE)
-        needs = [('/' + itf.TOPIC_JOINT_STATES, 2),        # controller + recorder
-                 ('/' + itf.TOPIC_POSITION_GOAL, 2),       # controller + recorder
-                 ('/' + itf.TOPIC_POSITION_SETPOINT, 2)]   # this watcher + recorder: the
-        # report finds the steps from the recorded setpoints, the first one included
-        for ns in cfg.valves:
-            needs += [('/' + _topic(ns, itf.TOPIC_FLOW_COMMAND), 2),  # flow_to_duty + recorder
-                      ('/' + _topic(ns, itf.TOPIC_OUTPUT_PRESSURE), 2),
-                      ('/' + _topic(ns, itf.TOPIC_DUTY_COMMAND), 2)]  # simulation + recorder
-        publishers = []
-        if cfg.backend == 'can':
-            # the valve is the emulator's, on /clock: the simulation reads its state (and
-            # the recorder); the driver and the emulator's clock bridge take duty commands.
-            # The counts include this watcher's own subscriptions (duty: simulation,
-            # recorder, emulator, driver, watcher), and the driver's /clock subscription
-            # exists before it is configured: without its state publisher (made when it
-            # is configured, then it activates) the run could start before the driver was
-            # on the bus and lose the first step's state (a 10 s lockstep timeout).
-            needs += [(state_topic, 2), ('/' + itf.TOPIC_DUTY_COMMAND, 5),
-                      (itf.TOPIC_CLOCK, 5)]  # emulator, driver, controller, f2d, demo
-            publishers.append((state_topic, 1))                       # the driver
-        else:
-            needs.append((state_topic, 1))                            # recorder
-        deadline = time.monotonic() + 120.0
-        while w.clock_ns < 0 or any(w.subscribers(t) < n for t, n in needs) \
-                or any(w.publishers(t) < n for t, n in publishers):
-            w.spin_for(0.1, sup)
-            if time.monotonic() > deadline:
-                missing = [t for t, n in needs if w.subscribers(t) < n] + \
-                    [f'{t} (publisher)' for t, n in publishers if w.publishers(t) < n]
-                sup.say(f'the suite did not come up within 120 s (waiting for {missing}): '
-                        'giving up')
-                return 1, info
+        if not _wait_until_up(w, sup, lockstep_readiness(cfg)):
+            return 1, info
         w.stop_watching_state()
         w.spin_for(0.5, sup)  # let the subscriptions match the publishers
         sup.say('the suite is up. What is running:\n' + sup.table())
@@ -378,22 +305,11 @@ def _drive_lockstep(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
         for goal_m, hold_s in cfg.goals:
             sup.say(f'moving the piston to {goal_m * 1e3:.0f} mm and holding {hold_s:g} s '
                     '(simulated)')
-            w.goal(goal_m)
-            deadline = time.monotonic() + 30.0
-            last_sent = time.monotonic()
-            while w.setpoint_m != goal_m:  # the controller's acknowledgement
-                w.spin_for(0.02, sup)
-                if time.monotonic() - last_sent > 1.0:
-                    # lost or not yet matched (the readiness counts can be met by other
-                    # subscribers, e.g. the live view): say it again (the same goal)
-                    w.goal(goal_m)
-                    last_sent = time.monotonic()
-                if time.monotonic() > deadline:
-                    sup.say('the controller did not acknowledge the goal within 30 s')
-                    return 1, info
+            if not _send_goal(w, sup, goal_m):
+                return 1, info
             w.reset()
             target = _run_to(w, sup, target + hold_s)
-            sup.say(_step_line(w, goal_m, f'  t={w.clock_ns * 1e-9:6.2f}s rtf {w.rtf:4.2f}'))
+            sup.say(w.step_line(goal_m, f'  t={w.clock_ns * 1e-9:6.2f}s rtf {w.rtf:4.2f}'))
         wall = time.monotonic() - wall0
         info['real_time_factor'] = target / wall if wall > 0 else None
         info['simulated_s'], info['wall_s'] = target, wall
@@ -408,31 +324,9 @@ def _drive_lockstep(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
         w.close()
 
 
-def _run_to(w: _Watcher, sup: Supervisor, t_s: float) -> float:
-    """Let the held simulation run to ``t_s`` (rounded to 1 ms) and wait until it is there."""
-    t_s = round(t_s, 3)
-    w.run_until(t_s)
-    target_ns = int(round(t_s * 1e9))
-    last_sent = time.monotonic()
-    while w.clock_ns < target_ns:
-        w.spin_for(0.02, sup)
-        if time.monotonic() - last_sent > 1.0:
-            w.run_until(t_s)  # lost or not yet matched: say it again (idempotent)
-            last_sent = time.monotonic()
-    # ... and until the controller has answered the tick it is held at: a goal sent before
-    # that answer took effect at this tick, one sent after it at the next, as the messages
-    # fell (two loops' after runs parted at the third goal, 2026-11-26). A controller
-    # without feedback never answers: at most 2 s.
-    deadline = time.monotonic() + 2.0
-    while w.flow_stamp_ns < target_ns and time.monotonic() < deadline:
-        w.spin_for(0.01, sup)
-    return t_s
-
-
-def _drive(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
-    if cfg.lockstep:
-        return _drive_lockstep(sup, cfg)
-    w = _Watcher()
+def _drive_wall(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
+    """Drive the suite on wall-clock time: goal, hold; repeat."""
+    w = DemoWatcher()
     info: dict = {'clock': 'wall'}
     try:
         sup.say('waiting for valve/state and cylinder/joint_states ...')
@@ -453,7 +347,7 @@ def _drive(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
             w.goal(goal_m)
             w.reset()
             w.spin_for(hold_s, sup)
-            sup.say(_step_line(w, goal_m))
+            sup.say(w.step_line(goal_m))
         info['real_time_factor'] = 1.0  # wall clock: simulated and real time are one
         info['wall_s'] = time.monotonic() - wall0
         return 0, info
@@ -506,7 +400,8 @@ def run(cfg: DemoConfig, out_given: bool = True) -> int:
                 sup.say(f'live view: Foxglove WebSocket on ws://127.0.0.1:{cfg.live_port} '
                         '(Foxglove: Open connection -> Foxglove WebSocket; layouts in '
                         'layouts/)')
-            code, info = _drive(sup, cfg)
+            drive = _drive_lockstep if cfg.lockstep else _drive_wall
+            code, info = drive(sup, cfg)
         except KeyboardInterrupt:
             sup.say('interrupted: stopping all processes')
             code = 130
@@ -517,30 +412,45 @@ def run(cfg: DemoConfig, out_given: bool = True) -> int:
         codes = sup.stop()
         sup.say('stopped: ' + ', '.join(f'{n} exit {c}' for n, c in codes.items()))
     if code == 0:
-        from valve_model_pkg.cli.report import write_report
-        info.update(backend=cfg.backend, cylinder=cfg.cylinder,
-                    exit_codes={n: c for n, c in codes.items()})
-        if cfg.backend == 'can' and cfg.lockstep:
-            info['clock_note'] = (
-                'simulation time: the controller emulator advances its valve model on the '
-                'simulation clock, one telemetry frame per 1 ms step, and waits at each '
-                'control tick for that tick\'s command on the bus; valve/state comes '
-                'through the CAN driver (use_sim_time) at one message per simulated step')
-        elif cfg.backend == 'can':
-            info['clock_note'] = (
-                'wall clock: the controller emulator runs the valve model in real time, as '
-                'the firmware it stands in for does, and the CAN driver stamps telemetry '
-                'with wall-clock time; the loop spans emulator, driver, plant, flow_to_duty '
-                'and controller processes, so scheduling delays on a loaded computer become '
-                'plant delays and this run is not reproducible step for step')
-        report = write_report(bag, run_dir / 'report',
+        _write_report(cfg, bag, run_dir, info, codes)
+    return code
+
+
+#: What the report says of each backend's clock (a lockstep run on the simulator needs no
+#: note: the report's clock line says it).
+_CLOCK_NOTES = {
+    ('can', True): (
+        'simulation time: the controller emulator advances its valve model on the '
+        'simulation clock, one telemetry frame per 1 ms step, and waits at each '
+        'control tick for that tick\'s command on the bus; valve/state comes '
+        'through the CAN driver (use_sim_time) at one message per simulated step'),
+    ('can', False): (
+        'wall clock: the controller emulator runs the valve model in real time, as '
+        'the firmware it stands in for does, and the CAN driver stamps telemetry '
+        'with wall-clock time; the loop spans emulator, driver, plant, flow_to_duty '
+        'and controller processes, so scheduling delays on a loaded computer become '
+        'plant delays and this run is not reproducible step for step'),
+}
+
+
+def _write_report(cfg: DemoConfig, bag: Path, run_dir: Path, info: dict,
+                  codes: dict[str, int | None]) -> None:
+    """``RUN/report/`` from the bag and what the run knows (printed as well)."""
+    info.update(backend=cfg.backend, cylinder=cfg.cylinder,
+                exit_codes={n: c for n, c in codes.items()},
+                goals=[{'position_mm': g * 1e3, 'hold_s': h} for g, h in cfg.goals],
+                pre_roll_s=PRE_ROLL_S if cfg.lockstep else None, rate_hz=cfg.rate_hz,
+                effect_args=list(cfg.effect_args))
+    note = _CLOCK_NOTES.get((cfg.backend, cfg.lockstep))
+    if note:
+        info['clock_note'] = note
+    report = write_run_report(bag, run_dir / 'report',
                               title=f'valve suite demo ({cfg.backend} backend, '
                               f'{cfg.cylinder} cylinder, {info.get("clock", "wall")} clock)',
-                              run_info=info, valve=cfg.valves[0])
-        print(f'[{"demo":>18}] bag: {bag}')
-        print(f'[{"demo":>18}] report: {report} (and report.json)')
-        print(report.read_text())
-    return code
+                              run_info=info, valve=cfg.valves[0]).markdown
+    print(f'[{"demo":>18}] bag: {bag}')
+    print(f'[{"demo":>18}] report: {report} (and report.json)')
+    print(report.read_text())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -584,9 +494,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f'--hold {args.hold!r}: expected 0.1 .. 600 s')
     if not 1 <= args.live_port <= 65535:
         parser.error(f'--live-port {args.live_port!r}: expected 1 .. 65535')
-    goals = tuple((g, 2.0) for g, _ in GOALS[:3]) if args.quick else GOALS
-    if args.hold is not None:
-        goals = tuple((g, args.hold) for g, _ in goals)
+    goals = demo_goals(args.quick, args.hold)
 
     # Ctrl-C / SIGTERM: raise in the main thread so the supervisor's context exit stops all.
     def _interrupt(signum: int, _frame: object) -> None:

@@ -16,9 +16,18 @@ suite listens beyond the machine by default). SIGINT/SIGTERM end it with exit 0.
 from __future__ import annotations
 
 import argparse
+import importlib
 import signal
 import sys
 import threading
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
+
+from valve_model_pkg.interface.ros import RELAY_QOS
+from valve_model_pkg.recording import (DEFAULT_TOPICS, build_typestore, msgdef_and_hash,
+                                       parse_topic_spec)
 
 __all__ = ['main']
 
@@ -40,14 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     if not 1 <= args.port <= 65535:
         print(f'valve_live: error: --port {args.port!r}: expected 1 .. 65535', file=sys.stderr)
         return 2
+    # foxglove-sdk has no rosdep key (package.xml): a ROS install without the pip
+    # requirements still answers --help and refuses a bad port
     import foxglove
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from valve_model_pkg.interface.ros import RELAY_QOS
-    from rclpy.signals import SignalHandlerOptions
-
-    from valve_model_pkg.recording import (DEFAULT_TOPICS, build_typestore, msgdef_and_hash,
-                                           parse_topic_spec)
 
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -60,7 +64,6 @@ def main(argv: list[str] | None = None) -> int:
     relayed: dict[str, object] = {}
 
     def relay(topic: str, msgtype: str) -> None:
-        import importlib
         pkg, _, name = msgtype.split('/')
         cls = getattr(importlib.import_module(f'{pkg}.msg'), name)
         text, _ = msgdef_and_hash(store, msgtype)

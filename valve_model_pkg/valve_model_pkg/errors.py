@@ -29,6 +29,7 @@ for a file that cannot be written, ...), as python-can's ``can.exceptions`` does
     |   +-- ManifestError (ValueError)
     |   +-- SchedulerError (ConnectionError)
     |   +-- StoreBusyError (RuntimeError)
+    +-- RunAnalysisError (ValueError)           a suite run's bag that cannot be analysed
     +-- StartupRefused                          a node refuses its start-up input
 """
 from __future__ import annotations
@@ -45,6 +46,7 @@ __all__ = [
     'RecordingError', 'BagWriteError', 'BagFormatError', 'UnknownMessageTypeError',
     'IdentificationError', 'MeasurementFormatError', 'ModelAdapterError',
     'FleetError', 'ManifestError', 'SchedulerError', 'StoreBusyError',
+    'RunAnalysisError',
     'StartupRefused',
 ]
 
@@ -251,6 +253,12 @@ class SchedulerError(FleetError, ConnectionError):
 
 class StoreBusyError(FleetError, RuntimeError):
     """Another run holds the output folder."""
+
+
+# --- analysis of suite runs ------------------------------------------------------------
+class RunAnalysisError(ValveModelError, ValueError):
+    """A suite run's bag that cannot be analysed (one line naming the bag and the lack: a
+    topic missing, goals other than the schedule's, too few flow windows)."""
 
 
 # --- nodes -----------------------------------------------------------------------------

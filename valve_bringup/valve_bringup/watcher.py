@@ -1,0 +1,181 @@
+"""The demo's own rclpy node: it sends goals, holds and releases the lockstep simulation,
+and watches the suite's topics to print what happens."""
+from __future__ import annotations
+
+import math
+import time
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import FluidPressure, JointState
+from std_msgs.msg import Float64
+from valve_msgs.msg import DutyCommand, FlowCommand, ValveState
+
+from valve_bringup.supervisor import Supervisor
+from valve_model_pkg.interface import (TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
+                                       TOPIC_FLOW_COMMAND, TOPIC_JOINT_STATES,
+                                       TOPIC_OUTPUT_PRESSURE, TOPIC_POSITION_GOAL,
+                                       TOPIC_POSITION_SETPOINT, TOPIC_REAL_TIME_FACTOR,
+                                       TOPIC_RUN_UNTIL, TOPIC_STATE, gauge_from_absolute)
+from valve_model_pkg.interface.ros import (CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS,
+                                           JOINT_STATES_QOS, PRESSURE_QOS, STATE_QOS)
+
+__all__ = ['DemoWatcher', 'valve_topic']
+
+
+def valve_topic(ns: str, topic: str) -> str:
+    """``topic`` in the valve namespace ``ns`` ('' = none)."""
+    return f'{ns}/{topic}' if ns else topic
+
+
+class DemoWatcher:
+    """The demo's node and its executor; :meth:`close` shuts rclpy down.
+
+    Parameters
+    ----------
+    valve_ns : str
+        Namespace of the valve whose topics are watched ('' = none).
+
+    Attributes
+    ----------
+    states : int
+        ``valve/state`` messages seen until :meth:`stop_watching_state`.
+    position_m, pressure_pa : float
+        Newest piston position [m] and chamber pressure, gauge [Pa] (NaN before any).
+    clock_ns : int
+        Newest simulation time [ns] (-1 before any).
+    flow_stamp_ns : int
+        Stamp of the newest flow command [ns]: in lockstep the tick the controller chain
+        answered.
+    setpoint_m : float
+        The controller's newest setpoint [m]: its acknowledgement of a goal.
+    rtf : float
+        Newest real-time factor of the simulation.
+    sim_values : dict of str to str
+        Newest values of the lockstep simulation's diagnostics.
+    """
+
+    def __init__(self, valve_ns: str = '') -> None:
+        rclpy.init()
+        self.probe = rclpy.create_node('valve_demo')
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(self.probe)
+        self.states = 0
+        self.position_m = math.nan
+        self.pressure_pa = math.nan
+        self.flow_stamp_ns = -1
+        self.clock_ns = -1
+        self.setpoint_m = math.nan
+        self.rtf = math.nan
+        self.sim_values: dict[str, str] = {}
+        self._flow_sum, self._flow_n = 0.0, 0
+        self._duty_sum, self._duty_n = 0.0, 0
+        # valve/state only tells that the backend is up: 1 kHz in this process would take
+        # CPU from the suite, so the subscription goes once the first state arrived.
+        self._state_sub = self.probe.create_subscription(ValveState, TOPIC_STATE,
+                                                         self._on_state, STATE_QOS)
+        self._goal_pub = self.probe.create_publisher(Float64, TOPIC_POSITION_GOAL,
+                                                     COMMAND_QOS)
+        self._run_until_pub = self.probe.create_publisher(Float64, TOPIC_RUN_UNTIL,
+                                                          COMMAND_QOS)
+        subscriptions = (
+            (JointState, TOPIC_JOINT_STATES, self._on_joint, JOINT_STATES_QOS),
+            (FluidPressure, valve_topic(valve_ns, TOPIC_OUTPUT_PRESSURE), self._on_pressure,
+             PRESSURE_QOS),
+            (FlowCommand, valve_topic(valve_ns, TOPIC_FLOW_COMMAND), self._on_flow,
+             COMMAND_QOS),
+            (DutyCommand, valve_topic(valve_ns, TOPIC_DUTY_COMMAND), self._on_duty,
+             COMMAND_QOS),
+            (Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS),
+            (Float64, TOPIC_POSITION_SETPOINT, self._on_setpoint, COMMAND_QOS),
+            (Float64, TOPIC_REAL_TIME_FACTOR, self._on_rtf, COMMAND_QOS),
+            (DiagnosticArray, TOPIC_DIAGNOSTICS, self._on_diagnostics, DIAGNOSTICS_QOS))
+        for msgtype, topic, callback, qos in subscriptions:
+            self.probe.create_subscription(msgtype, topic, callback, qos)
+
+    # --- callbacks ----------------------------------------------------------------------
+    def _on_state(self, msg: ValveState) -> None:
+        self.states += 1
+
+    def _on_joint(self, msg: JointState) -> None:
+        if msg.position:
+            self.position_m = msg.position[0]
+
+    def _on_pressure(self, msg: FluidPressure) -> None:
+        self.pressure_pa = gauge_from_absolute(msg.fluid_pressure)
+
+    def _on_flow(self, msg: FlowCommand) -> None:
+        self._flow_sum += msg.mass_flow
+        self._flow_n += 1
+        self.flow_stamp_ns = max(self.flow_stamp_ns, msg.header.stamp.sec * 1_000_000_000
+                                 + msg.header.stamp.nanosec)
+
+    def _on_duty(self, msg: DutyCommand) -> None:
+        self._duty_sum += msg.duty
+        self._duty_n += 1
+
+    def _on_clock(self, msg: Clock) -> None:
+        self.clock_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+
+    def _on_setpoint(self, msg: Float64) -> None:
+        self.setpoint_m = msg.data
+
+    def _on_rtf(self, msg: Float64) -> None:
+        if msg.data > 0.0:
+            self.rtf = msg.data
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if 'lockstep simulation' in status.name:
+                self.sim_values = {kv.key: kv.value for kv in status.values}
+
+    # --- what the demo does -------------------------------------------------------------
+    def run_until(self, t_s: float) -> None:
+        """Let the held simulation run until ``t_s`` [s of simulated time]."""
+        self._run_until_pub.publish(Float64(data=float(t_s)))
+
+    def goal(self, position_m: float) -> None:
+        """Send a position goal [m]."""
+        self._goal_pub.publish(Float64(data=float(position_m)))
+
+    def subscribers(self, topic: str) -> int:
+        """Subscriptions to ``topic`` in the graph, this watcher's own included."""
+        return self.probe.count_subscribers(topic)
+
+    def publishers(self, topic: str) -> int:
+        """Publishers of ``topic`` in the graph."""
+        return self.probe.count_publishers(topic)
+
+    def stop_watching_state(self) -> None:
+        """Drop the ``valve/state`` subscription (the backend is known to be up)."""
+        if self._state_sub is not None:
+            self.probe.destroy_subscription(self._state_sub)
+            self._state_sub = None
+
+    def reset(self) -> None:
+        """Start new means of the commanded flow and duty (one step's)."""
+        self._flow_sum = self._duty_sum = 0.0
+        self._flow_n = self._duty_n = 0
+
+    def spin_for(self, seconds: float, sup: Supervisor) -> None:
+        """Spin for ``seconds`` of wall time; raise if a supervised process ended."""
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.05)
+            sup.check_alive()
+
+    def step_line(self, goal_m: float, extra: str = '') -> str:
+        """One line of the demo's table: goal, position, error, chamber, means, ``extra``."""
+        flow_cmd = self._flow_sum / self._flow_n if self._flow_n else math.nan
+        duty = self._duty_sum / self._duty_n if self._duty_n else math.nan
+        return (f'{goal_m * 1e3:6.1f}mm {self.position_m * 1e3:7.2f}mm '
+                f'{(self.position_m - goal_m) * 1e3:+6.2f} {self.pressure_pa / 1e5:6.2f}bar '
+                f'{flow_cmd * 1e3:6.3f}g/s {duty * 100:5.1f}%{extra}')
+
+    def close(self) -> None:
+        """Destroy the node and shut rclpy down."""
+        self.executor.shutdown()
+        self.probe.destroy_node()
+        rclpy.try_shutdown()
