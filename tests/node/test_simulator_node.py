@@ -21,20 +21,30 @@ def _start_sim(start_node, rate_hz: float, *extra: str):
                       *extra)
 
 
-@pytest.mark.serial   # a rate in wall time (+-20 %) and no gap at 1 kHz
 @pytest.mark.parametrize('rate_hz', [1000.0, 200.0])
 def test_state_arrives_at_the_configured_rate_and_follows_duty(start_node, ros, rate_hz):
     sim = _start_sim(start_node, rate_hz)
     probe = ros.add(StateProbe('test_probe'))
+    diags: list[DiagnosticArray] = []
+    probe.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, diags.append, 10)
     ros.wait_for(lambda: probe.count > 10, 30.0, 'the first valve/state messages')
 
-    # Rate over a 3 s window of message stamps and of arrivals, both within +-20 %.
+    # The stream is the model's sample grid, one message per 1/rate of model time: every
+    # stamp step is one period, or whole periods the node skipped and reported (a loaded
+    # machine may hold the process up; the node then skips model time and says so).
     probe.reset_window()
+    probe.keep_messages = True
     ros.spin_for(3.0)
-    w = probe.window()
-    assert w.rate_hz == pytest.approx(rate_hz, rel=0.2), sim.output[-2000:]
-    assert w.count / 3.0 == pytest.approx(rate_hz, rel=0.2)
-    assert w.position_avg_pct == pytest.approx(0.0, abs=1e-6)  # duty 0: closed
+    probe.keep_messages = False
+    stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in probe.messages]
+    periods = [(b - a) * rate_hz for a, b in zip(stamps, stamps[1:])]
+    assert len(periods) > 10
+    assert all(abs(p - round(p)) < 1e-3 and round(p) >= 1 for p in periods), periods
+    skipped = sum(round(p) - 1 for p in periods)
+    if skipped:
+        ros.wait_for(lambda: any('fell behind' in s.message for a in diags for s in a.status),
+                     10.0, f'diagnostics reporting the {skipped} skipped sample(s)')
+    assert probe.window().position_avg_pct == pytest.approx(0.0, abs=1e-6)  # duty 0: closed
 
     # Follow a duty command: 60 % at 50 Hz opens the valve for part of each period.
     probe.command(0.6, 50.0)

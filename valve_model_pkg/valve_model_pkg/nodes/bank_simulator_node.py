@@ -47,7 +47,8 @@ from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, 
                                           TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
                                           TOPIC_SUPPLY_PRESSURE, DiagnosticLevel,
                                           StartupRefused, declare_bool, declare_float,
-                                          gauge_from_absolute, key_values, run_node)
+                                          gauge_from_absolute, run_node)
+from valve_model_pkg.nodes.sim_status import valve_summary, valve_values
 from valve_model_pkg.nodes.tick_loop import TickLoop
 from valve_model_pkg.nodes.inputs import (InputGuard, SequenceTracker, pressure_reason,
                                           stamp_reason)
@@ -289,46 +290,20 @@ class ValveBankSimulatorNode(Node):
         for v in self._valves:
             s = sample_of(rows[v.index])
             if level is None:
-                lvl, msg = self._summary(v)
+                lvl, msg = valve_summary(self._loop, v.commands, v.inputs)
             else:
                 lvl, msg = level, text
             status = DiagnosticStatus(level=lvl, name=f'{self.get_name()}: {v.name} real-time '
                                       'model', message=msg, hardware_id=v.name)
-            status.values = key_values(
-                ticks=self._loop.ticks, ticks_behind=self._loop.behind_ticks,
-                late_samples=self._loop.late_samples,
-                skipped_model_time_s=self._loop.skipped_model_s,
-                achieved_rate_hz=self._loop.achieved_rate_hz, target_rate_hz=self._rate_hz,
-                samples_published=v.sequence,
-                max_tick_compute_s=self._loop.max_tick_compute_s,
-                rejected_commands=v.inputs.total,
-                last_rejection=v.inputs.last_reason,
-                **v.commands.diagnostic_values('duty_commands'),
-                duty_commands_rejected=v.inputs.count('duty_command'),
-                **v.inputs.diagnostic_values(), model_time_s=s.t_s,
-                duty=s.duty, pwm_frequency_hz=s.pwm_frequency_hz,
-                supply_pressure_pa=s.supply_pressure_pa, params_file=v.params_path,
-                kernel=kernel_backend().name,
-                valves_in_process=len(self._valves))
+            status.values = valve_values(self._loop, s, rate_hz=self._rate_hz,
+                                         sequence=v.sequence, commands=v.commands,
+                                         inputs=v.inputs, params_file=v.params_path,
+                                         valves_in_process=len(self._valves))
             statuses.append(status)
         array = DiagnosticArray()
         array.header.stamp = self.get_clock().now().to_msg()
         array.status = statuses
         self._diag_pub.publish(array)
-
-    def _summary(self, v: _Valve) -> tuple[int, str]:
-        problems = []
-        if self._loop.behind_ticks:
-            problems.append(f'{self._loop.behind_ticks} tick(s) fell behind; last: '
-                            f'{self._loop.last_behind_reason}')
-        if v.commands.lost:
-            problems.append(f'{v.commands.lost} duty command(s) lost (sequence gaps)')
-        if v.inputs.total:
-            problems.append(f'{v.inputs.total} message(s) rejected; last: '
-                            f'{v.inputs.last_reason}')
-        if problems:
-            return DiagnosticLevel.WARN, '; '.join(problems)
-        return DiagnosticLevel.OK, 'running in real time'
 
 
 def main(args: list[str] | None = None) -> None:

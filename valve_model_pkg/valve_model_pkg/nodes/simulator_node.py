@@ -39,6 +39,7 @@ from valve_model_pkg.model.aot import backend as kernel_backend
 from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS, forward_logging, state_message
 # The accepted PWM frequencies: one pair for simulator, CAN driver and DBC.
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
+from valve_model_pkg.nodes.sim_status import valve_summary, valve_values
 from valve_model_pkg.nodes.tick_loop import TickLoop
 from valve_model_pkg.nodes.inputs import (InputGuard, SequenceTracker, pressure_reason,
                                           stamp_reason)
@@ -47,7 +48,7 @@ from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, 
                                           TOPIC_DUTY_COMMAND, TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
                                           TOPIC_SUPPLY_PRESSURE, declare_bool, declare_float,
                                           declare_string, DiagnosticLevel, gauge_from_absolute,
-                                          key_values, run_node)
+                                          run_node)
 
 
 class ValveSimulatorNode(Node):
@@ -238,40 +239,16 @@ class ValveSimulatorNode(Node):
     # --- diagnostics ----------------------------------------------------------------------
     def _publish_summary(self) -> None:
         self._loop.close_window()
-        level, text = DiagnosticLevel.OK, 'running in real time'
-        problems = []
-        if self._loop.behind_ticks:
-            problems.append(f'{self._loop.behind_ticks} tick(s) fell behind; last: '
-                            f'{self._loop.last_behind_reason}')
-        if self._commands.lost:
-            problems.append(f'{self._commands.lost} duty command(s) lost (sequence gaps)')
-        if self._inputs.total:
-            problems.append(f'{self._inputs.total} message(s) rejected; last: '
-                            f'{self._inputs.last_reason}')
-        if problems:
-            level, text = DiagnosticLevel.WARN, '; '.join(problems)
-        self._publish_diagnostics(level, text)
+        self._publish_diagnostics(*valve_summary(self._loop, self._commands, self._inputs))
         self._loop.max_tick_compute_s = 0.0
 
     def _publish_diagnostics(self, level: int, text: str) -> None:
         s = self._stepper.sample()
         status = DiagnosticStatus(level=level, name=f'{self.get_name()}: real-time model',
                                   message=text, hardware_id=self._frame_id)
-        status.values = key_values(
-            ticks=self._loop.ticks, ticks_behind=self._loop.behind_ticks,
-            late_samples=self._loop.late_samples,
-            skipped_model_time_s=self._loop.skipped_model_s,
-            achieved_rate_hz=self._loop.achieved_rate_hz, target_rate_hz=self._rate_hz,
-            samples_published=self._sequence,
-            max_tick_compute_s=self._loop.max_tick_compute_s,
-            rejected_commands=self._inputs.total,
-            last_rejection=self._inputs.last_reason,
-            **self._commands.diagnostic_values('duty_commands'),
-            duty_commands_rejected=self._inputs.count('duty_command'),
-            **self._inputs.diagnostic_values(), model_time_s=s.t_s,
-            duty=s.duty, pwm_frequency_hz=s.pwm_frequency_hz,
-            supply_pressure_pa=s.supply_pressure_pa, params_file=self._params_path,
-            kernel=kernel_backend().name)
+        status.values = valve_values(self._loop, s, rate_hz=self._rate_hz,
+                                     sequence=self._sequence, commands=self._commands,
+                                     inputs=self._inputs, params_file=self._params_path)
         array = DiagnosticArray()
         array.header.stamp = self.get_clock().now().to_msg()
         array.status = [status]
