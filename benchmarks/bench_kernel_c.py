@@ -1,0 +1,337 @@
+"""The compiled kernel beside a plain C loop of the same scheme, in one run.
+
+The C yardstick (``$VALVE_REFERENCE_DIR``, default the nearest ``shared/reference/``
+above the checkout: ``valve_rk4_elec.c``) integrates the paper's model with the same electronics,
+step policy and event handling as the kernel; its currents agree with the kernel's to about
+1e-13 A (checked here on every case). It is compiled into a temporary directory with the
+system C compiler (``cc -O2``); without a compiler or the source the C figures are skipped
+with a note and the kernel's times are still recorded.
+
+Cases (paper parameters, 4 bar supply, h_free 10 us, h_stop 100 us):
+
+* 1 s of 50 Hz, duty 0.4 PWM through the electronics, output at 1 kHz and at 100 kHz:
+  the kernel's entries ``derive_parameters``, ``new_drive_state``, ``advance`` (with the
+  output buffer's allocation), one thread;
+* a 20 ms 24 V step of the bare coil at 100 kHz output: the same entries, and the public
+  ``simulate_step`` call (its validation and result building included);
+* a batch of 1000 such 10 ms steps at 50 kHz output through ``step_batch`` on the
+  machine's cores, against 1000 times the C loop's single run on one core;
+* cold start: a fresh ``python -c "import valve_model_pkg.model as m;
+  m.simulate_step(m.load_parameters())"``.
+
+Kernel and C alternate (C, kernel, C, kernel, ...) and the best of each is compared: the
+machine is shared and its load changes within seconds. Each record carries the load
+average (/proc/loadavg) before and after its measurement.
+
+Run: ``python benchmarks/bench_kernel_c.py`` (about a minute); writes
+benchmarks/results/kernel_c.json.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from common import record as _record, write_results  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / 'valve_model_pkg'))
+
+from valve_model_pkg.model import (  # noqa: E402
+    ElectronicsConfig, load_parameters, simulate_step,
+)
+from valve_model_pkg.model import kernel as K  # noqa: E402
+
+REFERENCE_ENV = 'VALVE_REFERENCE_DIR'
+C_SOURCE = 'valve_rk4_elec.c'
+H_FREE_S, H_STOP_S = 1e-5, 1e-4
+P_SUP_PA, V_S = 4e5, 24.0
+ROUNDS = 5          # alternations of C and kernel
+KERNEL_REPS = 5     # kernel runs per round (best taken)
+C_REPS = 5          # C runs per round (the program reports its best)
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    """One workload, as the C program's command line names it."""
+
+    name: str
+    mode: str           # 'pwm' or 'step'
+    duty: float
+    freq_hz: float
+    duration_s: float
+    electronics: bool
+    sample_dt_s: float
+    label: str
+
+    def c_args(self, reps: int) -> list[str]:
+        return [self.mode, repr(V_S), repr(self.duty), repr(self.freq_hz),
+                repr(self.duration_s), repr(P_SUP_PA), '1' if self.electronics else '0',
+                repr(H_FREE_S), repr(H_STOP_S), repr(self.sample_dt_s), str(reps)]
+
+
+CASES = (
+    Case('kernel_pwm_1s_1khz', 'pwm', 0.4, 50.0, 1.0, True, 1e-3,
+         '1 s of 50 Hz, duty 0.4 PWM with the electronics, 1 kHz output'),
+    Case('kernel_pwm_1s_100khz', 'pwm', 0.4, 50.0, 1.0, True, 1e-5,
+         '1 s of 50 Hz, duty 0.4 PWM with the electronics, 100 kHz output'),
+    Case('kernel_step_20ms', 'step', 1.0, 1.0, 0.02, False, 1e-5,
+         '20 ms 24 V step of the bare coil, 100 kHz output'),
+)
+BATCH_CASE = Case('kernel_step_batch_1000', 'step', 1.0, 1.0, 0.01, False, 2e-5,
+                  '1000 runs of a 10 ms 24 V step of the bare coil, 50 kHz output')
+N_BATCH = 1000
+
+
+def load() -> list[float]:
+    """The 1, 5 and 15 min load averages (/proc/loadavg)."""
+    return [round(v, 2) for v in os.getloadavg()]
+
+
+def load_note(before: list[float], after: list[float]) -> str:
+    return (f'load average {before[0]:.1f} before, {after[0]:.1f} after (1 min) on '
+            f'{os.cpu_count()} CPUs')
+
+
+# --------------------------------------------------------------------------------------
+# The C yardstick
+# --------------------------------------------------------------------------------------
+def reference_dir() -> Path:
+    """``$VALVE_REFERENCE_DIR``, else the nearest ``shared/reference`` above the checkout."""
+    env = os.environ.get(REFERENCE_ENV)
+    if env:
+        return Path(env)
+    for parent in ROOT.parents:
+        if (parent / 'shared' / 'reference' / C_SOURCE).is_file():
+            return parent / 'shared' / 'reference'
+    return ROOT.parent / 'shared' / 'reference'
+
+
+def build_c(tmp: Path) -> tuple[Path | None, str]:
+    """Compile the C yardstick into ``tmp``: (executable or None, why not)."""
+    src = reference_dir() / C_SOURCE
+    if not src.is_file():
+        return None, f'no C yardstick at {src} (set ${REFERENCE_ENV})'
+    cc = shutil.which(os.environ.get('CC', 'cc')) or shutil.which('gcc')
+    if cc is None:
+        return None, 'no C compiler (cc) on this machine'
+    exe = tmp / 'valve_rk4_elec'
+    done = subprocess.run([cc, '-O2', '-o', str(exe), str(src), '-lm'], capture_output=True,
+                          text=True)
+    if done.returncode != 0:
+        return None, f'{cc} failed: {done.stderr.strip()[:200]}'
+    return exe, f'{Path(cc).name} -O2 {src}'
+
+
+def run_c(exe: Path, case: Case, reps: int, outfile: Path | None = None
+          ) -> tuple[float, int]:
+    """(best wall of ``reps`` runs in s, RK4 steps of one run)."""
+    args = [str(exe)] + case.c_args(reps) + ([str(outfile)] if outfile else [])
+    text = subprocess.run(args, capture_output=True, text=True, check=True).stdout
+    line = next(ln for ln in text.splitlines() if ln.startswith('RESULT'))
+    fields = dict(w.split('=', 1) for w in line.split() if '=' in w)
+    return float(fields['best_wall']), int(fields['steps'])
+
+
+# --------------------------------------------------------------------------------------
+# The kernel on the same work
+# --------------------------------------------------------------------------------------
+class KernelRun:
+    """One case through the kernel's entries (derive, drive state, advance)."""
+
+    def __init__(self, case: Case) -> None:
+        self.case = case
+        self.raw = load_parameters().to_vector()
+        elec = ElectronicsConfig() if case.electronics else ElectronicsConfig.off()
+        self.e = elec.to_vector()
+        if case.mode == 'step':
+            self.duty, self.period = 1.0, 2.0 * case.duration_s + 1.0
+        else:
+            self.duty, self.period = case.duty, 1.0 / case.freq_hz
+        self.n = int(math.floor(case.duration_s / case.sample_dt_s + 1e-9)) + 1
+        self.n_per = int(case.duration_s / self.period) + 2
+
+    def __call__(self) -> tuple[np.ndarray, np.ndarray]:
+        c = self.case
+        p = K.derive_parameters(self.raw)
+        d = K.new_drive_state(V_S, self.duty, self.period, 0.0, P_SUP_PA, 0.0,
+                              c.sample_dt_s, 0.0)
+        y = np.zeros(K.N_Y)
+        out = np.zeros((self.n, K.N_OUT))
+        avg = np.zeros(self.n_per)
+        K.advance(p, self.e, y, d, (self.n - 1) * c.sample_dt_s, H_FREE_S, H_STOP_S, out,
+                  avg)
+        return out, d
+
+
+def best_of(fn, reps: int) -> float:
+    best = math.inf
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def agreement(exe: Path, case: Case, run: KernelRun, tmp: Path) -> tuple[float, int, int]:
+    """(max |i_kernel - i_C| over the samples in A, kernel steps, C steps)."""
+    path = tmp / f'{case.name}.txt'
+    _, c_steps = run_c(exe, case, 1, path)
+    c_out = np.loadtxt(path, ndmin=2)
+    out, d = run()
+    n = min(len(c_out), len(out))
+    return (float(np.max(np.abs(out[:n, K.O_I] - c_out[:n, 1]))), int(d[K.D_N_STEPS]),
+            c_steps)
+
+
+def bench_case(case: Case, exe: Path | None, c_note: str, tmp: Path) -> list[dict]:
+    run = KernelRun(case)
+    run()  # loads or compiles the kernel
+    before = load()
+    k_best, c_best = math.inf, math.inf
+    for _ in range(ROUNDS):
+        if exe is not None:
+            c_best = min(c_best, run_c(exe, case, C_REPS)[0])
+        k_best = min(k_best, best_of(run, KERNEL_REPS))
+    after = load()
+    notes = (f'{case.label}; paper parameters, {P_SUP_PA / 1e5:g} bar, h_free '
+             f'{H_FREE_S:g} s, h_stop {H_STOP_S:g} s; kernel entries derive_parameters + '
+             f'new_drive_state + advance (output buffer included), one thread, best of '
+             f'{ROUNDS * KERNEL_REPS}; ')
+    if exe is None:
+        notes += f'C yardstick skipped: {c_note}; '
+        c_value = None
+    else:
+        diff, k_steps, c_steps = agreement(exe, case, run, tmp)
+        notes += (f'C: {c_note}, best of {ROUNDS * C_REPS}, alternating with the kernel; '
+                  f'current agreement max {diff:.1e} A, RK4 steps kernel {k_steps}, C '
+                  f'{c_steps}; ')
+        c_value = c_best
+    notes += load_note(before, after)
+    rec = _record(case.name, k_best, 's', 'C loop of the same scheme', c_value,
+                  '<= 1.3 x C' if case.mode == 'pwm' else '<= 2 x C',
+                  None if c_value is None else
+                  k_best / c_value <= (1.3 if case.mode == 'pwm' else 2.0), notes)
+    rec['load'] = {'before': before, 'after': after}
+    records = [rec]
+    if case.mode == 'step':
+        records.append(bench_simulate_step(case, c_value, exe is not None))
+    return records
+
+
+def bench_simulate_step(case: Case, c_best: float | None, have_c: bool) -> dict:
+    params = load_parameters()
+
+    def call() -> None:
+        simulate_step(params, V_S, case.duration_s, P_SUP_PA,
+                      sample_rate_hz=1.0 / case.sample_dt_s)
+
+    call()
+    before = load()
+    wall = min(best_of(call, KERNEL_REPS) for _ in range(ROUNDS))
+    after = load()
+    rec = _record('kernel_simulate_step_20ms', wall, 's', 'C loop of the same scheme',
+                  c_best, 'informative', None if c_best is None else True,
+                  f'the public simulate_step of the same 20 ms step (parameter vector, '
+                  f'validation, result arrays and moving average included), best of '
+                  f'{ROUNDS * KERNEL_REPS}; C: the figure of kernel_step_20ms'
+                  f'{"" if have_c else " (skipped)"}; {load_note(before, after)}')
+    rec['load'] = {'before': before, 'after': after}
+    return rec
+
+
+def bench_batch(exe: Path | None, c_note: str) -> dict:
+    case = BATCH_CASE
+    raw = np.tile(load_parameters().to_vector(), (N_BATCH, 1))
+    e = ElectronicsConfig.off().to_vector()
+    n_s = int(math.floor(case.duration_s / case.sample_dt_s + 1e-9)) + 1
+    volts = np.full(N_BATCH, V_S)
+    p_sup = np.full(N_BATCH, P_SUP_PA)
+    p_out = np.zeros(N_BATCH)
+
+    def call() -> None:
+        K.step_batch(raw, e, volts, p_sup, p_out, (n_s - 1) * case.sample_dt_s, 0.0,
+                     case.sample_dt_s, n_s, H_FREE_S, H_STOP_S)
+
+    K.step_batch(raw[:4], e, volts[:4], p_sup[:4], p_out[:4], 0.001, 0.0, case.sample_dt_s,
+                 51, H_FREE_S, H_STOP_S)
+    before = load()
+    k_best, c_best = math.inf, math.inf
+    for _ in range(3):
+        if exe is not None:
+            c_best = min(c_best, run_c(exe, case, 20)[0])
+        k_best = min(k_best, best_of(call, 1))
+    after = load()
+    c_value = None if exe is None else N_BATCH * c_best
+    notes = (f'{case.label}, all with the paper parameters (the C loop\'s work); kernel: '
+             f'step_batch on the machine\'s {os.cpu_count()} cores, best of 3; ')
+    notes += (f'C skipped: {c_note}; ' if exe is None else
+              f'C: {N_BATCH} x its best single run (best of 60), one core; ')
+    rec = _record(case.name, k_best, 's', f'{N_BATCH} x the C loop (one core)', c_value,
+                  'informative', None if c_value is None else True,
+                  notes + load_note(before, after))
+    rec['load'] = {'before': before, 'after': after}
+    return rec
+
+
+def bench_cold_start() -> dict:
+    code = 'import valve_model_pkg.model as m; m.simulate_step(m.load_parameters())'
+    env = dict(os.environ)
+    env['PYTHONPATH'] = str(ROOT / 'valve_model_pkg') + (
+        os.pathsep + env['PYTHONPATH'] if env.get('PYTHONPATH') else '')
+
+    def wall(args: list[str]) -> float:
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable] + args, env=env, check=True, capture_output=True)
+        return time.perf_counter() - t0
+
+    wall(['-c', code])  # the kernel's caches are warm, as for any later start
+    before = load()
+    cold = min(wall(['-c', code]) for _ in range(5))
+    bare = min(wall(['-c', 'pass']) for _ in range(5))
+    probe = subprocess.run(
+        [sys.executable, '-c', code + '; import sys; from valve_model_pkg.model import aot; '
+         'print(aot.backend_name(), "numba" in sys.modules)'],
+        env=env, check=True, capture_output=True, text=True).stdout.split()
+    after = load()
+    rec = _record('kernel_cold_start', cold, 's', 'python -c pass', bare, '<= 0.3 s',
+                  cold <= 0.3,
+                  f'fresh process: python -c "{code}", best of 5 (interpreter start '
+                  f'included); kernel backend {probe[0]}, numba imported: {probe[1]}; '
+                  f'{load_note(before, after)}', ratio=cold / bare)
+    rec['load'] = {'before': before, 'after': after}
+    return rec
+
+
+def main() -> int:
+    records = []
+    with tempfile.TemporaryDirectory(prefix='valve_c_') as tmp_name:
+        tmp = Path(tmp_name)
+        exe, c_note = build_c(tmp)
+        if exe is None:
+            print(f'bench_kernel_c: {c_note}; kernel times only', file=sys.stderr)
+        for case in CASES:
+            print(f'bench_kernel_c: {case.label}', file=sys.stderr)
+            records += bench_case(case, exe, c_note, tmp)
+        print('bench_kernel_c: batch of 1000', file=sys.stderr)
+        records.append(bench_batch(exe, c_note))
+    print('bench_kernel_c: cold start', file=sys.stderr)
+    records.append(bench_cold_start())
+    write_results('kernel_c', records)
+    for r in records:
+        ratio = f'{r["ratio"]:.2f}' if r['ratio'] is not None else '-'
+        ref = f'{r["reference_value"] * 1e3:.3f} ms' if r['reference_value'] else '-'
+        print(f'{r["name"]:32s} {r["value"] * 1e3:9.3f} ms  ref {ref:>11s}  ratio {ratio}  '
+              f'load {r["load"]["before"][0]:.1f}/{r["load"]["after"][0]:.1f}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
