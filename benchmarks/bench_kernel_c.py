@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -54,8 +55,6 @@ C_SOURCE = 'valve_rk4_elec.c'
 H_FREE_S, H_STOP_S = 1e-5, 1e-4
 P_SUP_PA, V_S = 4e5, 24.0
 ROUNDS = 5          # alternations of C and kernel
-KERNEL_REPS = 5     # kernel runs per round (best taken)
-C_REPS = 5          # C runs per round (the program reports its best)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,14 +129,55 @@ def build_c(tmp: Path) -> tuple[Path | None, str]:
     return exe, f'{Path(cc).name} -O2 {src}'
 
 
-def run_c(exe: Path, case: Case, reps: int, outfile: Path | None = None
-          ) -> tuple[float, int]:
-    """(best wall of ``reps`` runs in s, RK4 steps of one run)."""
-    args = [str(exe)] + case.c_args(reps) + ([str(outfile)] if outfile else [])
-    text = subprocess.run(args, capture_output=True, text=True, check=True).stdout
-    line = next(ln for ln in text.splitlines() if ln.startswith('RESULT'))
-    fields = dict(w.split('=', 1) for w in line.split() if '=' in w)
-    return float(fields['best_wall']), int(fields['steps'])
+def _children_cpu_s() -> float:
+    use = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return use.ru_utime + use.ru_stime
+
+
+@dataclasses.dataclass
+class Timing:
+    """Best wall time and mean CPU time per run of one side (C or kernel), s."""
+
+    wall_s: float = math.inf
+    cpu_total_s: float = 0.0
+    runs: int = 0
+
+    @property
+    def cpu_s(self) -> float:
+        return self.cpu_total_s / self.runs if self.runs else math.nan
+
+    def add(self, wall_s: float, cpu_s: float, runs: int) -> None:
+        self.wall_s = min(self.wall_s, wall_s)
+        self.cpu_total_s += cpu_s
+        self.runs += runs
+
+
+class CLoop:
+    """The compiled C program: runs a case, reports its best wall and CPU per run."""
+
+    def __init__(self, exe: Path) -> None:
+        self.exe = exe
+        # the program's own start (loader, printf) in CPU time, taken off every measurement
+        self.start_cpu_s = min(self._cpu_of([str(exe)] + CASES[0].c_args(0))
+                               for _ in range(5))
+
+    def _cpu_of(self, args: list[str]) -> float:
+        before = _children_cpu_s()
+        subprocess.run(args, capture_output=True, check=True)
+        return _children_cpu_s() - before
+
+    def run(self, case: Case, reps: int, into: Timing | None = None,
+            outfile: Path | None = None) -> int:
+        """Run ``reps`` times (adding to ``into``); returns the RK4 steps of one run."""
+        args = [str(self.exe)] + case.c_args(reps) + ([str(outfile)] if outfile else [])
+        before = _children_cpu_s()
+        text = subprocess.run(args, capture_output=True, text=True, check=True).stdout
+        cpu = _children_cpu_s() - before - self.start_cpu_s
+        line = next(ln for ln in text.splitlines() if ln.startswith('RESULT'))
+        fields = dict(w.split('=', 1) for w in line.split() if '=' in w)
+        if into is not None:
+            into.add(float(fields['best_wall']), max(cpu, 0.0), reps)
+        return int(fields['steps'])
 
 
 # --------------------------------------------------------------------------------------
@@ -171,19 +211,22 @@ class KernelRun:
         return out, d
 
 
-def best_of(fn, reps: int) -> float:
+def time_runs(fn, reps: int, into: Timing, cpu_clock=time.thread_time) -> None:
+    """Run ``fn`` ``reps`` times, adding its best wall and its CPU time to ``into``."""
     best = math.inf
+    cpu0 = cpu_clock()
     for _ in range(reps):
         t0 = time.perf_counter()
         fn()
         best = min(best, time.perf_counter() - t0)
-    return best
+    into.add(best, cpu_clock() - cpu0, reps)
 
 
-def agreement(exe: Path, case: Case, run: KernelRun, tmp: Path) -> tuple[float, int, int]:
+def agreement(c_loop: CLoop, case: Case, run: KernelRun, tmp: Path
+              ) -> tuple[float, int, int]:
     """(max |i_kernel - i_C| over the samples in A, kernel steps, C steps)."""
     path = tmp / f'{case.name}.txt'
-    _, c_steps = run_c(exe, case, 1, path)
+    c_steps = c_loop.run(case, 1, outfile=path)
     c_out = np.loadtxt(path, ndmin=2)
     out, d = run()
     n = min(len(c_out), len(out))
@@ -191,42 +234,62 @@ def agreement(exe: Path, case: Case, run: KernelRun, tmp: Path) -> tuple[float, 
             c_steps)
 
 
-def bench_case(case: Case, exe: Path | None, c_note: str, tmp: Path) -> list[dict]:
+def _figures(kernel: Timing, c: Timing | None) -> str:
+    text = (f'kernel: best wall {kernel.wall_s * 1e3:.3f} ms, CPU {kernel.cpu_s * 1e3:.3f} ms '
+            f'per run (mean of {kernel.runs})')
+    if c is not None:
+        text += (f'; C: best wall {c.wall_s * 1e3:.3f} ms, CPU {c.cpu_s * 1e3:.3f} ms per run '
+                 f'(mean of {c.runs}); wall ratio {kernel.wall_s / c.wall_s:.2f}')
+    return text
+
+
+def _kernel_record(name: str, kernel: Timing, c: Timing | None, target: str,
+                   limit: float | None, notes: str, before: list[float],
+                   after: list[float]) -> dict:
+    """A record of CPU time per run (the figure a loaded machine disturbs least)."""
+    c_cpu = None if c is None else c.cpu_s
+    passed = None if c_cpu is None or limit is None else kernel.cpu_s / c_cpu <= limit
+    rec = _record(name, kernel.cpu_s, 's', None if c is None else 'C loop of the same scheme',
+                  c_cpu, target, passed,
+                  f'{notes}; {_figures(kernel, c)}; {load_note(before, after)}')
+    rec['wall_s'] = kernel.wall_s
+    rec['reference_wall_s'] = None if c is None else c.wall_s
+    rec['load'] = {'before': before, 'after': after}
+    return rec
+
+
+def bench_case(case: Case, c_loop: CLoop | None, c_note: str, tmp: Path) -> list[dict]:
     run = KernelRun(case)
     run()  # loads or compiles the kernel
+    c_reps = max(2, int(0.1 / case.duration_s))  # about 0.1 s of simulated time per round
+    k_reps = max(2, int(0.05 / case.duration_s))
     before = load()
-    k_best, c_best = math.inf, math.inf
+    kernel, c = Timing(), Timing()
     for _ in range(ROUNDS):
-        if exe is not None:
-            c_best = min(c_best, run_c(exe, case, C_REPS)[0])
-        k_best = min(k_best, best_of(run, KERNEL_REPS))
+        if c_loop is not None:
+            c_loop.run(case, c_reps, c)
+        time_runs(run, k_reps, kernel)
     after = load()
     notes = (f'{case.label}; paper parameters, {P_SUP_PA / 1e5:g} bar, h_free '
              f'{H_FREE_S:g} s, h_stop {H_STOP_S:g} s; kernel entries derive_parameters + '
-             f'new_drive_state + advance (output buffer included), one thread, best of '
-             f'{ROUNDS * KERNEL_REPS}; ')
-    if exe is None:
-        notes += f'C yardstick skipped: {c_note}; '
-        c_value = None
+             f'new_drive_state + advance (output buffer included), one thread; value: CPU '
+             f'time per run, kernel and C alternating in {ROUNDS} rounds')
+    if c_loop is None:
+        notes += f'; C yardstick skipped: {c_note}'
     else:
-        diff, k_steps, c_steps = agreement(exe, case, run, tmp)
-        notes += (f'C: {c_note}, best of {ROUNDS * C_REPS}, alternating with the kernel; '
-                  f'current agreement max {diff:.1e} A, RK4 steps kernel {k_steps}, C '
-                  f'{c_steps}; ')
-        c_value = c_best
-    notes += load_note(before, after)
-    rec = _record(case.name, k_best, 's', 'C loop of the same scheme', c_value,
-                  '<= 1.3 x C' if case.mode == 'pwm' else '<= 2 x C',
-                  None if c_value is None else
-                  k_best / c_value <= (1.3 if case.mode == 'pwm' else 2.0), notes)
-    rec['load'] = {'before': before, 'after': after}
-    records = [rec]
-    if case.mode == 'step':
-        records.append(bench_simulate_step(case, c_value, exe is not None))
+        diff, k_steps, c_steps = agreement(c_loop, case, run, tmp)
+        notes += (f'; C: {c_note}; current agreement max {diff:.1e} A, RK4 steps kernel '
+                  f'{k_steps}, C {c_steps}')
+    pwm = case.mode == 'pwm'
+    records = [_kernel_record(case.name, kernel, None if c_loop is None else c,
+                              '<= 1.3 x C' if pwm else '<= 2 x C', 1.3 if pwm else 2.0,
+                              notes, before, after)]
+    if not pwm:
+        records.append(bench_simulate_step(case, None if c_loop is None else c))
     return records
 
 
-def bench_simulate_step(case: Case, c_best: float | None, have_c: bool) -> dict:
+def bench_simulate_step(case: Case, c: Timing | None) -> dict:
     params = load_parameters()
 
     def call() -> None:
@@ -235,19 +298,18 @@ def bench_simulate_step(case: Case, c_best: float | None, have_c: bool) -> dict:
 
     call()
     before = load()
-    wall = min(best_of(call, KERNEL_REPS) for _ in range(ROUNDS))
+    kernel = Timing()
+    for _ in range(ROUNDS):
+        time_runs(call, max(2, int(0.05 / case.duration_s)), kernel)
     after = load()
-    rec = _record('kernel_simulate_step_20ms', wall, 's', 'C loop of the same scheme',
-                  c_best, 'informative', None if c_best is None else True,
-                  f'the public simulate_step of the same 20 ms step (parameter vector, '
-                  f'validation, result arrays and moving average included), best of '
-                  f'{ROUNDS * KERNEL_REPS}; C: the figure of kernel_step_20ms'
-                  f'{"" if have_c else " (skipped)"}; {load_note(before, after)}')
-    rec['load'] = {'before': before, 'after': after}
-    return rec
+    return _kernel_record(
+        'kernel_simulate_step_20ms', kernel, c, 'informative', None,
+        'the public simulate_step of the same 20 ms step (parameter vector, validation, '
+        'result arrays and moving average included); C: the figures of kernel_step_20ms',
+        before, after)
 
 
-def bench_batch(exe: Path | None, c_note: str) -> dict:
+def bench_batch(c_loop: CLoop | None, c_note: str) -> dict:
     case = BATCH_CASE
     raw = np.tile(load_parameters().to_vector(), (N_BATCH, 1))
     e = ElectronicsConfig.off().to_vector()
@@ -260,25 +322,23 @@ def bench_batch(exe: Path | None, c_note: str) -> dict:
         K.step_batch(raw, e, volts, p_sup, p_out, (n_s - 1) * case.sample_dt_s, 0.0,
                      case.sample_dt_s, n_s, H_FREE_S, H_STOP_S)
 
-    K.step_batch(raw[:4], e, volts[:4], p_sup[:4], p_out[:4], 0.001, 0.0, case.sample_dt_s,
-                 51, H_FREE_S, H_STOP_S)
+    call()
     before = load()
-    k_best, c_best = math.inf, math.inf
+    kernel, c = Timing(), Timing()
     for _ in range(3):
-        if exe is not None:
-            c_best = min(c_best, run_c(exe, case, 20)[0])
-        k_best = min(k_best, best_of(call, 1))
+        if c_loop is not None:
+            c_loop.run(case, 100, c)
+        time_runs(call, 1, kernel, cpu_clock=time.process_time)
     after = load()
-    c_value = None if exe is None else N_BATCH * c_best
+    scaled = None
+    if c_loop is not None:  # the C loop's single run, 1000 times
+        scaled = Timing(N_BATCH * c.wall_s, N_BATCH * c.cpu_s, 1)
     notes = (f'{case.label}, all with the paper parameters (the C loop\'s work); kernel: '
-             f'step_batch on the machine\'s {os.cpu_count()} cores, best of 3; ')
-    notes += (f'C skipped: {c_note}; ' if exe is None else
-              f'C: {N_BATCH} x its best single run (best of 60), one core; ')
-    rec = _record(case.name, k_best, 's', f'{N_BATCH} x the C loop (one core)', c_value,
-                  'informative', None if c_value is None else True,
-                  notes + load_note(before, after))
-    rec['load'] = {'before': before, 'after': after}
-    return rec
+             f'step_batch on the machine\'s {os.cpu_count()} cores, CPU of all threads; ')
+    notes += (f'C skipped: {c_note}' if c_loop is None else
+              f'C: {N_BATCH} x its single run on one core')
+    return _kernel_record(case.name, kernel, scaled, 'informative', None, notes, before,
+                          after)
 
 
 def bench_cold_start() -> dict:
@@ -315,13 +375,14 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix='valve_c_') as tmp_name:
         tmp = Path(tmp_name)
         exe, c_note = build_c(tmp)
+        c_loop = None if exe is None else CLoop(exe)
         if exe is None:
             print(f'bench_kernel_c: {c_note}; kernel times only', file=sys.stderr)
         for case in CASES:
             print(f'bench_kernel_c: {case.label}', file=sys.stderr)
-            records += bench_case(case, exe, c_note, tmp)
+            records += bench_case(case, c_loop, c_note, tmp)
         print('bench_kernel_c: batch of 1000', file=sys.stderr)
-        records.append(bench_batch(exe, c_note))
+        records.append(bench_batch(c_loop, c_note))
     print('bench_kernel_c: cold start', file=sys.stderr)
     records.append(bench_cold_start())
     write_results('kernel_c', records)

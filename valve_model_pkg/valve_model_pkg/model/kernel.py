@@ -38,7 +38,10 @@ on them with a fixed-step RK4 is cheaper and has no tolerance tuning. The conver
 Compilation: every function is ``njit(cache=True)``; the machine code is cached in
 ``__pycache__`` next to this file, so only the first process on a machine compiles
 (about 13 s for everything incl. the parallel batches); later processes load it in about
-1 s. This module is internal to ``model/``: the rest of the suite uses the public entry
+1 s. Functions that allocate nothing are compiled without numba's reference counting
+(``_nrt=False``): they only borrow the arrays of the entry point that calls them, which
+holds them for the whole call, so counting references on every inner call (two atomic
+operations per array argument) would buy nothing. This module is internal to ``model/``: the rest of the suite uses the public entry
 points (:func:`~valve_model_pkg.model.simulate_trace_batch` and friends), so the ``D_*``/
 ``P_*``/``O_*`` layouts below may change with the kernel. The drive state is initialised
 in one place, :func:`new_drive_state` (compiled body ``_drive_state``).
@@ -277,7 +280,7 @@ def derive_parameters(raw: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------------------
 # Right-hand side
 # --------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _voltage(t: float, phase: int, d: np.ndarray, e: np.ndarray) -> float:
     """Coil terminal voltage applied by the driver at time t (phase fixed between edges)."""
     if phase == PH_SUPPLY:
@@ -294,7 +297,7 @@ def _voltage(t: float, phase: int, d: np.ndarray, e: np.ndarray) -> float:
     return -vc * math.exp(-arg)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _rhs(t: float, i_m: float, x: float, v: float, d_temp: float, i_b: float, mode: int,
          phase: int, f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray
          ) -> tuple[float, float, float, float, float, float, float, float]:
@@ -319,7 +322,7 @@ def _rhs(t: float, i_m: float, x: float, v: float, d_temp: float, i_b: float, mo
     return di, 0.0, 0.0, ddt, x, i_t, volt, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _rhs_emulated(t: float, i_m: float, x: float, v: float, d_temp: float, i_b: float,
                   mode: int, phase: int, f_prs: float, p: np.ndarray, d: np.ndarray,
                   e: np.ndarray) -> tuple[float, float, float, float, float, float, float,
@@ -345,7 +348,7 @@ def _rhs_emulated(t: float, i_m: float, x: float, v: float, d_temp: float, i_b: 
     return di, 0.0, 0.0, ddt, x, i_t, volt, dib
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _emulated_force(i_m: float, i_b: float, ind: float, slope: float,
                     p: np.ndarray) -> float:
     """Magnetic force with the emulator forms: a F_law(i_m) + b F_law(i_b), N."""
@@ -357,7 +360,7 @@ def _emulated_force(i_m: float, i_b: float, ind: float, slope: float,
     return a * f_m + ratio * a * _law_force(i_b, ind, slope, p[P_BETA], p[P_LAMS])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _rk4(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, p: np.ndarray,
          d: np.ndarray, e: np.ndarray) -> tuple:
     """One classical RK4 step of length h from the tuple (y[0..4], q_i, q_v, i_b)."""
@@ -385,7 +388,7 @@ def _rk4(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, p: n
             y7 + s * (a7 + 2.0 * (b7 + c7) + g7))
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _terminal_current(t: float, y: np.ndarray, phase: int, p: np.ndarray, d: np.ndarray,
                       e: np.ndarray) -> float:
     if p[P_GE] == 0.0:
@@ -395,7 +398,7 @@ def _terminal_current(t: float, y: np.ndarray, phase: int, p: np.ndarray, d: np.
     return y[Y_I] + p[P_GE] * (volt - r * y[Y_I]) / (1.0 + r * p[P_GE])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _f_active(i_m: float, i_b: float, x: float, f_prs: float, p: np.ndarray) -> float:
     ind = _inductance(x, p[P_KL], p[P_L0], p[P_B2])
     slope = _inductance_slope(ind, p[P_KL], p[P_B2])
@@ -405,7 +408,7 @@ def _f_active(i_m: float, i_b: float, x: float, f_prs: float, p: np.ndarray) -> 
     return _active_force(_force(i_m, slope, p[P_BETA]), p[P_K], x, p[P_DELTA], f_prs)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _hermite(s: float, h: float, x0: float, v0: float, x1: float, v1: float) -> float:
     s2 = s * s
     s3 = s2 * s
@@ -413,7 +416,7 @@ def _hermite(s: float, h: float, x0: float, v0: float, x1: float, v1: float) -> 
             + (-2.0 * s3 + 3.0 * s2) * x1 + (s3 - s2) * h * v1)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _crossing(h: float, x0: float, v0: float, x1: float, v1: float, xb: float) -> float:
     """Fraction s in (0, 1] of the first crossing of level xb by the Hermite interpolant."""
     sgn1 = 1.0 if x1 - xb > 0.0 else -1.0
@@ -438,7 +441,7 @@ def _crossing(h: float, x0: float, v0: float, x1: float, v1: float, xb: float) -
 # --------------------------------------------------------------------------------------
 # Discrete events of the drive electronics
 # --------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _rising_edge(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
                  e: np.ndarray) -> None:
     i_t = _terminal_current(t, y, int(d[D_PHASE]), p, d, e)
@@ -462,7 +465,7 @@ def _rising_edge(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
         d[D_NEXT_TICK] = _INF
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _falling_edge(t: float, d: np.ndarray, e: np.ndarray) -> None:
     d[D_MAIN_ON] = 0.0
     if e[_el.E_CAPACITOR] != 0.0:
@@ -478,7 +481,7 @@ def _falling_edge(t: float, d: np.ndarray, e: np.ndarray) -> None:
     d[D_BOOST] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _controller_tick(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
                      e: np.ndarray) -> None:
     """Sampled current controller: boost end detection, then the PI chopper duty."""
@@ -519,7 +522,7 @@ def _controller_tick(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
     d[D_NEXT_TICK] = t + period
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _period_boundary(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
                      e: np.ndarray, avg_out: np.ndarray) -> None:
     if d[D_PER_RUNNING] != 0.0:
@@ -548,7 +551,7 @@ def _period_boundary(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
     d[D_NEXT_BOUNDARY] = t + d[D_PERIOD]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _command(t_cmd: float, d: np.ndarray, e: np.ndarray, duty: float, period: float) -> None:
     """A main PWM command given at ``t_cmd`` (s): duty 0 switches off at once, others latch.
 
@@ -575,7 +578,7 @@ def command(d: np.ndarray, e: np.ndarray, duty: float, period_s: float) -> None:
     _command(float(d[D_T]), d, e, float(duty), float(period_s))
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _record(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray, e: np.ndarray,
             out: np.ndarray) -> None:
     k = int(d[D_SAMPLE_IDX])
@@ -599,7 +602,7 @@ def _record(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray, e: np.ndarray
         d[D_NEXT_SAMPLE] = d[D_SAMPLE_T0] + (k + 1) * d[D_SAMPLE_DT]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _process_events(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray, e: np.ndarray,
                     out: np.ndarray, avg_out: np.ndarray) -> None:
     lim = t + _EPS_T
@@ -620,7 +623,7 @@ def _process_events(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray, e: np
 # --------------------------------------------------------------------------------------
 # Root finders inside one RK4 step (the step is redone up to the located instant)
 # --------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _impact(t: float, h: float, t_new: float, s_hit: float, xb: float, y: tuple,
             phase: int, f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray,
             hold_on_recross: bool) -> tuple:
@@ -657,7 +660,7 @@ def _impact(t: float, h: float, t_new: float, s_hit: float, xb: float, y: tuple,
     return t + hs, (z[0], xb, v_new, z[3], z[4], z[5], z[6], z[7])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _reversal(t: float, h: float, s_rev: float, y: tuple, z: tuple, phase: int,
               f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray) -> tuple:
     """Velocity reversal under Coulomb friction: regula falsi on x_dot(t) = 0."""
@@ -683,7 +686,7 @@ def _reversal(t: float, h: float, s_rev: float, y: tuple, z: tuple, phase: int,
     return t + hs, (z[0], z[1], 0.0, z[3], z[4], z[5], z[6], z[7])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _free_step_events(t: float, h: float, t_new: float, y: tuple, z: tuple, phase: int,
                       f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray,
                       hold_on_recross: bool) -> tuple:
@@ -705,7 +708,7 @@ def _free_step_events(t: float, h: float, t_new: float, y: tuple, z: tuple, phas
     return t_new, z
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _release(t: float, h: float, t_new: float, y: tuple, z: tuple, mode: int, phase: int,
              f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray) -> tuple:
     """Leaving a stop (or static friction): Illinois search for the held force margin = 0.
@@ -754,13 +757,13 @@ def _release(t: float, h: float, t_new: float, y: tuple, z: tuple, mode: int, ph
     return t_new, z
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _next_event(d: np.ndarray) -> float:
     return min(d[D_NEXT_BOUNDARY], d[D_NEXT_FALL], d[D_NEXT_TICK], d[D_CHOP_OFF],
                d[D_NEXT_SAMPLE])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _step_to(t: float, target: float, hmax: float) -> tuple[float, float]:
     """(t_new, h): equal steps no longer than hmax that land exactly on ``target``."""
     span = target - t
@@ -773,7 +776,7 @@ def _step_to(t: float, target: float, hmax: float) -> tuple[float, float]:
 # --------------------------------------------------------------------------------------
 # Main loop
 # --------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: float,
              h_free: float, h_stop: float, out: np.ndarray, avg_out: np.ndarray) -> None:
     f_prs = _pressure_force(p[P_A1], p[P_A2], p[P_A3], p[P_A4], d[D_PSUP], d[D_POUT])
