@@ -297,18 +297,16 @@ def _voltage(t: float, phase: int, d: np.ndarray, e: np.ndarray) -> float:
     return -vc * math.exp(-arg)
 
 
-@njit(cache=True, _nrt=False)
-def _rhs(t: float, i_m: float, x: float, v: float, d_temp: float, i_b: float, mode: int,
-         phase: int, f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray
-         ) -> tuple[float, float, float, float, float, float, float, float]:
-    """Derivatives of (i_m, x, x_dot, dT, q, q_i, q_v, i_b): eqs. (7), (11), integrals."""
-    if p[P_EMU] != 0.0:
-        return _rhs_emulated(t, i_m, x, v, d_temp, i_b, mode, phase, f_prs, p, d, e)
-    ind = _inductance(x, p[P_KL], p[P_L0], p[P_B2])
-    slope = _inductance_slope(ind, p[P_KL], p[P_B2])
+@njit(cache=True, _nrt=False, inline='always')
+def _rhs(volt: float, i_m: float, x: float, v: float, d_temp: float, moving: bool,
+         phase: int, f_prs: float, ind: float, slope: float, p: np.ndarray, e: np.ndarray
+         ) -> tuple[float, float, float, float]:
+    """Derivatives (di_m/dt, dx/dt, dx_dot/dt, dT/dt) and the terminal current: eqs. (7), (11).
+
+    ``volt`` is the driver's terminal voltage at the stage time, ``ind``, ``slope`` are
+    L(x) and dL/dx at the stage position (eqs. 4, 6).
+    """
     r = _resistance(p[P_R], d_temp)
-    volt = _voltage(t, phase, d, e)
-    moving = mode == MODE_FREE
     x_dot = v if moving else 0.0
     di, i_t = _current_derivative(volt, i_m, x_dot, ind, slope, r, p[P_GE], p[P_LLEAK],
                                   p[P_BETA])
@@ -318,8 +316,8 @@ def _rhs(t: float, i_m: float, x: float, v: float, d_temp: float, i_b: float, mo
     if moving:
         f_a = _active_force(_force(i_m, slope, p[P_BETA]), p[P_K], x, p[P_DELTA], f_prs)
         dv = _acceleration(f_a, v, p[P_B], p[P_FC], p[P_M])  # eq. (11)
-        return di, v, dv, ddt, x, i_t, volt, 0.0
-    return di, 0.0, 0.0, ddt, x, i_t, volt, 0.0
+        return di, v, dv, ddt, i_t
+    return di, 0.0, 0.0, ddt, i_t
 
 
 @njit(cache=True, _nrt=False)
@@ -327,7 +325,7 @@ def _rhs_emulated(t: float, i_m: float, x: float, v: float, d_temp: float, i_b: 
                   mode: int, phase: int, f_prs: float, p: np.ndarray, d: np.ndarray,
                   e: np.ndarray) -> tuple[float, float, float, float, float, float, float,
                                           float]:
-    """:func:`_rhs` with the emulator forms (tanh law, eddy ladder) switched on."""
+    """Derivatives of (i_m, x, x_dot, dT, q, q_i, q_v, i_b) with the emulator forms on."""
     ind = _inductance(x, p[P_KL], p[P_L0], p[P_B2])
     slope = _inductance_slope(ind, p[P_KL], p[P_B2])
     r = _resistance(p[P_R], d_temp)
@@ -363,20 +361,71 @@ def _emulated_force(i_m: float, i_b: float, ind: float, slope: float,
 @njit(cache=True, _nrt=False)
 def _rk4(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, p: np.ndarray,
          d: np.ndarray, e: np.ndarray) -> tuple:
-    """One classical RK4 step of length h from the tuple (y[0..4], q_i, q_v, i_b)."""
+    """One classical RK4 step of length h from the tuple (y[0..4], q_i, q_v, i_b).
+
+    The integrals q, q_i, q_v are integrated with the state from the stage values of x,
+    the terminal current and the voltage. The driver's voltage is evaluated once per
+    stage time (the two midpoint stages share it) and, while the spool is held (x
+    frozen), L(x) and dL/dx once per step.
+    """
+    if p[P_EMU] != 0.0:
+        return _rk4_emulated(t, h, y, mode, phase, f_prs, p, d, e)
     y0, y1, y2, y3, y4, y5, y6, y7 = y
-    a0, a1, a2, a3, a4, a5, a6, a7 = _rhs(t, y0, y1, y2, y3, y7, mode, phase, f_prs, p, d,
-                                          e)
     hh = 0.5 * h
-    b0, b1, b2, b3, b4, b5, b6, b7 = _rhs(t + hh, y0 + hh * a0, y1 + hh * a1, y2 + hh * a2,
-                                          y3 + hh * a3, y7 + hh * a7, mode, phase, f_prs, p,
-                                          d, e)
-    c0, c1, c2, c3, c4, c5, c6, c7 = _rhs(t + hh, y0 + hh * b0, y1 + hh * b1, y2 + hh * b2,
-                                          y3 + hh * b3, y7 + hh * b7, mode, phase, f_prs, p,
-                                          d, e)
-    g0, g1, g2, g3, g4, g5, g6, g7 = _rhs(t + h, y0 + h * c0, y1 + h * c1, y2 + h * c2,
-                                          y3 + h * c3, y7 + h * c7, mode, phase, f_prs, p,
-                                          d, e)
+    v_a = _voltage(t, phase, d, e)
+    v_m = _voltage(t + hh, phase, d, e)
+    v_g = _voltage(t + h, phase, d, e)
+    k_l, l_0, b_2 = p[P_KL], p[P_L0], p[P_B2]
+    moving = mode == MODE_FREE
+    ind = _inductance(y1, k_l, l_0, b_2)
+    slope = _inductance_slope(ind, k_l, b_2)
+    a0, a1, a2, a3, i_a = _rhs(v_a, y0, y1, y2, y3, moving, phase, f_prs, ind, slope, p, e)
+    x_b = y1 + hh * a1
+    if moving:
+        ind = _inductance(x_b, k_l, l_0, b_2)
+        slope = _inductance_slope(ind, k_l, b_2)
+    b0, b1, b2, b3, i_b = _rhs(v_m, y0 + hh * a0, x_b, y2 + hh * a2, y3 + hh * a3, moving,
+                               phase, f_prs, ind, slope, p, e)
+    x_c = y1 + hh * b1
+    if moving:
+        ind = _inductance(x_c, k_l, l_0, b_2)
+        slope = _inductance_slope(ind, k_l, b_2)
+    c0, c1, c2, c3, i_c = _rhs(v_m, y0 + hh * b0, x_c, y2 + hh * b2, y3 + hh * b3, moving,
+                               phase, f_prs, ind, slope, p, e)
+    x_g = y1 + h * c1
+    if moving:
+        ind = _inductance(x_g, k_l, l_0, b_2)
+        slope = _inductance_slope(ind, k_l, b_2)
+    g0, g1, g2, g3, i_g = _rhs(v_g, y0 + h * c0, x_g, y2 + h * c2,
+                               y3 + h * c3, moving, phase, f_prs, ind, slope, p, e)
+    s = h / 6.0
+    return (y0 + s * (a0 + 2.0 * (b0 + c0) + g0),
+            y1 + s * (a1 + 2.0 * (b1 + c1) + g1),
+            y2 + s * (a2 + 2.0 * (b2 + c2) + g2),
+            y3 + s * (a3 + 2.0 * (b3 + c3) + g3),
+            y4 + s * (y1 + 2.0 * (x_b + x_c) + x_g),
+            y5 + s * (i_a + 2.0 * (i_b + i_c) + i_g),
+            y6 + s * (v_a + 2.0 * (v_m + v_m) + v_g),
+            y7)
+
+
+@njit(cache=True, _nrt=False)
+def _rk4_emulated(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float,
+                  p: np.ndarray, d: np.ndarray, e: np.ndarray) -> tuple:
+    """:func:`_rk4` with the emulator forms on (the slow ladder current i_b is y[7])."""
+    y0, y1, y2, y3, y4, y5, y6, y7 = y
+    a0, a1, a2, a3, a4, a5, a6, a7 = _rhs_emulated(t, y0, y1, y2, y3, y7, mode, phase,
+                                                   f_prs, p, d, e)
+    hh = 0.5 * h
+    b0, b1, b2, b3, b4, b5, b6, b7 = _rhs_emulated(t + hh, y0 + hh * a0, y1 + hh * a1,
+                                                   y2 + hh * a2, y3 + hh * a3, y7 + hh * a7,
+                                                   mode, phase, f_prs, p, d, e)
+    c0, c1, c2, c3, c4, c5, c6, c7 = _rhs_emulated(t + hh, y0 + hh * b0, y1 + hh * b1,
+                                                   y2 + hh * b2, y3 + hh * b3, y7 + hh * b7,
+                                                   mode, phase, f_prs, p, d, e)
+    g0, g1, g2, g3, g4, g5, g6, g7 = _rhs_emulated(t + h, y0 + h * c0, y1 + h * c1,
+                                                   y2 + h * c2, y3 + h * c3, y7 + h * c7,
+                                                   mode, phase, f_prs, p, d, e)
     s = h / 6.0
     return (y0 + s * (a0 + 2.0 * (b0 + c0) + g0),
             y1 + s * (a1 + 2.0 * (b1 + c1) + g1),
