@@ -361,7 +361,16 @@ def _emulated_force(i_m: float, i_b: float, ind: float, slope: float,
 @njit(cache=True, _nrt=False)
 def _rk4(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, p: np.ndarray,
          d: np.ndarray, e: np.ndarray) -> tuple:
-    """One classical RK4 step of length h from the tuple (y[0..4], q_i, q_v, i_b).
+    """One classical RK4 step of length h from the tuple (y[0..4], q_i, q_v, i_b)."""
+    ind = _inductance(y[1], p[P_KL], p[P_L0], p[P_B2])
+    return _rk4_at(t, h, y, mode, phase, f_prs, ind, _inductance_slope(ind, p[P_KL], p[P_B2]),
+                   p, d, e)
+
+
+@njit(cache=True, _nrt=False)
+def _rk4_at(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, ind: float,
+            slope: float, p: np.ndarray, d: np.ndarray, e: np.ndarray) -> tuple:
+    """:func:`_rk4` with L and dL/dx at the start position y[1] given.
 
     The integrals q, q_i, q_v are integrated with the state from the stage values of x,
     the terminal current and the voltage. The driver's voltage is evaluated once per
@@ -377,8 +386,6 @@ def _rk4(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, p: n
     v_g = _voltage(t + h, phase, d, e)
     k_l, l_0, b_2 = p[P_KL], p[P_L0], p[P_B2]
     moving = mode == MODE_FREE
-    ind = _inductance(y1, k_l, l_0, b_2)
-    slope = _inductance_slope(ind, k_l, b_2)
     a0, a1, a2, a3, i_a = _rhs(v_a, y0, y1, y2, y3, moving, phase, f_prs, ind, slope, p, e)
     x_b = y1 + hh * a1
     if moving:
@@ -449,8 +456,15 @@ def _terminal_current(t: float, y: np.ndarray, phase: int, p: np.ndarray, d: np.
 
 @njit(cache=True, _nrt=False)
 def _f_active(i_m: float, i_b: float, x: float, f_prs: float, p: np.ndarray) -> float:
+    """Net force without damping and friction at (i_m, i_b, x), N (eq. 9 rearranged)."""
     ind = _inductance(x, p[P_KL], p[P_L0], p[P_B2])
-    slope = _inductance_slope(ind, p[P_KL], p[P_B2])
+    return _f_active_at(i_m, i_b, x, ind, _inductance_slope(ind, p[P_KL], p[P_B2]), f_prs, p)
+
+
+@njit(cache=True, _nrt=False)
+def _f_active_at(i_m: float, i_b: float, x: float, ind: float, slope: float, f_prs: float,
+                 p: np.ndarray) -> float:
+    """:func:`_f_active` with L(x) and dL/dx given (a held spool keeps them)."""
     if p[P_EMU] != 0.0:
         return _active_force(_emulated_force(i_m, i_b, ind, slope, p), p[P_K], x,
                              p[P_DELTA], f_prs)
@@ -759,17 +773,20 @@ def _free_step_events(t: float, h: float, t_new: float, y: tuple, z: tuple, phas
 
 @njit(cache=True, _nrt=False)
 def _release(t: float, h: float, t_new: float, y: tuple, z: tuple, mode: int, phase: int,
-             f_prs: float, p: np.ndarray, d: np.ndarray, e: np.ndarray) -> tuple:
+             f_prs: float, ind: float, slope: float, p: np.ndarray, d: np.ndarray,
+             e: np.ndarray) -> tuple:
     """Leaving a stop (or static friction): Illinois search for the held force margin = 0.
 
-    Returns (t_new, z) unchanged if the margin stays negative over the step, else the step
-    redone up to the release and the mode set to moving.
+    ``ind``, ``slope``: L and dL/dx at the held position y[1]. Returns (t_new, z)
+    unchanged if the margin stays negative over the step, else the step redone up to the
+    release and the mode set to moving.
     """
     f_c = p[P_FC]
-    g1 = _leave_margin(mode, _f_active(z[0], z[7], y[1], f_prs, p), f_c)
+    x = y[1]
+    g1 = _leave_margin(mode, _f_active_at(z[0], z[7], x, ind, slope, f_prs, p), f_c)
     if g1 <= 0.0:
         return t_new, z
-    g0 = _leave_margin(mode, _f_active(y[0], y[7], y[1], f_prs, p), f_c)
+    g0 = _leave_margin(mode, _f_active_at(y[0], y[7], x, ind, slope, f_prs, p), f_c)
     # a margin already positive at the start (a held step after an immediate re-impact,
     # or forced by the guard) brackets no root: release at the end
     lo = 0.0 if g0 <= 0.0 else h
@@ -781,9 +798,9 @@ def _release(t: float, h: float, t_new: float, y: tuple, z: tuple, mode: int, ph
         if hi - lo < 1e-10:
             break
         hs = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
-        w = _rk4(t, hs, y, mode, phase, f_prs, p, d, e)
+        w = _rk4_at(t, hs, y, mode, phase, f_prs, ind, slope, p, d, e)
         d[D_N_STEPS] += 1.0
-        g = _leave_margin(mode, _f_active(w[0], w[7], y[1], f_prs, p), f_c)
+        g = _leave_margin(mode, _f_active_at(w[0], w[7], x, ind, slope, f_prs, p), f_c)
         if g > 0.0:
             hi = hs
             g_hi = g
@@ -799,7 +816,7 @@ def _release(t: float, h: float, t_new: float, y: tuple, z: tuple, mode: int, ph
         if abs(g) < 1e-9:
             break
     if hi < h:
-        z = _rk4(t, hi, y, mode, phase, f_prs, p, d, e)
+        z = _rk4_at(t, hi, y, mode, phase, f_prs, ind, slope, p, d, e)
         d[D_N_STEPS] += 1.0
         t_new = t + hi
     d[D_MODE] = MODE_FREE
@@ -810,6 +827,12 @@ def _release(t: float, h: float, t_new: float, y: tuple, z: tuple, mode: int, ph
 def _next_event(d: np.ndarray) -> float:
     return min(d[D_NEXT_BOUNDARY], d[D_NEXT_FALL], d[D_NEXT_TICK], d[D_CHOP_OFF],
                d[D_NEXT_SAMPLE])
+
+
+@njit(cache=True, _nrt=False)
+def _next_drive_event(d: np.ndarray) -> float:
+    """The next event other than an output sample, s."""
+    return min(d[D_NEXT_BOUNDARY], d[D_NEXT_FALL], d[D_NEXT_TICK], d[D_CHOP_OFF])
 
 
 @njit(cache=True, _nrt=False)
@@ -831,6 +854,10 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
     f_prs = _pressure_force(p[P_A1], p[P_A2], p[P_A3], p[P_A4], d[D_PSUP], d[D_POUT])
     t_prog = d[D_T]
     stall = 0
+    k_l, l_0, b_2 = p[P_KL], p[P_L0], p[P_B2]
+    geo_x = math.nan  # the position L and dL/dx were last computed for (a held spool)
+    ind = 0.0
+    slope = 0.0
     while True:
         t = d[D_T]
         # --- no-progress guard: a pass that does not advance time counts as a stall
@@ -855,20 +882,26 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
             d[D_N_FORCED] += 1.0
         mode = int(d[D_MODE])
         phase = int(d[D_PHASE])
+        x = y[Y_X]
+        if x != geo_x:
+            ind = _inductance(x, k_l, l_0, b_2)
+            slope = _inductance_slope(ind, k_l, b_2)
+            geo_x = x
         if mode != MODE_FREE and not forced:
-            if _leave_margin(mode, _f_active(y[Y_I], d[D_IB], y[Y_X], f_prs, p),
+            if _leave_margin(mode, _f_active_at(y[Y_I], d[D_IB], x, ind, slope, f_prs, p),
                              p[P_FC]) > 0.0:
                 d[D_MODE] = MODE_FREE
                 continue
         t_new, h = _step_to(t, target, h_free if mode == MODE_FREE else h_stop)
-        y_0 = (y[0], y[1], y[2], y[3], y[4], d[D_QI], d[D_QV], d[D_IB])
-        z = _rk4(t, h, y_0, mode, phase, f_prs, p, d, e)
+        y_0 = (y[0], x, y[2], y[3], y[4], d[D_QI], d[D_QV], d[D_IB])
+        z = _rk4_at(t, h, y_0, mode, phase, f_prs, ind, slope, p, d, e)
         d[D_N_STEPS] += 1.0
         if mode == MODE_FREE:
             t_new, z = _free_step_events(t, h, t_new, y_0, z, phase, f_prs, p, d, e,
                                          _HOLD_ON_RECROSS)
         else:
-            t_new, z = _release(t, h, t_new, y_0, z, mode, phase, f_prs, p, d, e)
+            t_new, z = _release(t, h, t_new, y_0, z, mode, phase, f_prs, ind, slope, p, d,
+                                e)
         if forced and t_new <= t:
             # Last resort, never reached by a correct kernel: this instant has already
             # taken _STALL_LIMIT passes without progress. Step on with the spool frozen
@@ -886,6 +919,13 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
         if phase == PH_OFF and y[Y_I] < 0.0 and e[_el.E_BLOCK_REVERSE] != 0.0:
             y[Y_I] = 0.0
         d[D_T] = t_new
+        if t_new > t and d[D_NEXT_SAMPLE] <= t_new + _EPS_T \
+                and _next_drive_event(d) > t_new + _EPS_T:
+            # an output sample alone is due at the step's end: recorded here, as the
+            # event pass would (the guard counts as if that pass had run)
+            _record(t_new, y, p, d, e, out)
+            t_prog = t_new
+            stall = 0
 
 
 # --------------------------------------------------------------------------------------
