@@ -54,7 +54,8 @@ REFERENCE_ENV = 'VALVE_REFERENCE_DIR'
 C_SOURCE = 'valve_rk4_elec.c'
 H_FREE_S, H_STOP_S = 1e-5, 1e-4
 P_SUP_PA, V_S = 4e5, 24.0
-ROUNDS = 5          # alternations of C and kernel
+ROUNDS = 5              # alternations of C and kernel
+SIM_PER_ROUND_S = 2.0   # simulated time per side and round
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,19 +137,20 @@ def _children_cpu_s() -> float:
 
 @dataclasses.dataclass
 class Timing:
-    """Best wall time and mean CPU time per run of one side (C or kernel), s."""
+    """Best wall time of one run and best per-round mean CPU time per run of one side, s.
+
+    A round runs a case many times in a row; its CPU time per run (the process's or
+    thread's CPU clock) is little disturbed by other processes, and the best round is the
+    one least disturbed by what they do to the caches.
+    """
 
     wall_s: float = math.inf
-    cpu_total_s: float = 0.0
+    cpu_s: float = math.inf
     runs: int = 0
-
-    @property
-    def cpu_s(self) -> float:
-        return self.cpu_total_s / self.runs if self.runs else math.nan
 
     def add(self, wall_s: float, cpu_s: float, runs: int) -> None:
         self.wall_s = min(self.wall_s, wall_s)
-        self.cpu_total_s += cpu_s
+        self.cpu_s = min(self.cpu_s, cpu_s / runs)
         self.runs += runs
 
 
@@ -236,10 +238,10 @@ def agreement(c_loop: CLoop, case: Case, run: KernelRun, tmp: Path
 
 def _figures(kernel: Timing, c: Timing | None) -> str:
     text = (f'kernel: best wall {kernel.wall_s * 1e3:.3f} ms, CPU {kernel.cpu_s * 1e3:.3f} ms '
-            f'per run (mean of {kernel.runs})')
+            f'per run ({kernel.runs} runs)')
     if c is not None:
         text += (f'; C: best wall {c.wall_s * 1e3:.3f} ms, CPU {c.cpu_s * 1e3:.3f} ms per run '
-                 f'(mean of {c.runs}); wall ratio {kernel.wall_s / c.wall_s:.2f}')
+                 f'({c.runs} runs); wall ratio {kernel.wall_s / c.wall_s:.2f}')
     return text
 
 
@@ -261,14 +263,14 @@ def _kernel_record(name: str, kernel: Timing, c: Timing | None, target: str,
 def bench_case(case: Case, c_loop: CLoop | None, c_note: str, tmp: Path) -> list[dict]:
     run = KernelRun(case)
     run()  # loads or compiles the kernel
-    c_reps = max(2, int(0.1 / case.duration_s))  # about 0.1 s of simulated time per round
-    k_reps = max(2, int(0.05 / case.duration_s))
+    # 2 s of simulated time per side and round: the C program's start is small beside it
+    reps = max(2, round(SIM_PER_ROUND_S / case.duration_s))
     before = load()
     kernel, c = Timing(), Timing()
     for _ in range(ROUNDS):
         if c_loop is not None:
-            c_loop.run(case, c_reps, c)
-        time_runs(run, k_reps, kernel)
+            c_loop.run(case, reps, c)
+        time_runs(run, reps, kernel)
     after = load()
     notes = (f'{case.label}; paper parameters, {P_SUP_PA / 1e5:g} bar, h_free '
              f'{H_FREE_S:g} s, h_stop {H_STOP_S:g} s; kernel entries derive_parameters + '
@@ -300,7 +302,7 @@ def bench_simulate_step(case: Case, c: Timing | None) -> dict:
     before = load()
     kernel = Timing()
     for _ in range(ROUNDS):
-        time_runs(call, max(2, int(0.05 / case.duration_s)), kernel)
+        time_runs(call, max(2, round(SIM_PER_ROUND_S / case.duration_s)), kernel)
     after = load()
     return _kernel_record(
         'kernel_simulate_step_20ms', kernel, c, 'informative', None,

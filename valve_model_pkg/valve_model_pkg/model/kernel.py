@@ -370,7 +370,16 @@ def _rk4(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, p: n
 @njit(cache=True, _nrt=False)
 def _rk4_at(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, ind: float,
             slope: float, p: np.ndarray, d: np.ndarray, e: np.ndarray) -> tuple:
-    """:func:`_rk4` with L and dL/dx at the start position y[1] given.
+    """:func:`_rk4` with L and dL/dx at the start position y[1] given."""
+    return _rk4_from(t, h, y, mode, phase, f_prs, ind, slope, _voltage(t, phase, d, e), p, d,
+                     e)[0]
+
+
+@njit(cache=True, _nrt=False)
+def _rk4_from(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, ind: float,
+              slope: float, v_a: float, p: np.ndarray, d: np.ndarray, e: np.ndarray
+              ) -> tuple[tuple, float]:
+    """:func:`_rk4_at` with the voltage ``v_a`` at t given; returns (z, voltage at t + h).
 
     The integrals q, q_i, q_v are integrated with the state from the stage values of x,
     the terminal current and the voltage. The driver's voltage is evaluated once per
@@ -378,10 +387,10 @@ def _rk4_at(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, i
     frozen), L(x) and dL/dx once per step.
     """
     if p[P_EMU] != 0.0:
-        return _rk4_emulated(t, h, y, mode, phase, f_prs, p, d, e)
+        return (_rk4_emulated(t, h, y, mode, phase, f_prs, p, d, e),
+                _voltage(t + h, phase, d, e))
     y0, y1, y2, y3, y4, y5, y6, y7 = y
     hh = 0.5 * h
-    v_a = _voltage(t, phase, d, e)
     v_m = _voltage(t + hh, phase, d, e)
     v_g = _voltage(t + h, phase, d, e)
     k_l, l_0, b_2 = p[P_KL], p[P_L0], p[P_B2]
@@ -413,7 +422,7 @@ def _rk4_at(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float, i
             y4 + s * (y1 + 2.0 * (x_b + x_c) + x_g),
             y5 + s * (i_a + 2.0 * (i_b + i_c) + i_g),
             y6 + s * (v_a + 2.0 * (v_m + v_m) + v_g),
-            y7)
+            y7), v_g
 
 
 @njit(cache=True, _nrt=False)
@@ -449,8 +458,15 @@ def _terminal_current(t: float, y: np.ndarray, phase: int, p: np.ndarray, d: np.
                       e: np.ndarray) -> float:
     if p[P_GE] == 0.0:
         return y[Y_I]
+    return _terminal_current_at(_voltage(t, phase, d, e), y, p)
+
+
+@njit(cache=True, _nrt=False)
+def _terminal_current_at(volt: float, y: np.ndarray, p: np.ndarray) -> float:
+    """Terminal current under the terminal voltage ``volt``: i_m plus the eddy path, A."""
+    if p[P_GE] == 0.0:
+        return y[Y_I]
     r = _resistance(p[P_R], y[Y_DT])
-    volt = _voltage(t, phase, d, e)
     return y[Y_I] + p[P_GE] * (volt - r * y[Y_I]) / (1.0 + r * p[P_GE])
 
 
@@ -644,11 +660,19 @@ def command(d: np.ndarray, e: np.ndarray, duty: float, period_s: float) -> None:
 @njit(cache=True, _nrt=False)
 def _record(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray, e: np.ndarray,
             out: np.ndarray) -> None:
+    """Write the sample row ``d[D_SAMPLE_IDX]`` at time t and schedule the next sample."""
+    volt = _voltage(t, int(d[D_PHASE]), d, e) if d[D_SAMPLE_IDX] < out.shape[0] else 0.0
+    _record_at(t, volt, y, p, d, out)
+
+
+@njit(cache=True, _nrt=False)
+def _record_at(t: float, volt: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
+               out: np.ndarray) -> None:
+    """:func:`_record` with the terminal voltage at t given."""
     k = int(d[D_SAMPLE_IDX])
     if k < out.shape[0]:
-        phase = int(d[D_PHASE])
-        out[k, O_V] = _voltage(t, phase, d, e)
-        out[k, O_I] = _terminal_current(t, y, phase, p, d, e)
+        out[k, O_V] = volt
+        out[k, O_I] = _terminal_current_at(volt, y, p)
         out[k, O_X] = y[Y_X]
         out[k, O_XDOT] = y[Y_V]
         out[k, O_DT] = y[Y_DT]
@@ -858,6 +882,10 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
     geo_x = math.nan  # the position L and dL/dx were last computed for (a held spool)
     ind = 0.0
     slope = 0.0
+    # the driver's voltage v_known at time t_known, valid until the next event changes the
+    # drive (a step's end voltage is the next step's start voltage and the sample's)
+    t_known = math.nan
+    v_known = 0.0
     while True:
         t = d[D_T]
         # --- no-progress guard: a pass that does not advance time counts as a stall
@@ -870,6 +898,7 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
         t_ev = _next_event(d)
         if t_ev <= t + _EPS_T:
             _process_events(t, y, p, d, e, out, avg_out)
+            t_known = math.nan
             if not forced:
                 continue
             t_ev = _next_event(d)
@@ -894,7 +923,8 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
                 continue
         t_new, h = _step_to(t, target, h_free if mode == MODE_FREE else h_stop)
         y_0 = (y[0], x, y[2], y[3], y[4], d[D_QI], d[D_QV], d[D_IB])
-        z = _rk4_at(t, h, y_0, mode, phase, f_prs, ind, slope, p, d, e)
+        v_a = v_known if t == t_known else _voltage(t, phase, d, e)
+        z, v_g = _rk4_from(t, h, y_0, mode, phase, f_prs, ind, slope, v_a, p, d, e)
         d[D_N_STEPS] += 1.0
         if mode == MODE_FREE:
             t_new, z = _free_step_events(t, h, t_new, y_0, z, phase, f_prs, p, d, e,
@@ -919,11 +949,16 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
         if phase == PH_OFF and y[Y_I] < 0.0 and e[_el.E_BLOCK_REVERSE] != 0.0:
             y[Y_I] = 0.0
         d[D_T] = t_new
+        t_known = t + h  # the time of the last stage
+        v_known = v_g
         if t_new > t and d[D_NEXT_SAMPLE] <= t_new + _EPS_T \
                 and _next_drive_event(d) > t_new + _EPS_T:
             # an output sample alone is due at the step's end: recorded here, as the
             # event pass would (the guard counts as if that pass had run)
-            _record(t_new, y, p, d, e, out)
+            if t_new == t_known:
+                _record_at(t_new, v_known, y, p, d, out)
+            else:
+                _record(t_new, y, p, d, e, out)
             t_prog = t_new
             stall = 0
 
