@@ -886,6 +886,13 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
     # drive (a step's end voltage is the next step's start voltage and the sample's)
     t_known = math.nan
     v_known = 0.0
+    # the held force margin g_known of mode m_known at (i_known, ib_known, x_known)
+    i_known = math.nan
+    ib_known = math.nan
+    x_known = math.nan
+    m_known = -1
+    g_known = 0.0
+    f_c = p[P_FC]
     while True:
         t = d[D_T]
         # --- no-progress guard: a pass that does not advance time counts as a stall
@@ -917,8 +924,13 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
             slope = _inductance_slope(ind, k_l, b_2)
             geo_x = x
         if mode != MODE_FREE and not forced:
-            if _leave_margin(mode, _f_active_at(y[Y_I], d[D_IB], x, ind, slope, f_prs, p),
-                             p[P_FC]) > 0.0:
+            if y[Y_I] == i_known and d[D_IB] == ib_known and x == x_known \
+                    and mode == m_known:
+                g = g_known  # the last held step's end margin, the same numbers
+            else:
+                g = _leave_margin(mode, _f_active_at(y[Y_I], d[D_IB], x, ind, slope, f_prs,
+                                                     p), f_c)
+            if g > 0.0:
                 d[D_MODE] = MODE_FREE
                 continue
         t_new, h = _step_to(t, target, h_free if mode == MODE_FREE else h_stop)
@@ -930,8 +942,17 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
             t_new, z = _free_step_events(t, h, t_new, y_0, z, phase, f_prs, p, d, e,
                                          _HOLD_ON_RECROSS)
         else:
-            t_new, z = _release(t, h, t_new, y_0, z, mode, phase, f_prs, ind, slope, p, d,
-                                e)
+            g_known = _leave_margin(mode, _f_active_at(z[0], z[7], x, ind, slope, f_prs, p),
+                                    f_c)
+            if g_known > 0.0:
+                t_new, z = _release(t, h, t_new, y_0, z, mode, phase, f_prs, ind, slope, p,
+                                    d, e)
+                m_known = -1
+            else:  # held for the whole step (what _release would find first)
+                i_known = z[0]
+                ib_known = z[7]
+                x_known = x
+                m_known = mode
         if forced and t_new <= t:
             # Last resort, never reached by a correct kernel: this instant has already
             # taken _STALL_LIMIT passes without progress. Step on with the spool frozen
@@ -939,6 +960,7 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
             z = _rk4(t, h, y_0, MODE_STUCK, phase, f_prs, p, d, e)
             d[D_N_STEPS] += 1.0
             d[D_MODE] = mode
+            m_known = -1
             t_new = t + h
             d[D_N_FORCED] += 1.0
         for k in range(N_Y):
