@@ -17,11 +17,16 @@ Cases (paper parameters, 4 bar supply, h_free 10 us, h_stop 100 us):
 * a batch of 1000 such 10 ms steps at 50 kHz output through ``step_batch`` on the
   machine's cores, against 1000 times the C loop's single run on one core;
 * cold start: a fresh ``python -c "import valve_model_pkg.model as m;
-  m.simulate_step(m.load_parameters())"``.
+  m.simulate_step(m.load_parameters())"`` on the ahead-of-time kernel, beside the same on
+  the numba jit (its cache warm).
 
-Kernel and C alternate (C, kernel, C, kernel, ...) and the best of each is compared: the
-machine is shared and its load changes within seconds. Each record carries the load
-average (/proc/loadavg) before and after its measurement.
+The figure of each record (``value``) is CPU time per run: kernel and C alternate (C,
+kernel, C, kernel, ...) in rounds of 2 s of simulated time each, and each side's best
+round (mean CPU per run within it) is compared. On a shared machine the CPU clock is
+little disturbed by other processes, where a wall time longer than a time slice is not;
+the best walls and their ratio are in each record too (``wall_s``,
+``reference_wall_s``). Each record carries the load average (/proc/loadavg) before and
+after its measurement (``load``) and the machine's at the end (``load_average``).
 
 Run: ``python benchmarks/bench_kernel_c.py`` (about a minute); writes
 benchmarks/results/kernel_c.json.
@@ -343,31 +348,45 @@ def bench_batch(c_loop: CLoop | None, c_note: str) -> dict:
                           after)
 
 
+def _start(code: str, env: dict) -> tuple[float, float]:
+    """(wall, CPU) of a fresh ``python -c code``, s (CPU: the child's user + system)."""
+    before = _children_cpu_s()
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, '-c', code], env=env, check=True, capture_output=True)
+    return time.perf_counter() - t0, _children_cpu_s() - before
+
+
 def bench_cold_start() -> dict:
+    """A fresh process's first simulate_step on the ahead-of-time kernel and on the jit."""
     code = 'import valve_model_pkg.model as m; m.simulate_step(m.load_parameters())'
     env = dict(os.environ)
     env['PYTHONPATH'] = str(ROOT / 'valve_model_pkg') + (
         os.pathsep + env['PYTHONPATH'] if env.get('PYTHONPATH') else '')
-
-    def wall(args: list[str]) -> float:
-        t0 = time.perf_counter()
-        subprocess.run([sys.executable] + args, env=env, check=True, capture_output=True)
-        return time.perf_counter() - t0
-
-    wall(['-c', code])  # the kernel's caches are warm, as for any later start
-    before = load()
-    cold = min(wall(['-c', code]) for _ in range(5))
-    bare = min(wall(['-c', 'pass']) for _ in range(5))
+    env.pop('PYTHONDONTWRITEBYTECODE', None)  # a start as a user's: with the .pyc files
+    jit_env = dict(env, VALVE_KERNEL_AOT_DIR='off')
     probe = subprocess.run(
         [sys.executable, '-c', code + '; import sys; from valve_model_pkg.model import aot; '
          'print(aot.backend_name(), "numba" in sys.modules)'],
         env=env, check=True, capture_output=True, text=True).stdout.split()
+    _start(code, jit_env)  # numba's cache is filled, as for any later start
+    before = load()
+    aot_runs = [_start(code, env) for _ in range(5)]
+    jit_runs = [_start(code, jit_env) for _ in range(3)]
+    bare = min(_start('import numpy', env)[1] for _ in range(3))
     after = load()
-    rec = _record('kernel_cold_start', cold, 's', 'python -c pass', bare, '<= 0.3 s',
-                  cold <= 0.3,
-                  f'fresh process: python -c "{code}", best of 5 (interpreter start '
-                  f'included); kernel backend {probe[0]}, numba imported: {probe[1]}; '
-                  f'{load_note(before, after)}', ratio=cold / bare)
+    cpu = min(r[1] for r in aot_runs)
+    wall = min(r[0] for r in aot_runs)
+    jit_cpu = min(r[1] for r in jit_runs)
+    rec = _record('kernel_cold_start', cpu, 's', 'the same on the numba jit (warm cache)',
+                  jit_cpu, '<= 0.3 s', cpu <= 0.3,
+                  f'fresh process: python -c "{code}" (interpreter start included), CPU '
+                  f'time, best of 5; its wall {wall:.3f} s; kernel backend {probe[0]}, numba '
+                  f'imported: {probe[1]}; on the jit (VALVE_KERNEL_AOT_DIR=off, numba cache '
+                  f'warm) {jit_cpu:.3f} s CPU, {min(r[0] for r in jit_runs):.3f} s wall; '
+                  f'python -c "import numpy" alone {bare:.3f} s CPU; '
+                  f'{load_note(before, after)}')
+    rec['wall_s'] = wall
+    rec['reference_wall_s'] = min(r[0] for r in jit_runs)
     rec['load'] = {'before': before, 'after': after}
     return rec
 
@@ -391,8 +410,9 @@ def main() -> int:
     for r in records:
         ratio = f'{r["ratio"]:.2f}' if r['ratio'] is not None else '-'
         ref = f'{r["reference_value"] * 1e3:.3f} ms' if r['reference_value'] else '-'
-        print(f'{r["name"]:32s} {r["value"] * 1e3:9.3f} ms  ref {ref:>11s}  ratio {ratio}  '
-              f'load {r["load"]["before"][0]:.1f}/{r["load"]["after"][0]:.1f}')
+        print(f'{r["name"]:28s} CPU {r["value"] * 1e3:9.3f} ms  ref {ref:>11s}  ratio '
+              f'{ratio:>5s}  wall {r["wall_s"] * 1e3:9.3f} ms  load '
+              f'{r["load"]["before"][0]:.1f}/{r["load"]["after"][0]:.1f}')
     return 0
 
 

@@ -72,13 +72,13 @@ def test_stall_guard_breaks_the_original_loop() -> None:
     words = _run(f'''
         import numpy as np
         from valve_model_pkg.model import ElectronicsConfig, ValveStepper, load_parameters
-        from valve_model_pkg.model import kernel as K
+        from valve_model_pkg.model import kernel as K, kernel_jit as KJ
         s = ValveStepper(load_parameters(), ElectronicsConfig(), duty={DUTY},
                          pwm_frequency_hz={FREQ_HZ}, supply_pressure_pa={P_SUP_PA})
         s.advance_to(0.0065)  # compiled, to just before the falling edge at 6.559375 ms
-        K._HOLD_ON_RECROSS = False  # the behaviour before the fix
+        KJ._HOLD_ON_RECROSS = False  # the behaviour before the fix
         d = s._d
-        K._advance.py_func(s._p, s._e, s._y, d, 0.007, K.DEFAULT_H_FREE_S,
+        KJ._advance.py_func(s._p, s._e, s._y, d, 0.007, K.DEFAULT_H_FREE_S,
                            K.DEFAULT_H_STOP_S, np.zeros((0, K.N_OUT)), np.zeros(0))
         print(repr(float(d[K.D_T])), int(d[K.D_N_FORCED] >= 1), repr(float(s._y[K.Y_X])))
     ''')

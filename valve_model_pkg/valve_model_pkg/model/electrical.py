@@ -40,7 +40,7 @@ candidate is the limit of a fully shunted inductance (a = 0), which the ladder e
 """
 from __future__ import annotations
 
-from numba import njit
+from .scalars import kernel_scalar
 
 from .magnetics import (
     _coefficients, _flux_partials, _inductance, _inductance_slope, _law_partials,
@@ -53,14 +53,14 @@ __all__ = ['COPPER_ALPHA_PER_K', 'coil_resistance', 'current_derivative']
 COPPER_ALPHA_PER_K = 0.00393
 
 
-@njit(cache=True)
+@kernel_scalar
 def _resistance(r_0: float, d_temp: float) -> float:
     if d_temp == 0.0:
         return r_0  # r_0 (1 + alpha 0) exactly
     return r_0 * (1.0 + COPPER_ALPHA_PER_K * d_temp)
 
 
-@njit(cache=True)
+@kernel_scalar
 def _current_derivative(v: float, i_m: float, x_dot: float, ind: float, slope: float,
                         r: float, g_e: float, l_leak: float, beta: float
                         ) -> tuple[float, float]:
@@ -84,7 +84,7 @@ def _current_derivative(v: float, i_m: float, x_dot: float, ind: float, slope: f
     return di, i_m + g_e * v_branch
 
 
-@njit(cache=True)
+@kernel_scalar
 def _ladder_derivatives(v: float, i_m: float, i_b: float, x_dot: float, ind: float,
                         slope: float, r: float, g_e: float, l_leak: float, beta: float,
                         lam_s: float, ratio: float, r_b: float
@@ -109,7 +109,7 @@ def _ladder_derivatives(v: float, i_m: float, i_b: float, x_dot: float, ind: flo
     return di, dib, i_m + g_e * v_branch
 
 
-@njit(cache=True)
+@kernel_scalar
 def _temperature_derivative(d_temp: float, i_t: float, r: float, r_th: float,
                             tau_th: float) -> float:
     if r_th == 0.0 and d_temp == 0.0:
