@@ -70,8 +70,9 @@ Emulator effect forms (``parameters.EMULATOR_EFFECTS``: ``saturation_tanh``,
 independently of the identification's candidates, so a valve emulated with them is not
 the candidate's own equation. Their slow ladder current i_b is integrated with y like
 the integrals (the 8th component of the step tuple) and kept in ``d[D_IB]``. With both
-off (``p[P_EMU] == 0``) every function takes the code path it took before they existed,
-so outputs are bit-identical (tests/unit/test_can_emulator_effect_forms.py).
+off (``p[P_EMU] == 0``) no function evaluates any of their terms (``_rk4_emulated`` is a
+separate path), so they cost nothing and change no number
+(tests/unit/test_can_emulator_effect_forms.py).
 """
 from __future__ import annotations
 
@@ -146,8 +147,9 @@ _H_MIN = 1e-11
 #: pass sequence at one instant needs a handful (events, a release, an impact).
 _STALL_LIMIT = 100
 #: Take a held step when a spool released from rest on a stop is back on it at once
-#: (the fix of the endless release/impact loop). Only tests switch it off, to check the
-#: no-progress guard on the original failure; numba freezes it at compile time.
+#: (otherwise release and impact would alternate at one instant forever). Only tests
+#: switch it off, to check the no-progress guard on that loop; numba freezes it at
+#: compile time.
 _HOLD_ON_RECROSS = True
 _INF = np.inf
 
@@ -625,10 +627,10 @@ def _impact(t: float, h: float, t_new: float, s_hit: float, xb: float, y: tuple,
     if hold_on_recross and s_hit * h <= _H_MIN and y[1] == xb and y[2] == 0.0:
         # Released from rest on this stop and back on it at the step start: the held
         # force margin was positive but falls at once (e.g. the capacitor pulse at a
-        # falling edge), so the lift is below what the interpolant resolves (reported
-        # case: 4e-19 m for 32 ns). Freeing the spool again would repeat this at the same
-        # instant forever; it stays on the stop for the step instead. A margin still
-        # positive at the step end releases it.
+        # falling edge), so the lift is below what the interpolant resolves (of the order
+        # of 1e-19 m). Freeing the spool again would repeat this at the same instant
+        # forever; it stays on the stop for the step instead. A margin still positive at
+        # the step end releases it.
         z = _rk4(t, h, y, held, phase, f_prs, p, d, e)
         d[D_N_STEPS] += 1.0
         d[D_MODE] = held
