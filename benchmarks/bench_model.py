@@ -24,7 +24,7 @@ from common import record as _record, write_results  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'valve_model_pkg'))
 
-import numba  # noqa: E402
+import numba  # noqa: E402  (its thread count also sets the kernel's batch threads)
 from scipy.integrate import solve_ivp  # noqa: E402
 
 from valve_model_pkg.model import (  # noqa: E402
@@ -32,6 +32,7 @@ from valve_model_pkg.model import (  # noqa: E402
     simulate_pwm, simulate_step, simulate_trace_batch,
 )
 from valve_model_pkg import model as K  # noqa: E402  (public names only)
+from valve_model_pkg.model.aot import backend_name  # noqa: E402
 from valve_model_pkg.model.magnetics import MU_0  # noqa: E402
 
 DUTY, FREQ, P_SUP, V_S = 0.4, 50.0, 4.0e5, 24.0
@@ -262,8 +263,9 @@ def bench_pwm(params: ValveParameters) -> list[dict]:
     ref.run(REF_SPEED_WINDOW_S, np.arange(int(REF_SPEED_WINDOW_S * 1000) + 1) / 1000.0)
     ref_wall = time.perf_counter() - t0
     ref_rate = REF_SPEED_WINDOW_S / ref_wall
-    notes = (f'1 s of {FREQ:g} Hz, duty {DUTY:g} PWM, supply {P_SUP / 1e5:g} bar, electronics '
-             f'on (boost, 20 kHz PI chopper, capacitor); numba fixed-step RK4 with edge '
+    notes = (f'kernel {backend_name()}; '
+             f'1 s of {FREQ:g} Hz, duty {DUTY:g} PWM, supply {P_SUP / 1e5:g} bar, electronics '
+             f'on (boost, 20 kHz PI chopper, capacitor); fixed-step RK4 with edge '
              f'landing, h_free={K.DEFAULT_H_FREE_S:g} s, h_stop={K.DEFAULT_H_STOP_S:g} s, '
              f'{res.n_steps} steps, 1 thread, best of 5. Accuracy: max current error '
              f'vs a converged run (steps/16) over {ACCURACY_WINDOW_S:g} s: ours '
@@ -330,7 +332,7 @@ def bench_batch(params: ValveParameters) -> list[dict]:
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
     notes = (f'{n_runs} bare-coil 24 V steps, 10 ms each, 50 kHz output (501 samples of '
              f'current and position), 7 parameters varied +-15 % (R, l_c, A_e, x_t, mu_r, b, '
-             f'delta); numba prange on {threads} threads (machine has {os.cpu_count()} '
+             f'delta); kernel {backend_name()} on {threads} threads (machine has {os.cpu_count()} '
              f'CPUs), best of 3, incl. validation of all rows. Reference: a plain Python '
              f'loop of single simulate_step calls (1 thread, same results: max difference '
              f'{same:.1e} A). {opened}/{n_runs} runs open within 10 ms.')
@@ -368,22 +370,27 @@ def bench_startup() -> list[dict]:
             'from valve_model_pkg.model import InputTrace, load_parameters, simulate_pwm, '
             'simulate_trace_batch; p = load_parameters(); simulate_pwm(p, duration_s=0.02); '
             'simulate_trace_batch(p, InputTrace.step(), [0.0, 0.001, 0.002]); '
-            'print(time.perf_counter() - t0)'
+            'from valve_model_pkg.model.aot import backend_name; '
+            'print(backend_name(), time.perf_counter() - t0)'
             % str(ROOT / 'valve_model_pkg'))
 
-    def run(env: dict) -> float:
+    def run(env: dict) -> tuple[str, float]:
         out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                              env=env, check=True)
-        return float(out.stdout.strip().splitlines()[-1])
+        name, wall = out.stdout.strip().splitlines()[-1].split()
+        return name, float(wall)
 
-    cached = min(run(dict(os.environ)) for _ in range(2))
+    runs = [run(dict(os.environ)) for _ in range(2)]
+    kernel = runs[0][0]
+    cached = min(w for _, w in runs)
     with tempfile.TemporaryDirectory() as tmp:
-        cold = run(dict(os.environ, NUMBA_CACHE_DIR=tmp))
-    return [_record('model_first_call_cached', cached, 's', 'first call, empty numba cache',
-                    cold, 'informative', True,
-                    'fresh process: import + first simulate_pwm + first batch call, with '
-                    'the numba on-disk cache (cache=True) vs an empty cache (full compile)',
-                    ratio=cold / cached)]
+        cold = run(dict(os.environ, VALVE_KERNEL_AOT_DIR='off', NUMBA_CACHE_DIR=tmp))[1]
+    return [_record('model_first_call_cached', cached, 's',
+                    'first call, numba jit on an empty cache', cold, 'informative', True,
+                    f'fresh process: import + first simulate_pwm + first batch call on the '
+                    f'kernel this environment runs ({kernel}: the ahead-of-time module '
+                    f'when built, else the jit with its on-disk cache) vs the numba jit '
+                    f'with an empty cache (full compile)', ratio=cold / cached)]
 
 
 def main() -> int:

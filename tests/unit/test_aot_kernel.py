@@ -1,8 +1,8 @@
 """The ahead-of-time kernel (model/aot.py, model/aot_build.py) against the numba jit.
 
 The AOT module must give the jit's numbers bit for bit (same compiled functions, same
-flags), fall back to the jit when it is missing, stale or broken, and keep numba out of a
-simulator node's process when it is there.
+flags) for the streaming entries and the batches, fall back to the jit when it is missing,
+stale or broken, and keep numba out of any process that only simulates when it is there.
 """
 from __future__ import annotations
 
@@ -171,12 +171,96 @@ def test_bank_aot_is_bit_identical_to_jit(name: str, backends: dict,
         f'max difference {np.max(np.abs(out["aot"] - out["jit"]))}'
 
 
+def _batch_outputs() -> dict[str, np.ndarray]:
+    """Every batch entry of model/kernel.py on a few parameter sets, effects included."""
+    from valve_model_pkg.model import kernel
+
+    params = [load_parameters(), _with_effects(), load_parameters().replace(
+        coulomb_friction_n=1.5, restitution_coefficient=0.6)]
+    raw = np.array([p.to_vector() for p in params for _ in range(3)])
+    raw[:, 0] *= np.linspace(0.9, 1.1, len(raw))   # a different mass in every row
+    n = len(raw)
+    elec = ElectronicsConfig().to_vector()
+    bare = ElectronicsConfig.off().to_vector()
+    p_sup = np.linspace(1e5, 5e5, n)
+    p_out = np.zeros(n)
+    res = {}
+    res['step_cur'], res['step_pos'] = kernel.step_batch(
+        raw, bare, np.linspace(12.0, 26.0, n), p_sup, p_out, 0.01, 0.0, 2e-5, 501)
+    res['pwm'] = kernel.pwm_batch(raw, elec, np.full(n, 24.0), np.linspace(0.2, 0.8, n),
+                                  1.0 / np.linspace(40.0, 150.0, n), p_sup, p_out, 5)
+    t_samp = np.arange(1, 151) * 1e-3
+    for parallel in (True, False):
+        out = np.zeros((n, t_samp.size, kernel.N_OUT))
+        stats = np.zeros((n, 2))
+        kernel.trace_batch(raw, elec, np.array([0.0, 0.05, 0.09]), np.full(3, 24.0),
+                           np.array([0.3, 0.7, 0.0]), np.full(3, 0.0125), p_sup, p_out,
+                           t_samp, 1e-5, 1e-4, out, stats, parallel=parallel)
+        res[f'trace_{parallel}'] = out
+        res[f'trace_stats_{parallel}'] = stats
+    return res
+
+
+def test_batches_aot_are_bit_identical_to_jit(backends: dict,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    out = {}
+    for kind, backend in backends.items():
+        _use(monkeypatch, backend)
+        out[kind] = _batch_outputs()
+    # the runs move the spool and differ between rows (else the comparison proves little)
+    assert np.ptp(out['jit']['step_cur'][:, -1]) > 0.0
+    assert np.ptp(out['jit']['trace_True'][:, :, 2]) > 1e-4
+    for name, value in out['jit'].items():
+        assert np.array_equal(out['aot'][name], value), name
+    assert np.array_equal(out['jit']['trace_True'], out['jit']['trace_False'])
+
+
+def test_batch_rows_on_threads_equal_one_thread(backends: dict,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """The rows of a batch shared over threads give the numbers of one thread."""
+    from valve_model_pkg.model import kernel
+
+    _use(monkeypatch, backends['aot'])
+    out = {}
+    for threads in ('1', '3'):
+        monkeypatch.setenv('NUMBA_NUM_THREADS', threads)
+        assert kernel.batch_threads() == int(threads)
+        out[threads] = _batch_outputs()
+    for name, value in out['1'].items():
+        assert np.array_equal(out['3'][name], value), name
+
+
+def test_the_simulation_entries_on_the_aot_module_never_import_numba(aot_dir: Path) -> None:
+    """A cold simulate_step (and every other entry) runs without numba or llvmlite."""
+    code = (
+        'import sys\n'
+        'import valve_model_pkg.model as m\n'
+        'from valve_model_pkg.model import aot\n'
+        'p = m.load_parameters()\n'
+        'assert m.simulate_step(p).position_m[-1] > 0.0\n'
+        'm.simulate_pwm(p, duration_s=0.05)\n'
+        'm.simulate_step_batch([p, p], duration_s=0.005)\n'
+        'm.simulate_pwm_batch([p, p], n_periods=2)\n'
+        'm.simulate_trace_batch([p] * 9, m.InputTrace.pwm_commands([0.0], duty=[0.5]),\n'
+        '                       [0.01, 0.02])\n'
+        'print(aot.backend_name(), sorted(n for n in sys.modules\n'
+        '      if n.split(".")[0] in ("numba", "llvmlite")))\n'
+    )
+    env = dict(os.environ, **{aot.ENV_DIR: str(aot_dir)})
+    done = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == 'aot []', done.stdout
+
+
 def test_layout_constants_are_the_kernels() -> None:
     from valve_model_pkg.model import kernel
     layout = aot.layout()
     assert {'D_T', 'N_D', 'N_OUT', 'S_I_MEAN', 'IV_DONE', 'DEFAULT_H_FREE_S'} <= set(layout)
     for name, value in layout.items():
         assert getattr(kernel, name) == value, name
+    public = {n for n in dir(kernel) if n.isupper() and type(getattr(kernel, n)) in (int, float)}
+    assert public <= set(layout)  # every integer constant of the kernel's layouts is read
 
 
 def _select_in(directory: Path | str, monkeypatch: pytest.MonkeyPatch):

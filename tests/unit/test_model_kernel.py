@@ -270,6 +270,28 @@ def test_fixed_boost_time_without_dip_detection() -> None:
     assert np.any(res.coil_voltage_v[(res.t_s > 5e-3) & (res.t_s < 8e-3)] == 0.0)
 
 
+@pytest.mark.parametrize('bad', ['float32', 'strided'])
+def test_a_state_the_kernel_cannot_write_into_is_refused(bad: str) -> None:
+    """The kernel updates y and d in place: a copy would lose the update, so it refuses."""
+    p = K.derive_parameters(P.to_vector())
+    e = ElectronicsConfig().to_vector()
+    d = K.new_drive_state(24.0, 0.5, 0.02, 0.0, 4e5)
+    y = np.zeros(K.N_Y, dtype=np.float32) if bad == 'float32' else np.zeros(2 * K.N_Y)[::2]
+    with pytest.raises(TypeError, match='y must be a writeable C-contiguous float64'):
+        K.advance(p, e, y, d, 1e-3)
+    assert d[K.D_T] == 0.0  # nothing ran
+
+
+def test_inputs_of_any_float_layout_are_taken() -> None:
+    """Read-only inputs (parameters, electronics) may be lists or other dtypes."""
+    p = K.derive_parameters(list(P.to_vector()))
+    e = ElectronicsConfig().to_vector()
+    y = np.zeros(K.N_Y)
+    d = K.new_drive_state(24, 1, 1.0)
+    K.advance(p, list(e), y, d, 0.01)
+    assert d[K.D_T] == pytest.approx(0.01) and y[K.Y_X] > 0.0
+
+
 def test_model_core_is_ros_free() -> None:
     root = Path(__file__).resolve().parents[2] / 'valve_model_pkg'
     code = ('import sys; sys.path.insert(0, %r); import valve_model_pkg.model, '

@@ -75,14 +75,14 @@ def test_stall_guard_breaks_the_original_loop() -> None:
     words = _run(f'''
         import numpy as np
         from valve_model_pkg.model import ElectronicsConfig, load_parameters
-        from valve_model_pkg.model import kernel as K
+        from valve_model_pkg.model import kernel as K, kernel_jit as KJ
         p = K.derive_parameters(load_parameters().to_vector())
         e = ElectronicsConfig().to_vector()
         y = np.zeros(K.N_Y)
         d = K.new_drive_state(24.0, {DUTY}, 1.0 / {FREQ_HZ}, 0.0, {P_SUP_PA})
         K.advance(p, e, y, d, 0.0065)  # compiled, to just before the falling edge at 6.559375 ms
-        K._HOLD_ON_RECROSS = False  # let the spool leave again at the same instant
-        K._advance.py_func(p, e, y, d, 0.007, K.DEFAULT_H_FREE_S,
+        KJ._HOLD_ON_RECROSS = False  # let the spool leave again at the same instant
+        KJ._advance.py_func(p, e, y, d, 0.007, K.DEFAULT_H_FREE_S,
                            K.DEFAULT_H_STOP_S, np.zeros((0, K.N_OUT)), np.zeros(0))
         print(repr(float(d[K.D_T])), int(d[K.D_N_FORCED] >= 1), repr(float(y[K.Y_X])))
     ''')

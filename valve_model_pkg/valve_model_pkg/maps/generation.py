@@ -445,7 +445,7 @@ def _generate(sim: MapSimulator, grid: MapGrid, refine_edges: bool, edge_toleran
             # out to the workers alternately, and the interleaved list gave one worker every
             # dead-band point (a closed valve, a few cheap periods) and the other every
             # saturation point (many periods of a moving spool): edges 0.19 s instead of
-            # 0.12 s of CPU on the slower worker (docs/model.md, "The compiled kernel")
+            # 0.12 s of CPU on the slower worker (docs/maps.md, "Generation and speed")
             perm = np.argsort(np.array(kind_l), kind='stable')
             ij = [ij[n] for n in perm]
             lo_c, hi_c, kind = (np.array(lo_l)[perm], np.array(hi_l)[perm],

@@ -21,18 +21,18 @@ Public API (see docs/architecture.md, "Model core API"):
 Everything else (``kernel``, names starting with ``_``) is internal: code outside this
 package uses only the names above (a test checks it).
 
-The streaming model (``ValveStepper``, ``ValveBank``) runs on the kernel compiled ahead of
-time when it is built, else on the numba jit, with the same numbers;
-``valve_model_pkg.model.aot.backend()`` tells which (the nodes report it).
+Every entry runs on the kernel compiled ahead of time when it is built, else on the numba
+jit, with the same numbers; ``valve_model_pkg.model.aot.backend()`` tells which (the nodes
+report it).
 """
 from __future__ import annotations
 
 import importlib
 
-# The names are loaded on first use (PEP 562): the submodules with numba code (kernel,
-# magnetics, orifice, simulation) are imported only when one of their names is
-# used, so a process that runs the streaming model on the ahead-of-time kernel
-# (model/aot.py; the simulator nodes) never imports numba or llvmlite (~130 MB).
+# The names are loaded on first use (PEP 562): a process imports only the submodules whose
+# names it uses. Only kernel_jit.py imports numba, and only when the ahead-of-time kernel
+# is missing (model/aot.py), so a process that simulates on that kernel never imports
+# numba or llvmlite (~130 MB, most of a cold start).
 _HOME = {
     'PeriodAverager': 'averaging', 'last_period_mean': 'averaging',
     'moving_average': 'averaging', 'period_averages': 'averaging',

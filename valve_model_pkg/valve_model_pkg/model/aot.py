@@ -1,26 +1,26 @@
-"""The streaming kernel's backend: the ahead-of-time module if it is there, else the jit.
+"""The kernel's backend: the ahead-of-time module if it is there, else the numba jit.
 
-:class:`~valve_model_pkg.model.ValveStepper` and :class:`~valve_model_pkg.model.ValveBank`
-call the kernel through :func:`backend`. It loads, once per process, the extension module
-that :mod:`valve_model_pkg.model.aot_build` compiled ahead of time (numba.pycc) for the
-current :func:`kernel_key`; such a process never imports numba or llvmlite (about 130 MB
-of a simulator node's memory, docs/model.md). Without a module of the current key (not
-built, or built from another kernel or numba), it falls back to the numba jit of
-``model/kernel.py``: the same machine code, so the same numbers bit for bit
-(tests/unit/test_aot_kernel.py). Which one is used is logged once (logger
-``valve_model_pkg.model.aot``) and is :func:`backend_name`.
+Every compiled call of the model goes through :func:`backend`: the entry points of
+model/kernel.py (the single runs, the batches, the banks) and
+:class:`~valve_model_pkg.model.ValveStepper`. It loads, once per process, the extension
+module that :mod:`valve_model_pkg.model.aot_build` compiled ahead of time (numba.pycc) for
+the current :func:`kernel_key`; such a process never imports numba or llvmlite (about
+130 MB of a simulator node's memory and most of a cold start, docs/model.md). Without a
+module of the current key (not built, or built from another kernel or numba), it falls
+back to the numba jit of ``model/kernel_jit.py``: the same machine code, so the same
+numbers bit for bit (tests/unit/test_aot_kernel.py). Which one is used is logged once
+(logger ``valve_model_pkg.model.aot``) and is :func:`backend_name`.
 
 The module is looked up in ``$VALVE_KERNEL_AOT_DIR`` if set (``off`` or an empty value
 disables it), else in ``ros2_ws/build/valve_kernel_aot`` of the source tree (never
 committed: ros2_ws/build/ is ignored), else ``$XDG_CACHE_HOME/valve_suite/kernel_aot``.
 
 The kernel's layout constants (``D_*``, ``Y_*``, ``N_*``, ...) are read from kernel.py's
-source with :mod:`ast` (:func:`layout`), so they too need no numba.
+source with :mod:`ast` (:func:`layout`), so the stepper and the bank need not import it.
 
-Differences from the jit that do not change a number: the module's functions hold the GIL
-while they run (pycc has no ``nogil``; the jit's bank functions release it, which nothing
-in the suite relies on: the map's workers are processes), and they do not pickle (a
-pickled stepper or bank drops its backend and the receiving process picks its own).
+Both backends' functions release the GIL while they run. One difference that changes no
+number: the module's functions do not pickle (a pickled stepper or bank drops its backend
+and the receiving process picks its own).
 """
 from __future__ import annotations
 
@@ -39,8 +39,9 @@ _LOG = logging.getLogger(__name__)
 _HERE = Path(__file__).resolve().parent
 
 #: Sources whose compiled code the exports contain (kernel.py and what it calls or reads).
-KERNEL_SOURCES = ('kernel.py', 'electrical.py', 'magnetics.py', 'mechanics.py', 'orifice.py',
-                  'electronics.py', 'parameters.py', 'constants.py')
+KERNEL_SOURCES = ('kernel.py', 'kernel_jit.py', 'electrical.py', 'magnetics.py',
+                  'mechanics.py', 'orifice.py', 'electronics.py', 'parameters.py',
+                  'constants.py', 'scalars.py')
 MODULE_PREFIX = '_valve_kernel_aot_'
 ENV_DIR = 'VALVE_KERNEL_AOT_DIR'
 
@@ -50,8 +51,19 @@ _constants: SimpleNamespace | None = None
 
 
 def _dist_version(name: str) -> str:
-    """Installed version of a distribution without importing it ('' if absent)."""
-    from importlib import metadata
+    """Installed version of a distribution without importing it ('' if absent).
+
+    Read from the name of its ``*.dist-info`` directory next to the package (what pip
+    installs); importlib.metadata would cost more than the rest of a cold start.
+    """
+    spec = importlib.util.find_spec(name)
+    if spec is None or not spec.submodule_search_locations:
+        return ''
+    site = Path(next(iter(spec.submodule_search_locations))).parent
+    infos = sorted(site.glob(f'{name}-*.dist-info'))
+    if len(infos) == 1:
+        return infos[0].name[len(name) + 1:-len('.dist-info')]
+    from importlib import metadata  # another layout: ask the slow way
     try:
         return metadata.version(name)
     except metadata.PackageNotFoundError:
@@ -161,11 +173,14 @@ def _aot_backend(module: ModuleType, origin: str) -> SimpleNamespace:
     ns.mass_flow = module.mass_flow
     ns.bank_advance = module.bank_advance
     ns.bank_sample = module.bank_sample
+    ns.step_rows = module.step_rows
+    ns.pwm_rows = module.pwm_rows
+    ns.trace_rows = module.trace_rows
     return ns
 
 
 def _jit_backend(reason: str) -> SimpleNamespace:
-    from . import kernel as k
+    from . import kernel_jit as k
     from .orifice import _mass_flow
 
     ns = SimpleNamespace(**layout())
@@ -181,6 +196,9 @@ def _jit_backend(reason: str) -> SimpleNamespace:
     ns.mass_flow = _mass_flow
     ns.bank_advance = k._bank_advance
     ns.bank_sample = k._bank_sample
+    ns.step_rows = k._step_rows
+    ns.pwm_rows = k._pwm_rows
+    ns.trace_rows = k._trace_rows
     return ns
 
 
@@ -210,9 +228,10 @@ def backend() -> SimpleNamespace:
     ``advance(p, e, y, d, t_end, h_free, h_stop, out, avg)``, ``rising_edge(t, y, p, d,
     e)``, ``terminal_current(t, y, phase, p, d, e)``, ``voltage(t, phase, d, e)``,
     ``mass_flow(x, p_up, p_down, c_d, c_a, temp, r_gas, gamma)``, ``bank_advance(p, e, y,
-    d, t_end, h_free, h_stop)``, ``bank_sample(p, e, y, d, orifice, atm, iv, out)``: the
-    kernel's ``_derive``, ``_drive_state``, ... with exact argument types (float64
-    C-contiguous arrays, float scalars, int phase).
+    d, t_end, h_free, h_stop)``, ``bank_sample(p, e, y, d, orifice, atm, iv, out)``,
+    ``step_rows``, ``pwm_rows``, ``trace_rows`` (a batch's rows r0 <= r < r1, the last two
+    arguments): kernel_jit's ``_derive``, ``_drive_state``, ... with exact argument types
+    (float64 C-contiguous arrays, float scalars, int phase and rows).
     """
     global _backend
     if _backend is None:

@@ -40,7 +40,7 @@ candidate is the limit of a fully shunted inductance (a = 0), which the ladder e
 """
 from __future__ import annotations
 
-from numba import njit
+from .scalars import kernel_scalar
 
 from .magnetics import (
     _coefficients, _flux_partials, _inductance, _inductance_slope, _law_partials,
@@ -53,25 +53,38 @@ __all__ = ['COPPER_ALPHA_PER_K', 'coil_resistance', 'current_derivative']
 COPPER_ALPHA_PER_K = 0.00393
 
 
-@njit(cache=True)
+@kernel_scalar
 def _resistance(r_0: float, d_temp: float) -> float:
+    if d_temp == 0.0:
+        return r_0  # r_0 (1 + alpha 0) exactly
     return r_0 * (1.0 + COPPER_ALPHA_PER_K * d_temp)
 
 
-@njit(cache=True)
+@kernel_scalar
 def _current_derivative(v: float, i_m: float, x_dot: float, ind: float, slope: float,
                         r: float, g_e: float, l_leak: float, beta: float
                         ) -> tuple[float, float]:
-    """Return (di_m/dt, terminal current) for terminal voltage ``v``."""
+    """Return (di_m/dt, terminal current) for terminal voltage ``v``.
+
+    An effect at its neutral value (G_e = 0, L_leak = 0) and a held spool (x_dot = 0) skip
+    operations that are exact identities (division by 1 + R 0, adding 0, subtracting
+    0 x_dot), so the result is the full expression's to the last bit, without its cost.
+    """
     # KVL, eq. (5): V = R i + d lambda_total / dt, with i = i_m + G_e v_branch
-    v_branch = (v - r * i_m) / (1.0 + r * g_e)
+    if g_e == 0.0:
+        v_branch = v - r * i_m
+    else:
+        v_branch = (v - r * i_m) / (1.0 + r * g_e)
     dl_di, dl_dx = _flux_partials(i_m, ind, slope, beta)
     # eq. (7) generalised: the motional EMF dl_dx * x_dot is eq. (6)'s i dL/dt
-    di = (v_branch - dl_dx * x_dot) / (l_leak + dl_di)
+    emf = v_branch if x_dot == 0.0 else v_branch - dl_dx * x_dot
+    di = emf / (dl_di if l_leak == 0.0 else l_leak + dl_di)
+    if g_e == 0.0:
+        return di, i_m
     return di, i_m + g_e * v_branch
 
 
-@njit(cache=True)
+@kernel_scalar
 def _ladder_derivatives(v: float, i_m: float, i_b: float, x_dot: float, ind: float,
                         slope: float, r: float, g_e: float, l_leak: float, beta: float,
                         lam_s: float, ratio: float, r_b: float
@@ -96,9 +109,11 @@ def _ladder_derivatives(v: float, i_m: float, i_b: float, x_dot: float, ind: flo
     return di, dib, i_m + g_e * v_branch
 
 
-@njit(cache=True)
+@kernel_scalar
 def _temperature_derivative(d_temp: float, i_t: float, r: float, r_th: float,
                             tau_th: float) -> float:
+    if r_th == 0.0 and d_temp == 0.0:
+        return 0.0  # (0 - 0) / tau_th exactly: no heating, nothing to cool
     return (r_th * r * i_t * i_t - d_temp) / tau_th
 
 

@@ -1,7 +1,8 @@
 """Magnetic circuit: equivalent length, inductance L(x), its slope, flux and force.
 
 Paper eqs. (1)-(4), (6) and (8). The compiled kernel uses the scalar ``_...`` functions
-(numba ``njit``); the public functions take a :class:`ValveParameters` and numpy arrays.
+(plain Python, compiled into the kernel: model/scalars.py); the public functions take a
+:class:`ValveParameters` and numpy arrays.
 
 With the ``magnetic_saturation`` effect (beta = 1/i_sat > 0) the flux linkage is
 lambda(x, i) = L(x) i / (1 + beta |i|) and the force is the co-energy derivative
@@ -27,7 +28,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .scalars import kernel_scalar
 
 from .parameters import ValveParameters
 
@@ -53,19 +54,19 @@ def _coefficients(params: ValveParameters) -> tuple[float, float, float]:
     return k_l, l_0, b_2
 
 
-@njit(cache=True)
+@kernel_scalar
 def _inductance(x: float, k_l: float, l_0: float, b_2: float) -> float:
     # eq. (4): L = N^2 A_e mu_c / (l_c + 2 mu_r (x_t - x))
     return k_l / (l_0 - b_2 * x)
 
 
-@njit(cache=True)
+@kernel_scalar
 def _inductance_slope(ind: float, k_l: float, b_2: float) -> float:
     # eq. (6) divided by x_dot: dL/dx = 2 mu_r L^2 / (N^2 A_e mu_c)
     return ind * ind * b_2 / k_l
 
 
-@njit(cache=True)
+@kernel_scalar
 def _flux_partials(i: float, ind: float, slope: float, beta: float) -> tuple[float, float]:
     """Return (d lambda / d i, d lambda / d x) of the magnetising flux linkage."""
     if beta == 0.0:
@@ -74,7 +75,7 @@ def _flux_partials(i: float, ind: float, slope: float, beta: float) -> tuple[flo
     return ind * s * s, slope * i * s
 
 
-@njit(cache=True)
+@kernel_scalar
 def _force(i: float, slope: float, beta: float) -> float:
     if beta == 0.0:
         return 0.5 * slope * i * i  # eq. (8), = L^2 i^2 / (N^2 A_e mu_0)
@@ -87,7 +88,7 @@ def _force(i: float, slope: float, beta: float) -> float:
     return slope * g / (beta * beta)
 
 
-@njit(cache=True)
+@kernel_scalar
 def _tanh_flux_partials(i: float, ind: float, slope: float, lam_s: float
                         ) -> tuple[float, float]:
     """(d lambda / d i, d lambda / d x) of the emulator's tanh law (``lam_s`` > 0, Wb)."""
@@ -96,14 +97,14 @@ def _tanh_flux_partials(i: float, ind: float, slope: float, lam_s: float
     return ind * sech2, slope * i * sech2
 
 
-@njit(cache=True)
+@kernel_scalar
 def _log_cosh(u: float) -> float:
     a = abs(u)
     # ln cosh u = a - ln 2 + ln(1 + e^-2a): no overflow of cosh at large a
     return a - math.log(2.0) + math.log1p(math.exp(-2.0 * a))
 
 
-@njit(cache=True)
+@kernel_scalar
 def _tanh_force(i: float, ind: float, slope: float, lam_s: float) -> float:
     """Co-energy force of the tanh law, N: dL/dx (lambda_s/L)^2 (u tanh u - ln cosh u)."""
     u = ind * i / lam_s
@@ -117,7 +118,7 @@ def _tanh_force(i: float, ind: float, slope: float, lam_s: float) -> float:
     return slope * k * k * g
 
 
-@njit(cache=True)
+@kernel_scalar
 def _law_partials(i: float, ind: float, slope: float, beta: float, lam_s: float
                   ) -> tuple[float, float]:
     """Flux partials of the law in force: the emulator's tanh law if set, else the candidate's."""
@@ -126,7 +127,7 @@ def _law_partials(i: float, ind: float, slope: float, beta: float, lam_s: float
     return _flux_partials(i, ind, slope, beta)
 
 
-@njit(cache=True)
+@kernel_scalar
 def _law_force(i: float, ind: float, slope: float, beta: float, lam_s: float) -> float:
     """Co-energy force of the law in force (see :func:`_law_partials`), N."""
     if lam_s > 0.0:

@@ -13,7 +13,7 @@ the velocity with the coefficient of restitution e.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .scalars import kernel_scalar
 
 from .parameters import ValveParameters
 
@@ -32,19 +32,19 @@ MODE_STUCK = 3  # held mid-stroke by static friction
 SETTLE_SPEED_M_S = 1e-3
 
 
-@njit(cache=True)
+@kernel_scalar
 def _pressure_force(a_1: float, a_2: float, a_3: float, a_4: float,
                     p_sup: float, p_out: float) -> float:
     return (a_1 - a_2) * p_sup + (a_3 - a_4) * p_out  # eq. (10)
 
 
-@njit(cache=True)
+@kernel_scalar
 def _active_force(f_m: float, k: float, x: float, delta: float, f_prs: float) -> float:
     # eq. (9) right-hand side minus damping: magnetic + pressure - spring (with pre-tension)
     return f_m - k * (x + delta) + f_prs
 
 
-@njit(cache=True)
+@kernel_scalar
 def _acceleration(f_active: float, v: float, b: float, f_c: float, m: float) -> float:
     """eq. (11) with Coulomb friction; stiction when v == 0 and |F| <= F_c."""
     if f_c > 0.0:
@@ -61,7 +61,7 @@ def _acceleration(f_active: float, v: float, b: float, f_c: float, m: float) -> 
     return (f_active - b * v) / m
 
 
-@njit(cache=True)
+@kernel_scalar
 def _leave_margin(mode: int, f_active: float, f_c: float) -> float:
     """Positive when a held spool starts to move (mode is the current, held mode)."""
     if mode == MODE_CLOSED:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .scalars import kernel_scalar
 
 from .constants import ATMOSPHERIC_PRESSURE_PA
 from .parameters import ValveParameters
@@ -22,7 +22,7 @@ def critical_pressure_ratio(gamma: float = 1.4) -> float:
     return (2.0 / (gamma + 1.0)) ** (gamma / (gamma - 1.0))
 
 
-@njit(cache=True)
+@kernel_scalar
 def _mass_flow(x: float, p_up: float, p_down: float, c_d: float, c_a: float,
                temp: float, r_gas: float, gamma: float) -> float:
     """eq. (12) for absolute pressures p_up >= p_down > 0; returns kg/s."""
@@ -43,8 +43,8 @@ def _mass_flow(x: float, p_up: float, p_down: float, c_d: float, c_a: float,
 
 #: eq. (12) for one point with absolute pressures p_up >= p_down and explicit coefficients:
 #: ``mass_flow_absolute(x, p_up_pa, p_down_pa, c_d, c_a_m, temperature_k,
-#: gas_constant_j_per_kg_k, heat_capacity_ratio) -> kg/s`` (compiled; 0 for x <= 0). For
-#: other orifices of the same law (the cylinder's bleed) and hot loops.
+#: gas_constant_j_per_kg_k, heat_capacity_ratio) -> kg/s`` (0 for x <= 0). For other
+#: orifices of the same law (the cylinder's bleed); plain Python (model/scalars.py).
 mass_flow_absolute = _mass_flow
 
 
