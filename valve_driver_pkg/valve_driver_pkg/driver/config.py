@@ -15,7 +15,10 @@ from valve_driver_pkg.protocol.codec import MAX_NODE_ID, DriveMode
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
 from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
 
-__all__ = ['DriverConfig', 'setting', 'DRIVE_MODE_NAMES']
+__all__ = ['DriverConfig', 'setting', 'DRIVE_MODE_NAMES', 'PROTOCOLS']
+
+#: Values of the ``protocol`` setting: the suite's own protocol and the devices' protocols.
+PROTOCOLS = ('suite', 'canopen', 'j1939', 'dbc')
 
 #: Values of the ``drive_mode`` setting (``ValveCommand.DriveMode``, lower case).
 DRIVE_MODE_NAMES = tuple(mode.name.lower() for mode in DriveMode)
@@ -46,6 +49,10 @@ class DriverConfig:
     descriptions are the documentation of the fields.
     """
 
+    protocol: str = setting('suite', 'What the device on the bus speaks: suite (the suite\'s '
+                            'own DBC, valve_controller_emulator), canopen (CiA 401 I/O '
+                            'module), j1939 (ISO 11783-7 auxiliary valve), dbc (the user\'s '
+                            'own DBC); see docs/controllers.md')
     interface: str = setting('socketcan', 'python-can interface (socketcan, virtual, pcan, '
                              '...) or tcp_loopback (the emulator\'s loopback hub)')
     channel: str = setting('can0', 'Channel: can0, a virtual channel name, or '
@@ -115,8 +122,15 @@ class DriverConfig:
                               'period start, at once while duty 0 is in force. Duty 0 and '
                               'every stop act at once in either mode')
 
+    log_frames_file: str = setting('', 'Write every frame received and sent to this candump '
+                                   '.log file (python-can\'s logger); empty = off. '
+                                   'valve_can_replay turns it into a bag')
+
     def __post_init__(self) -> None:
         DriveMode.parse(self.drive_mode)   # ValueError naming the value and the choices
+        if self.protocol not in PROTOCOLS:
+            raise ValueError(f'protocol {self.protocol!r} is not one of '
+                             f'{", ".join(PROTOCOLS)}')
 
     @property
     def telemetry_period_s(self) -> float:

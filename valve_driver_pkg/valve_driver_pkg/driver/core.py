@@ -40,6 +40,7 @@ from valve_driver_pkg.driver.config import DriverConfig
 from valve_driver_pkg.driver.diagnostics import (LATCHED_FLAGS, DriverSnapshot, Level,
                                                  StatusReport, Tally, age, diagnose,
                                                  fault_flags, overall_level)
+from valve_driver_pkg.driver.frame_log import FrameLog
 from valve_driver_pkg.driver.receive import MassFlowFunction, ReceiveTracker
 from valve_driver_pkg.driver.transmit import CommandResult, TransmitScheduler
 from valve_driver_pkg.protocol.codec import ValveCodec
@@ -115,6 +116,8 @@ class CanDriverCore:
             return
         self._stop.clear()
         self.link.open()
+        if self.config.log_frames_file:
+            self.link.frame_log = FrameLog(self.config.log_frames_file, self.config.channel)
         with self._lock:
             self._closed = False
             self.tracker.on_open(time.monotonic())
@@ -159,6 +162,9 @@ class CanDriverCore:
             self._io_thread.join(timeout=2.0)
         self._io_thread = None
         self.link.close()
+        log, self.link.frame_log = self.link.frame_log, None
+        if log is not None:
+            log.close()
 
     @property
     def is_open(self) -> bool:

@@ -60,7 +60,8 @@ from sensor_msgs.msg import FluidPressure
 from std_srvs.srv import Trigger
 from valve_msgs.msg import DutyCommand, ValveState
 
-from valve_driver_pkg.driver.config import DriverConfig, setting
+from valve_driver_pkg.devices.settings import PROTOCOL_SETTINGS, build_protocol
+from valve_driver_pkg.driver.config import PROTOCOLS, DriverConfig, setting
 from valve_driver_pkg.driver.core import CanDriverCore
 from valve_driver_pkg.errors import ValveDriverError
 from valve_driver_pkg.protocol.codec import DriveMode
@@ -118,6 +119,10 @@ class CanDriverNode(Node):
         super().__init__(node_name)
         for field in dataclasses.fields(DriverConfig) + dataclasses.fields(NodeOptions):
             self.declare_parameter(field.name, field.default, _descriptor(field))
+        for prefix, settings in PROTOCOL_SETTINGS.items():
+            for field in dataclasses.fields(settings):
+                self.declare_parameter(f'{prefix}.{field.name}', field.default,
+                                       _descriptor(field))
         self._log_handler = forward_logging(self, CORE_LOGGER)
         self._core: CanDriverCore | None = None
         self._state_pub = None
@@ -129,15 +134,29 @@ class CanDriverNode(Node):
         self._hardware_id = ''
         self._status_prefix = self.get_fully_qualified_name().lstrip('/')
         self._clear_service = None
-        # A bad drive_mode refuses the start (exit 2) with the value and the choices.
+        # A bad drive_mode or protocol refuses the start (exit 2) with the value and the
+        # choices.
         DriveMode.parse(self.get_parameter('drive_mode').value)
+        _check_protocol(self.get_parameter('protocol').value)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-    def _read(self, settings: type) -> object:
+    def _read(self, settings: type, prefix: str = '') -> object:
         """The typed snapshot of a settings dataclass from the parameters."""
-        return settings(**{f.name: self.get_parameter(f.name).value
+        return settings(**{f.name: self.get_parameter(prefix + f.name).value
                            for f in dataclasses.fields(settings)})
+
+    def _make_core(self, config: DriverConfig, mass_flow) -> CanDriverCore:
+        """The suite's core, or the device core with the protocol ``config.protocol``."""
+        if config.protocol == 'suite':
+            return CanDriverCore(config, mass_flow=mass_flow, on_state=self._publish_state,
+                                 on_diagnostics_changed=self._publish_diagnostics)
+        from valve_driver_pkg.devices.core import DeviceDriverCore
+        protocol = build_protocol(config, *(self._read(cls, f'{prefix}.')
+                                            for prefix, cls in PROTOCOL_SETTINGS.items()))
+        return DeviceDriverCore(config, protocol, mass_flow=mass_flow,
+                                on_state=self._publish_state,
+                                on_diagnostics_changed=self._publish_diagnostics)
 
     # --- lifecycle ---------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -149,8 +168,11 @@ class CanDriverNode(Node):
                                f'node {config.node_id}')
         try:
             mass_flow = _mass_flow_function(options.params_file)
-            core = CanDriverCore(config, mass_flow=mass_flow, on_state=self._publish_state,
-                                 on_diagnostics_changed=self._publish_diagnostics)
+            core = self._make_core(config, mass_flow)
+            if config.protocol != 'suite':
+                self._status_prefix = (f'{self.get_fully_qualified_name().lstrip("/")} '
+                                       f'{core.protocol.label}')
+                self._hardware_id = f'{config.interface}:{config.channel} {core.protocol.label}'
             self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
             self._state_pub = self.create_lifecycle_publisher(ValveState, TOPIC_STATE,
                                                               STATE_QOS)
@@ -172,7 +194,9 @@ class CanDriverNode(Node):
                                           self._publish_diagnostics)]
         self._clear_service = self.create_service(Trigger, '~/clear_faults',
                                                   self._on_clear_faults)
-        self.get_logger().info(f'configured: {self._hardware_id}, DBC {core.codec.dbc_path}')
+        what = (f'DBC {core.codec.dbc_path}' if config.protocol == 'suite'
+                else f'protocol {config.protocol}')
+        self.get_logger().info(f'configured: {self._hardware_id}, {what}')
         self._publish_diagnostics()
         return TransitionCallbackReturn.SUCCESS
 
@@ -244,8 +268,13 @@ class CanDriverNode(Node):
 
     # --- parameters --------------------------------------------------------------------------
     def _check_parameters(self, parameters: list) -> SetParametersResult:
-        """Refuse a drive_mode that is not a drive mode (the others: as declared)."""
+        """Refuse a drive_mode or protocol that is not one (the others: as declared)."""
         for param in parameters:
+            if param.name == 'protocol':
+                try:
+                    _check_protocol(param.value)
+                except ValueError as err:
+                    return SetParametersResult(successful=False, reason=str(err))
             if param.name == 'drive_mode':
                 try:
                     DriveMode.parse(param.value)
@@ -350,6 +379,12 @@ class CanDriverNode(Node):
             status.values = [KeyValue(key=k, value=_text(v)) for k, v in report.values.items()]
             array.status.append(status)
         self._publish(pub, array)
+
+
+def _check_protocol(value: str) -> None:
+    """Raise ValueError naming ``value`` and the choices unless it is a protocol."""
+    if value not in PROTOCOLS:
+        raise ValueError(f'protocol {value!r} is not one of {", ".join(PROTOCOLS)}')
 
 
 def _text(value: object) -> str:

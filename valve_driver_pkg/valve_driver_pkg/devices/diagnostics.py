@@ -1,0 +1,144 @@
+"""Diagnostics of a device protocol: a snapshot in, four statuses out (a pure function).
+
+Statuses: ``CAN bus`` (condition, failures, restarts, the host's own bus problems such as
+a lost J1939 address claim), ``device`` (set-up, liveness), ``commands`` (watchdog,
+clamped or rejected commands), ``faults`` (what the device reports: CANopen EMCY, J1939
+DM1; a refused SDO access). Every one is OK when all is well: "recovered" means all four
+OK again.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from valve_driver_pkg.devices.base import LIVENESS_PERIODS, DeviceFault
+from valve_driver_pkg.driver.config import DriverConfig
+from valve_driver_pkg.driver.diagnostics import Level, StatusReport
+from valve_driver_pkg.protocol.error_frames import BusCondition
+
+__all__ = ['DeviceSnapshot', 'diagnose_device', 'STATUS_NAMES']
+
+#: The statuses of a device driver, in order.
+STATUS_NAMES = ('CAN bus', 'device', 'commands', 'faults')
+
+
+@dataclass(frozen=True)
+class DeviceSnapshot:
+    """Everything the device diagnostics need, copied at one instant."""
+
+    config: DriverConfig
+    label: str
+    now: float
+    counters: Mapping[str, int]
+    recent: frozenset[str]
+    closed: bool
+    active: bool
+    bus_failed: bool
+    bus_error_text: str
+    bus_condition: BusCondition
+    last_error_frame: str
+    bus_problem: str
+    setup_state: str
+    setup_ok: bool
+    device_lost: bool
+    lost_after_s: float
+    device_age_s: float
+    liveness_period_s: float
+    faults: tuple[DeviceFault, ...]
+    device_values: Mapping
+    duty: float
+    pwm_frequency_hz: float
+    watchdog_tripped: bool
+    last_command_note: str
+
+
+def _count(s: DeviceSnapshot, *keys: str) -> dict:
+    return {k: s.counters.get(k, 0) for k in keys}
+
+
+def _bus(s: DeviceSnapshot) -> StatusReport:
+    if s.closed:
+        level, text = Level.STALE, 'bus closed'
+    elif s.bus_failed:
+        level, text = Level.ERROR, f'bus failed ({s.bus_error_text}); reopening with back-off'
+    elif s.bus_condition is BusCondition.BUS_OFF:
+        level, text = Level.ERROR, f'bus-off ({s.last_error_frame}); restarting'
+    elif s.bus_problem:
+        level, text = Level.ERROR, s.bus_problem
+    elif s.bus_condition is BusCondition.ERROR_PASSIVE:
+        level, text = Level.WARN, f'error passive ({s.last_error_frame})'
+    elif s.bus_condition is BusCondition.WARNING:
+        level, text = Level.WARN, f'error warning ({s.last_error_frame})'
+    else:
+        level, text = Level.OK, 'error active'
+    return StatusReport('CAN bus', level, text, {
+        'condition': s.bus_condition.value, 'last_error_frame': s.last_error_frame,
+        **_count(s, 'error_frames', 'error_passive_events', 'bus_off_events',
+                 'bus_recoveries', 'bus_failures', 'bus_reopens', 'bus_restarts',
+                 'tx_errors', 'frames_sent')})
+
+
+def _device(s: DeviceSnapshot) -> StatusReport:
+    limit_s = LIVENESS_PERIODS * s.liveness_period_s
+    if s.closed:
+        level, text = Level.STALE, 'bus closed'
+    elif not s.setup_ok and s.setup_state.startswith('set-up failed'):
+        level, text = Level.ERROR, f'{s.label}: {s.setup_state}'
+    elif s.device_lost:
+        level, text = Level.ERROR, (f'{s.label} silent for {s.device_age_s * 1e3:.0f} ms '
+                                    f'(limit {LIVENESS_PERIODS} periods = '
+                                    f'{limit_s * 1e3:.0f} ms); valve/state stopped')
+    elif not s.setup_ok:
+        level, text = Level.WARN, f'{s.label}: {s.setup_state}'
+    else:
+        level, text = Level.OK, f'{s.label}: set up, answering'
+    values = {'setup': s.setup_state, 'lost': s.device_lost, 'lost_after_s': s.lost_after_s,
+              'age_s': s.device_age_s, 'liveness_limit_s': limit_s,
+              **_count(s, 'device_frames', 'device_losses', 'setups', 'setup_failures')}
+    values.update(s.device_values)
+    return StatusReport('device', level, text, values)
+
+
+def _commands(s: DeviceSnapshot) -> StatusReport:
+    timeout = s.config.command_timeout_s
+    if s.closed:
+        level, text = Level.STALE, 'bus closed'
+    elif s.watchdog_tripped:
+        level, text = Level.WARN, (f'watchdog: no duty command for {timeout:g} s; valve '
+                                   'commanded closed (duty 0)')
+    elif s.recent & {'command_rejected', 'command_clamped'}:
+        level, text = Level.WARN, s.last_command_note
+    elif not s.active:
+        level, text = Level.OK, 'inactive: not sending'
+    else:
+        level, text = Level.OK, f'duty {s.duty:.4g}'
+    return StatusReport('commands', level, text, {
+        'duty': s.duty, 'pwm_frequency_hz': s.pwm_frequency_hz, 'active': s.active,
+        'watchdog_tripped': s.watchdog_tripped, 'command_timeout_s': timeout,
+        **_count(s, 'commands_received', 'commands_clamped', 'commands_rejected',
+                 'commands_lost', 'command_frames_sent', 'watchdog_trips'),
+        'last_command_problem': s.last_command_note})
+
+
+def _faults(s: DeviceSnapshot) -> StatusReport:
+    if s.closed:
+        return StatusReport('faults', Level.STALE, 'bus closed')
+    errors = [f for f in s.faults if f.error]
+    warnings = [f for f in s.faults if not f.error]
+    values: dict = {'active_faults': '; '.join(f.text for f in s.faults)}
+    for fault in s.faults:
+        values.update(fault.values)
+    if errors:
+        return StatusReport('faults', Level.ERROR, '; '.join(f.text for f in errors), values)
+    if warnings:
+        return StatusReport('faults', Level.WARN, '; '.join(f.text for f in warnings), values)
+    return StatusReport('faults', Level.OK, 'none reported', values)
+
+
+def diagnose_device(snapshot: DeviceSnapshot) -> list[StatusReport]:
+    """The four statuses (``STATUS_NAMES``) at the snapshot's instant."""
+    reports = [_bus(snapshot), _device(snapshot), _commands(snapshot), _faults(snapshot)]
+    hardware = f'{snapshot.config.interface}:{snapshot.config.channel} {snapshot.label}'
+    for report in reports:
+        report.values.setdefault('hardware', hardware)
+    return reports
