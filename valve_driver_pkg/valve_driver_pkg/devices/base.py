@@ -105,9 +105,16 @@ class DeviceProtocol:
         """Frames that start the device on activate (CANopen: NMT start)."""
         return []
 
+    def set_frequency(self, pwm_frequency_hz: float) -> None:
+        """The PWM frequency in force [Hz] (only protocols that carry one use it)."""
+
     def command_frames(self, duty: float, enable: bool) -> list[can.Message]:
         """The command frames for ``duty`` in [0, 1] (already clamped) and ``enable``."""
         raise NotImplementedError
+
+    def decode_command(self, msg: can.Message) -> float | None:
+        """The duty a host's command frame carries (replay of a bus log); None if no command."""
+        return None
 
     def own_frames(self, now: float, active: bool) -> list[can.Message]:
         """Frames of the protocol's own timing that are due at ``now`` (heartbeat)."""

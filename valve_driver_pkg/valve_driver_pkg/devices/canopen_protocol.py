@@ -218,6 +218,14 @@ class CanopenProtocol(DeviceProtocol):
         return [can.Message(arbitration_id=0x200 + self.node_id, is_extended_id=False,
                             data=data)]
 
+    def decode_command(self, msg: can.Message) -> float | None:
+        if msg.is_extended_id or msg.arbitration_id != 0x200 + self.node_id:
+            return None
+        ref = self.mapping.duty
+        size = ref.bits // 8
+        data = bytes(msg.data)
+        return ref.unpack(data[:size]) * ref.scale if len(data) >= size else None
+
     def own_frames(self, now: float, active: bool) -> list[can.Message]:
         if not active or now < self._heartbeat_next:
             return []

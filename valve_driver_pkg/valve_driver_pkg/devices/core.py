@@ -387,6 +387,7 @@ class DeviceDriverCore:
         protocol = self.protocol
         with self._lock:
             frame = self.commands.due(now, self._next_command_t)
+            pwm_hz = self.commands.pwm_hz
             started = self.started
             if frame is not None:
                 self._next_command_t = now + protocol.command_period_s
@@ -394,6 +395,7 @@ class DeviceDriverCore:
             return
         if frame is not None:
             duty, enable, disabling = frame
+            protocol.set_frequency(pwm_hz)
             sent = all([self._send(m) for m in protocol.command_frames(duty, enable)])
             self.commands.sent_frame(duty, sent, disabling)
         for msg in protocol.own_frames(now, started):

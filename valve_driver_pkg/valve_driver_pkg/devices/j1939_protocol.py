@@ -27,7 +27,8 @@ import j1939
 
 from valve_driver_pkg.devices.base import DeviceFault, DeviceProtocol, DeviceReading, FrameOutcome
 from valve_driver_pkg.devices.j1939_codec import (PGN_ADDRESS_CLAIMED, PGN_DM1,
-                                                  PGN_ESTIMATED_FLOW, DiagnosticMessage,
+                                                  PGN_ESTIMATED_FLOW, PGN_VALVE_COMMAND,
+                                                  STATE_EXTEND, DiagnosticMessage,
                                                   decode_dm1, decode_estimated_flow,
                                                   encode_valve_command, split_id)
 from valve_driver_pkg.errors import DeviceSetupError, MappingError
@@ -113,6 +114,19 @@ class J1939Protocol(DeviceProtocol):
                                             duty if enable else 0.0)
         return [can.Message(arbitration_id=can_id, is_extended_id=True, data=data)]
 
+    def decode_command(self, msg: can.Message) -> float | None:
+        if not msg.is_extended_id:
+            return None
+        _, pgn, _, _ = split_id(msg.arbitration_id)
+        data = bytes(msg.data)
+        if pgn != PGN_VALVE_COMMAND + self.valve_index or len(data) < 5:
+            return None
+        if data[2] & 0x0F != STATE_EXTEND:
+            return 0.0
+        if data[1] & 3 == 1 and data[3:5] != b'\xff\xff':
+            return int.from_bytes(data[3:5], 'little') * 0.0015625 / 100.0
+        return data[0] * 0.4 / 100.0 if data[0] <= 250 else None
+
     def on_frame(self, msg: can.Message) -> FrameOutcome:
         if msg.is_error_frame or msg.is_remote_frame or not msg.is_extended_id:
             return FrameOutcome()
@@ -163,9 +177,9 @@ class J1939Protocol(DeviceProtocol):
         if dm1 is None or not dm1.dtcs:
             return []
         severe = dm1.red_stop == 1 or dm1.mil == 1
-        lamps = ', '.join(n for n, v in (('red stop', dm1.red_stop), ('amber warning',
-                                                                       dm1.amber),
-                                         ('MIL', dm1.mil), ('protect', dm1.protect)) if v == 1)
+        named = (('red stop', dm1.red_stop), ('amber warning', dm1.amber), ('MIL', dm1.mil),
+                 ('protect', dm1.protect))
+        lamps = ', '.join(n for n, v in named if v == 1)
         return [DeviceFault(f'DM1 {dtc.text}' + (f'; lamps: {lamps}' if lamps else ''),
                             error=severe, values={'dm1_dtcs': ','.join(
                                 f'{d.spn}:{d.fmi}' for d in dm1.dtcs)})
