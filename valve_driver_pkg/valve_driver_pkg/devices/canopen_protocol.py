@@ -170,12 +170,13 @@ class CanopenProtocol(DeviceProtocol):
             if ref is None:
                 continue
             where = f'{self.mapping.path}: role {ref.role!r}: object {ref.name}'
-            try:
-                obj = self._od[ref.index]
-                var = obj if isinstance(obj, canopen.objectdictionary.ODVariable) \
-                    else obj[ref.subindex]
-            except KeyError:
-                raise MappingError(f'{where} is not in the EDS {self.eds_file}') from None
+            obj = self._od.get(ref.index)
+            if isinstance(obj, canopen.objectdictionary.ODVariable):
+                var = obj if ref.subindex == 0 else None
+            else:
+                var = None if obj is None else obj.subindices.get(ref.subindex)
+            if var is None:
+                raise MappingError(f'{where} is not in the EDS {self.eds_file}')
             if not getattr(var, 'pdo_mappable', True):
                 raise MappingError(f'{where} cannot be mapped to a PDO (EDS {self.eds_file})')
 
