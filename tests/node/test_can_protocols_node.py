@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 import can
+import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
@@ -33,6 +34,8 @@ from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_driver_pkg.canbus import TcpLoopbackBus, TcpLoopbackHub
 from valve_driver_pkg.devices.dbc_protocol import example_dbc_path, example_mapping_path
+from valve_model_pkg.maps import load_map
+from valve_model_pkg.model import load_parameters
 
 pytestmark = [pytest.mark.node]
 
@@ -238,8 +241,30 @@ def test_device_receives_the_duty_and_the_state_carries_its_current(ros, rig, cl
             tail = client.states[-5:]
             assert all(round(s.coil_current, 6) in seen for s in tail), (
                 [s.coil_current for s in tail], sorted(seen)[-5:])
+        _check_position_fields(ros, client, rig, duty)
     _drive(ros, client, rig, 0.0, f'{rig.name}: duty 0 at the device')
     assert client.all_ok(), {k: v.message for k, v in client.status.items()}
+
+
+def _check_position_fields(ros, client: Client, rig: Rig, duty: float) -> None:
+    """A device without a position sensor: the duty map's steady state at the duty in
+    force (read here from the map file), flagged not measured; the board: its own."""
+    if rig.name == 'dbc':
+        ros.wait_for(lambda: client.states[-1].spool_position > 0.0, 5.0, 'board position')
+        state = client.states[-1]
+        assert state.position_measured
+        assert 0.0 < state.spool_position <= load_parameters().stroke_m * 1.001
+        return
+    duty_map = load_map()
+    i = int(np.flatnonzero(np.isclose(duty_map.duty, duty))[0])
+    expected_m = duty_map.curve(50.0, 400_000.0)[i] * load_parameters().stroke_m
+    ros.wait_for(lambda: client.states[-1].spool_position == pytest.approx(expected_m,
+                                                                           rel=1e-6),
+                 5.0, f'derived position {expected_m:.4g} m')
+    state = client.states[-1]
+    assert not state.position_measured
+    assert state.spool_position_avg == state.spool_position
+    assert state.mass_flow > 0.0
 
 
 def test_device_death_is_an_error_and_its_return_recovers(ros, rig, client) -> None:

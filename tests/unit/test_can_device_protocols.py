@@ -6,16 +6,19 @@ mapping entries, CiA 401 objects), written here, not from the driver's output.
 from __future__ import annotations
 
 import itertools
+import math
 import struct
 import time
 
 import can
 import cantools
+import numpy as np
 import pytest
 
 from valve_driver_pkg.devices.canopen_mapping import default_eds_path, load_canopen_mapping
 from valve_driver_pkg.devices.canopen_protocol import CanopenProtocol
 from valve_driver_pkg.devices.core import DeviceDriverCore
+from valve_driver_pkg.devices.derived import DerivedOpening
 from valve_driver_pkg.devices.dbc_protocol import (DbcProtocol, example_dbc_path,
                                                    example_mapping_path, load_dbc_mapping)
 from valve_driver_pkg.devices.j1939_codec import (decode_dm1, decode_estimated_flow,
@@ -24,6 +27,8 @@ from valve_driver_pkg.driver.config import DriverConfig
 from valve_driver_pkg.errors import MappingError
 from valve_driver_pkg.standins.canopen_device import CanopenDevice
 from valve_driver_pkg.standins.plant import ValvePlant
+from valve_model_pkg.maps import load_map
+from valve_model_pkg.model import load_parameters
 
 _channels = itertools.count()
 
@@ -142,3 +147,23 @@ def test_dbc_mapping_refusals_name_what_is_wrong(tmp_path, line: str, name: str)
     path.write_text(line + '\n')
     with pytest.raises(MappingError, match=name):
         load_dbc_mapping(str(example_dbc_path()), str(path))
+
+
+def test_derived_opening_is_the_duty_maps_steady_state() -> None:
+    duty_map = load_map()
+    derived = DerivedOpening.load('', load_parameters(), 'the default parameters')
+    stroke_m = load_parameters().stroke_m
+    curve = duty_map.curve(50.0, 400_000.0)
+    for duty in (0.3, 0.5, 0.7):
+        i = int(np.flatnonzero(np.isclose(duty_map.duty, duty))[0])
+        assert derived.position_avg_m(duty, 50.0, 400_000.0) == pytest.approx(
+            curve[i] * stroke_m, rel=1e-9)
+    assert derived.position_avg_m(0.0, 50.0, 400_000.0) == 0.0
+    assert math.isnan(derived.position_avg_m(0.5, 60.0, 400_000.0))   # no 60 Hz curve
+    assert not derived.covers(60.0) and derived.covers(50.0)
+
+
+def test_a_duty_map_of_another_valve_is_refused_naming_the_parameter() -> None:
+    other = load_parameters().replace(stroke_m=0.3e-3)
+    with pytest.raises(MappingError, match='stroke_m'):
+        DerivedOpening.load('', other, 'params.yaml')

@@ -18,7 +18,12 @@ from collections.abc import Sequence
 from valve_bringup.supervisor import ProcessSpec
 
 __all__ = ['can_backend_processes', 'can_backend_commands', 'free_loopback_port',
-           'device_backend_processes']
+           'device_backend_processes', 'DEVICE_STATE_PERIOD_S']
+
+#: How often the stand-in device of each protocol reports, so how often valve/state comes
+#: [s]: CiA 401 TPDO1 at the driver's command period (10 ms), the J1939 Estimated Flow
+#: every 100 ms (ISO 11783-7), the example board's status every 100 ms (its DBC).
+DEVICE_STATE_PERIOD_S = {'canopen': 0.01, 'j1939': 0.1, 'dbc': 0.1}
 
 
 def free_loopback_port() -> int:

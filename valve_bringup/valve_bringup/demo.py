@@ -103,6 +103,20 @@ def _plant_emulator_args(cfg: DemoConfig) -> tuple[str, ...]:
     return ('--params-file', str(cfg.plant_params_file)) if cfg.plant_params_file else ()
 
 
+def _plant_gap_args(cfg: DemoConfig) -> tuple[str, ...]:
+    """The cylinder integrates across the gap between two states of a slow device.
+
+    The plant advances on each valve/state; a device that reports every 100 ms (J1939,
+    the example board) leaves gaps the default limit (50 ms) would cut short, so the
+    plant would run slower than the wall clock. The limit becomes 2.5 of its periods.
+    """
+    if cfg.backend != 'can' or cfg.protocol == 'suite':
+        return ()
+    from valve_bringup.backend import DEVICE_STATE_PERIOD_S
+    gap_s = max(2.5 * DEVICE_STATE_PERIOD_S[cfg.protocol], 0.05)
+    return ('--ros-args', '-p', f'max_advance_per_tick_s:={gap_s:g}')
+
+
 def _topic(ns: str, topic: str) -> str:
     return f'{ns}/{topic}' if ns else topic
 
@@ -135,7 +149,7 @@ def suite_processes(cfg: DemoConfig, bag: Path) -> list[ProcessSpec]:
         return backend + [
             ProcessSpec('flow_to_duty', ['flow_to_duty', *(
                 ('--ros-args', *cfg.flow_to_duty_args) if cfg.flow_to_duty_args else ())]),
-            ProcessSpec('pneumatic_cylinder', ['pneumatic_cylinder']),
+            ProcessSpec('pneumatic_cylinder', ['pneumatic_cylinder', *_plant_gap_args(cfg)]),
             ProcessSpec('position_controller', ['position_controller']),
             recorder,
         ]

@@ -77,9 +77,15 @@ class DeviceProtocol:
         protocol receives nothing from the device.
     needs_setup : bool
         Set (receive thread) when the device asks to be set up again (a boot-up frame).
+    sends_pwm_frequency : bool
+        The command frames carry the PWM frequency (then it is the one in force).
+    measures_position : bool
+        The device reports the spool position (else the driver derives it).
     """
 
     name = ''
+    sends_pwm_frequency = False
+    measures_position = False
 
     def __init__(self, label: str, command_period_s: float, liveness_period_s: float) -> None:
         self.label = label

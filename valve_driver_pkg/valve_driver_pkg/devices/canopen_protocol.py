@@ -129,7 +129,6 @@ class CanopenProtocol(DeviceProtocol):
     """
 
     name = 'canopen'
-    sends_pwm_frequency = False
 
     def __init__(self, node_id: int, host_node_id: int, eds_file: str,
                  mapping: CanopenMapping, heartbeat_ms: int, sdo_timeout_s: float,
@@ -141,6 +140,7 @@ class CanopenProtocol(DeviceProtocol):
         self.node_id = node_id
         self.host_node_id = host_node_id
         self.mapping = mapping
+        self.measures_position = mapping.position is not None
         self.heartbeat_ms = int(heartbeat_ms)
         self.sdo_timeout_s = float(sdo_timeout_s)
         self.eds_file = eds_file

@@ -34,6 +34,7 @@ import can
 from valve_driver_pkg.canbus.factory import open_bus
 from valve_driver_pkg.devices.base import LIVENESS_PERIODS, DeviceProtocol, DeviceReading
 from valve_driver_pkg.devices.commands import CommandState
+from valve_driver_pkg.devices.derived import DerivedOpening
 from valve_driver_pkg.devices.diagnostics import DeviceSnapshot, diagnose_device
 from valve_driver_pkg.driver.bus_link import BusLink, raise_thread_priority
 from valve_driver_pkg.driver.config import DriverConfig
@@ -78,6 +79,9 @@ class DeviceDriverCore:
         Called (driver thread) when a diagnostic level changes.
     bus_factory : callable
         ``bus_factory(interface, channel, bitrate, connect_timeout)``.
+    derived : DerivedOpening | None
+        The duty map for a device that reports no spool position: the period-mean
+        position at the duty in force (and the flow from it); NaN without it.
     """
 
     def __init__(self, config: DriverConfig, protocol: DeviceProtocol,
@@ -85,8 +89,10 @@ class DeviceDriverCore:
                  on_state: Callable[[ValveSample], None] | None = None,
                  on_diagnostics_changed: Callable[[], None] | None = None,
                  bus_factory: Callable[..., can.BusABC] = open_bus,
-                 setup_timeout_s: float = _SETUP_TIMEOUT_S) -> None:
+                 setup_timeout_s: float = _SETUP_TIMEOUT_S,
+                 derived: DerivedOpening | None = None) -> None:
         self.config = config
+        self._derived = derived
         self.protocol = protocol
         self._mass_flow = mass_flow
         self._on_state = on_state
@@ -320,35 +326,40 @@ class DeviceDriverCore:
             self.readings += 1
             duty_sent, pwm_hz = self.commands.sent
             supply, output = self.commands.supply_pa, self.commands.output_pa
-            position = reading.spool_position_m
             now = time.monotonic()
-            velocity = avg = math.nan
-            if math.isfinite(position):
-                last = self._last_position
-                velocity = ((position - last[1]) / (now - last[0])
-                            if last is not None and now > last[0] else 0.0)
-                self._last_position = (now, position)
-                if self._averager is None:
-                    self._averager = PeriodAverager(1.0 / pwm_hz, t0_s=now)
-                else:
-                    self._averager.set_period(1.0 / pwm_hz)
-                avg = self._averager.update(now, position)
-        duty = reading.duty if math.isfinite(reading.duty) else duty_sent
+            freq = pwm_hz if self.protocol.sends_pwm_frequency else self.config.pwm_frequency_hz
+            duty = reading.duty if math.isfinite(reading.duty) else duty_sent
+            position, velocity, avg = self._measured_position(reading.spool_position_m, now,
+                                                              freq)
+        measured = math.isfinite(position)
+        if not measured and self._derived is not None:
+            position = avg = self._derived.position_avg_m(duty, freq, supply)
         flow = (self._mass_flow(avg, supply, output)
                 if self._mass_flow is not None and math.isfinite(avg) else math.nan)
-        freq = pwm_hz if self.protocol_sends_frequency else math.nan
         if self._on_state is not None:
             self._on_state(ValveSample(
                 t_s=time.time(), coil_voltage_v=reading.coil_voltage_v,
                 coil_current_a=reading.coil_current_a, spool_position_m=position,
                 spool_velocity_m_s=velocity, position_avg_m=avg, mass_flow_kg_s=flow,
-                duty=duty, pwm_frequency_hz=freq, supply_pressure_pa=supply,
-                output_pressure_pa=output, position_measured=math.isfinite(position)))
+                duty=duty,
+                pwm_frequency_hz=freq if self.protocol.sends_pwm_frequency else math.nan,
+                supply_pressure_pa=supply, output_pressure_pa=output,
+                position_measured=measured))
 
-    @property
-    def protocol_sends_frequency(self) -> bool:
-        """True if the device gets the PWM frequency (then ``pwm_frequency`` is the one sent)."""
-        return bool(getattr(self.protocol, 'sends_pwm_frequency', False))
+    def _measured_position(self, position: float, now: float,
+                           pwm_hz: float) -> tuple[float, float, float]:
+        """``(position, velocity, period mean)`` of a reported position; NaN if none. Lock held."""
+        if not math.isfinite(position):
+            return math.nan, math.nan, math.nan
+        last = self._last_position
+        velocity = ((position - last[1]) / (now - last[0])
+                    if last is not None and now > last[0] else 0.0)
+        self._last_position = (now, position)
+        if self._averager is None:
+            self._averager = PeriodAverager(1.0 / pwm_hz, t0_s=now)
+        else:
+            self._averager.set_period(1.0 / pwm_hz)
+        return position, velocity, self._averager.update(now, position)
 
     # --- I/O thread --------------------------------------------------------------------------
     def _send(self, msg: can.Message) -> bool:

@@ -184,6 +184,7 @@ class DbcProtocol(DeviceProtocol):
                  label: str = 'dbc board') -> None:
         self.roles = roles
         self.sends_pwm_frequency = 'pwm_frequency' in roles
+        self.measures_position = 'position' in roles
         duty_msg = roles['duty'].message
         period = (duty_msg.cycle_time / 1000.0 if duty_msg.cycle_time else command_period_s)
         device = [r.message for n, r in roles.items() if n in DEVICE_ROLES]

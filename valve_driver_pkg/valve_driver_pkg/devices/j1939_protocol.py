@@ -57,7 +57,6 @@ class J1939Protocol(DeviceProtocol):
     """
 
     name = 'j1939'
-    sends_pwm_frequency = False
 
     def __init__(self, source_address: int, name: int, valve_index: int,
                  command_period_s: float) -> None:

@@ -95,7 +95,10 @@ class DriverConfig:
     frozen_counter_limit: int = setting(3, 'Repeated ValveTelemetry counters in a row that '
                                         'make the counter "frozen" (ERROR)', 1, 100)
     pwm_frequency_hz: float = setting(50.0, 'PWM frequency in force until a command sets one '
-                                      '[Hz]', MIN_PWM_FREQUENCY_HZ, MAX_PWM_FREQUENCY_HZ)
+                                      '[Hz]; for a protocol that carries none (canopen, '
+                                      'j1939) the device\'s own PWM frequency, for the '
+                                      'derived position and flow', MIN_PWM_FREQUENCY_HZ,
+                                      MAX_PWM_FREQUENCY_HZ)
     max_pwm_frequency_hz: float = setting(MAX_PWM_FREQUENCY_HZ, 'Commands above this PWM '
                                           'frequency are clamped [Hz] (to the DBC limit if '
                                           'lower)', MIN_PWM_FREQUENCY_HZ, MAX_PWM_FREQUENCY_HZ)

@@ -63,7 +63,7 @@ from valve_msgs.msg import DutyCommand, ValveState
 from valve_driver_pkg.devices.settings import PROTOCOL_SETTINGS, build_protocol
 from valve_driver_pkg.driver.config import PROTOCOLS, DriverConfig, setting
 from valve_driver_pkg.driver.core import CanDriverCore
-from valve_driver_pkg.errors import ValveDriverError
+from valve_driver_pkg.errors import MappingError, ValveDriverError
 from valve_driver_pkg.protocol.codec import DriveMode
 from valve_model_pkg.interface import (TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
                                        TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
@@ -84,6 +84,10 @@ class NodeOptions:
 
     params_file: str = setting('', 'Valve parameter YAML for the orifice equation; empty = '
                                'the model\'s default config/valve.yaml')
+    duty_map_file: str = setting('', 'Static duty map of the valve (valve_map) for a device '
+                                 'that reports no spool position (canopen, j1939): the '
+                                 'period-mean position and the flow are derived from the '
+                                 'duty in force at pwm_frequency_hz; empty = the suite\'s map')
     valve_name: str = setting('valve', 'Name of the valve, used as header.frame_id')
     diagnostics_period_s: float = setting(1.0, 'Period of the diagnostics summary [s]',
                                           0.05, 60.0)
@@ -146,17 +150,30 @@ class CanDriverNode(Node):
         return settings(**{f.name: self.get_parameter(prefix + f.name).value
                            for f in dataclasses.fields(settings)})
 
-    def _make_core(self, config: DriverConfig, mass_flow) -> CanDriverCore:
+    def _make_core(self, config: DriverConfig, options: NodeOptions) -> CanDriverCore:
         """The suite's core, or the device core with the protocol ``config.protocol``."""
+        params = _load_parameters(options.params_file)
+        mass_flow = _mass_flow_function(params)
         if config.protocol == 'suite':
             return CanDriverCore(config, mass_flow=mass_flow, on_state=self._publish_state,
                                  on_diagnostics_changed=self._publish_diagnostics)
         from valve_driver_pkg.devices.core import DeviceDriverCore
+        from valve_driver_pkg.devices.derived import DerivedOpening
         protocol = build_protocol(config, *(self._read(cls, f'{prefix}.')
                                             for prefix, cls in PROTOCOL_SETTINGS.items()))
+        derived = None
+        if not protocol.measures_position:
+            derived = DerivedOpening.load(options.duty_map_file, params,
+                                          options.params_file or 'the suite\'s valve.yaml')
+            if not derived.covers(config.pwm_frequency_hz):
+                raise MappingError(
+                    f'pwm_frequency_hz {config.pwm_frequency_hz:g} (the device\'s PWM '
+                    f'frequency) has no curve in the duty map {derived.map_path} '
+                    f'({", ".join(f"{f:g}" for f in derived.frequencies_hz)} Hz)')
         return DeviceDriverCore(config, protocol, mass_flow=mass_flow,
                                 on_state=self._publish_state,
-                                on_diagnostics_changed=self._publish_diagnostics)
+                                on_diagnostics_changed=self._publish_diagnostics,
+                                derived=derived)
 
     # --- lifecycle ---------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -167,8 +184,7 @@ class CanDriverNode(Node):
         self._status_prefix = (f'{self.get_fully_qualified_name().lstrip("/")} '
                                f'node {config.node_id}')
         try:
-            mass_flow = _mass_flow_function(options.params_file)
-            core = self._make_core(config, mass_flow)
+            core = self._make_core(config, options)
             if config.protocol != 'suite':
                 self._status_prefix = (f'{self.get_fully_qualified_name().lstrip("/")} '
                                        f'{core.protocol.label}')
@@ -391,12 +407,15 @@ def _text(value: object) -> str:
     return f'{value:.6g}' if isinstance(value, float) else str(value)
 
 
-def _mass_flow_function(params_file: str):
-    """eq. (12) from the valve model with the given (or default) parameter set."""
+def _load_parameters(params_file: str):
+    """The valve parameter set (``''``: the model's default)."""
     from valve_model_pkg.model import load_parameters
-    from valve_model_pkg.model.orifice import orifice_mass_flow
+    return load_parameters(params_file or None)
 
-    params = load_parameters(params_file or None)
+
+def _mass_flow_function(params):
+    """eq. (12) with the valve's parameter set."""
+    from valve_model_pkg.model.orifice import orifice_mass_flow
 
     def mass_flow(position_avg_m: float, supply_pa: float, output_pa: float) -> float:
         return float(orifice_mass_flow(position_avg_m, supply_pa, output_pa, params))

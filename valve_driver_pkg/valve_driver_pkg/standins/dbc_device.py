@@ -9,7 +9,8 @@ would write it against that DBC (it knows its own message and signal names):
 * **Command timeout**: no accepted ``BoardCommand`` for ``--command-timeout-ms`` (200 ms,
   ten cycles) switches the output off until the next one.
 * ``BoardStatus`` (29-bit 0x18FF2021, every 100 ms, multiplexed): page 0 the coil current
-  [mA] and the duty in force [%], page 1 the spool position [um] and the supply [V]; both
+  [mA] and the duty in force [%], page 1 the spool position [um], the mean over the last
+  complete PWM period as the board's position filter gives it, and the supply [V]; both
   pages every cycle.
 
 Every change of the output prints ``valve_dbc_device: output duty D at monotonic T:
@@ -111,7 +112,7 @@ class DbcDevice:
     def _send_status(self, reading) -> None:
         current_ma = max(-32768, min(32767, round(reading.coil_current_a * 1000.0)))
         pages = ({'Page': 0, 'CoilCurrent': current_ma, 'DutyActual': reading.duty * 100.0},
-                 {'Page': 1, 'SpoolPos': min(max(reading.spool_position_m * 1e6, 0.0), 655.35),
+                 {'Page': 1, 'SpoolPos': min(max(reading.position_avg_m * 1e6, 0.0), 655.35),
                   'SupplyVoltage': _SUPPLY_V})
         for page in pages:
             data = self.status.encode(page)

@@ -19,11 +19,13 @@ __all__ = ['ValvePlant', 'PlantReading']
 
 @dataclass(frozen=True, slots=True)
 class PlantReading:
-    """The output's state now: duty in force, coil current [A], spool position [m]."""
+    """The output's state now: duty in force, coil current [A], spool position [m] and its
+    mean over the last complete PWM period [m] (0 before the first)."""
 
     duty: float
     coil_current_a: float
     spool_position_m: float
+    position_avg_m: float
 
 
 class ValvePlant:
@@ -67,7 +69,7 @@ class ValvePlant:
             self._advance()
             sample = self._stepper.sample()
         return PlantReading(self._duty, float(sample.coil_current_a),
-                            float(sample.spool_position_m))
+                            float(sample.spool_position_m), float(sample.position_avg_m))
 
     def _advance(self) -> None:
         self._stepper.advance_to(time.monotonic() - self._t0)

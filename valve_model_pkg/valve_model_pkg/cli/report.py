@@ -188,14 +188,15 @@ def _sim_time_map(data: dict, origin: int):
 
 
 def _current_line(ts: np.ndarray, state) -> tuple:
-    """The current panel: the interval-mean current if ValveState carries it, else a 1 ms
-    moving mean of the sampled current, labelled as such."""
+    """The current panel: the interval-mean current if ValveState carries it (a finite
+    value), else a 1 ms moving mean of the sampled current, labelled as such."""
     for name in state.fields:
-        if 'current' in name and ('mean' in name or 'avg' in name):
+        if 'current' in name and ('mean' in name or 'avg' in name) \
+                and np.isfinite(np.asarray(state[name], dtype=float)).any():
             return (ts, state[name], f'{name} (interval mean)', '-')
     return (ts, _period_mean(ts, state['coil_current'], 1e-3),
-            'coil current, 1 ms moving mean of the valve/state samples (no interval-mean '
-            'field in ValveState)', '-')
+            'coil current, 1 ms moving mean of the valve/state samples (no interval mean '
+            'in ValveState)', '-')
 
 
 def write_report(bag: Path, out: Path, title: str = 'valve suite run',
