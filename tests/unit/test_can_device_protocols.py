@@ -14,6 +14,7 @@ import can
 import cantools
 import numpy as np
 import pytest
+from suite_waits import wait_until
 
 from valve_driver_pkg.devices.canopen_mapping import default_eds_path, load_canopen_mapping
 from valve_driver_pkg.devices.canopen_protocol import CanopenProtocol
@@ -31,13 +32,6 @@ from valve_model_pkg.maps import load_map
 from valve_model_pkg.model import load_parameters
 
 _channels = itertools.count()
-
-
-def wait_for(predicate, timeout_s: float = 5.0, what: str = 'condition') -> None:
-    end = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < end, f'timed out waiting for {what}'
-        time.sleep(0.005)   # a poll step of the deadline loop
 
 
 def test_valve_command_carries_iso_11783_7_scaling() -> None:
@@ -102,14 +96,14 @@ def test_canopen_set_up_writes_consumer_error_behaviour_and_cia301_mapping(
     assert _od(device, 0x1400, 1, '<I') == 0x205                   # valid, 0x200 + id
     core.activate()
     core.set_command(0.42)
-    wait_for(lambda: device.plant.duty == pytest.approx(0.42), what='per mille at device')
+    wait_until(lambda: device.plant.duty == pytest.approx(0.42), what='per mille at device')
     assert _od(device, 0x6411, 1, '<h') == 420
-    wait_for(lambda: len(states) > 3, what='TPDO1 -> state')
+    wait_until(lambda: len(states) > 3, what='TPDO1 -> state')
     # a device that reboots with the defaults of its dictionary is set up again
     device.node.data_store.clear()
     device.network.notify(0x000, bytes([0x81, 5]), time.time())   # NMT reset node
-    wait_for(lambda: _od(device, 0x1016, 1, '<I') == (127 << 16) | 300
-             and device.plant.duty == pytest.approx(0.42), 10.0, 're-set-up after boot-up')
+    wait_until(lambda: _od(device, 0x1016, 1, '<I') == (127 << 16) | 300
+               and device.plant.duty == pytest.approx(0.42), what='re-set-up after boot-up')
     assert core.counters['setups'] >= 2
 
 

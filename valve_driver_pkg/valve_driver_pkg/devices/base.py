@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 
 import can
 
+from valve_driver_pkg.driver.core_base import ClearResult
+
 __all__ = ['DeviceReading', 'FrameOutcome', 'DeviceFault', 'DeviceProtocol', 'SendFunction',
            'LIVENESS_PERIODS']
 
@@ -81,11 +83,14 @@ class DeviceProtocol:
         The command frames carry the PWM frequency (then it is the one in force).
     measures_position : bool
         The device reports the spool position (else the driver derives it).
+    clear_timeout_s : float
+        How long :meth:`clear_faults` waits for the device's answer by default [s].
     """
 
     name = ''
     sends_pwm_frequency = False
     measures_position = False
+    clear_timeout_s = 1.0
 
     def __init__(self, label: str, command_period_s: float, liveness_period_s: float) -> None:
         self.label = label
@@ -137,6 +142,18 @@ class DeviceProtocol:
     def faults(self) -> list[DeviceFault]:
         """Faults in force now (EMCY, DM1, refused set-up, lost address claim)."""
         return []
+
+    def clear_faults(self, timeout_s: float) -> ClearResult:
+        """Ask the device to clear its faults as the protocol allows; say what is left.
+
+        Called on a thread of its own (the node's service), never the receive thread. By
+        default the protocol has no such request: refused, naming the faults in force.
+        """
+        active = tuple(f.text for f in self.faults())
+        return ClearResult(False, (), active,
+                           f'not cleared: protocol {self.name} has no request to clear a '
+                           'device\'s faults (clear them at the device); active: '
+                           f'{", ".join(active) or "nothing"}')
 
     def bus_problem(self) -> str:
         """A problem of the host on the bus (J1939: address claim lost); '' if none."""

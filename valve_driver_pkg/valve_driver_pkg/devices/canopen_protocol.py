@@ -46,16 +46,21 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 from valve_driver_pkg.devices.base import DeviceFault, DeviceProtocol, DeviceReading, FrameOutcome
 from valve_driver_pkg.devices.canopen_mapping import (CanopenMapping, ObjectRef,
                                                       fail_safe_writes, pdo_entry)
+from valve_driver_pkg.driver.core_base import ClearResult
 from valve_driver_pkg.errors import DeviceSetupError, MappingError, SdoAbortError
 
-__all__ = ['CanopenProtocol', 'EMCY_NAMES', 'NMT_STATES', 'emcy_name', 'sdo_abort_text']
+__all__ = ['CanopenProtocol', 'EMCY_NAMES', 'NMT_STATES', 'ERROR_REGISTER_BITS', 'emcy_name',
+           'sdo_abort_text']
 
 logger = logging.getLogger(__name__)
 
 #: NMT states in heartbeat frames (CiA 301).
 NMT_STATES = {0x00: 'boot-up', 0x04: 'stopped', 0x05: 'operational', 0x7F: 'pre-operational'}
 #: NMT command specifiers (CiA 301).
-_NMT_START, _NMT_PRE_OPERATIONAL = 0x01, 0x80
+_NMT_START, _NMT_PRE_OPERATIONAL, _NMT_RESET_COMMUNICATION = 0x01, 0x80, 0x82
+#: CiA 301 error register (0x1001) bits.
+ERROR_REGISTER_BITS = ('generic', 'current', 'voltage', 'temperature', 'communication',
+                       'device profile', 'reserved', 'manufacturer')
 #: EMCY error codes (CiA 301 table 21; CiA 401's output codes). Others by their class.
 EMCY_NAMES = {
     0x0000: 'error reset or no error', 0x1000: 'generic error', 0x2000: 'current',
@@ -129,6 +134,7 @@ class CanopenProtocol(DeviceProtocol):
     """
 
     name = 'canopen'
+    clear_timeout_s = 6.0      # one set-up of the device after its reset
 
     def __init__(self, node_id: int, host_node_id: int, eds_file: str,
                  mapping: CanopenMapping, heartbeat_ms: int, sdo_timeout_s: float,
@@ -151,11 +157,13 @@ class CanopenProtocol(DeviceProtocol):
         self._check_against_eds()
         self._fail_safe = fail_safe_writes(mapping)
         self._lock = threading.Lock()
+        self._setup_done = threading.Condition(self._lock)
         self._network = _HostNetwork(None, self._send_frame)
         self._node = canopen.RemoteNode(node_id, self._od)
         self._network.add_node(self._node)
         self._node.sdo.RESPONSE_TIMEOUT = self.sdo_timeout_s
         self._heartbeat_next = 0.0
+        self._setting_up = False
         self.device_state = 'unknown'
         self._emcy: dict[int, tuple[int, bytes]] = {}     # code -> (error register, data)
         self.last_abort = ''
@@ -186,6 +194,15 @@ class CanopenProtocol(DeviceProtocol):
         self._network.bus = bus
 
     def setup(self, timeout_s: float) -> None:
+        with self._lock:
+            self._setting_up = True
+        try:
+            self._setup(timeout_s)
+        finally:
+            with self._lock:
+                self._setting_up = False
+
+    def _setup(self, timeout_s: float) -> None:
         deadline = time.monotonic() + timeout_s
         self._nmt(_NMT_PRE_OPERATIONAL)
         self._wait_for_device(deadline)
@@ -204,6 +221,8 @@ class CanopenProtocol(DeviceProtocol):
         with self._lock:
             self.setups += 1
             self._emcy.clear()
+            self.last_abort = ''
+            self._setup_done.notify_all()
         logger.info('canopen node %d set up: RPDO1 %s, TPDO1 %s, consumer %d ms, %d error '
                     'mode/value writes', self.node_id,
                     ', '.join(r.name for r in self.mapping.rpdo),
@@ -228,12 +247,23 @@ class CanopenProtocol(DeviceProtocol):
         return ref.unpack(data[:size]) * ref.scale if len(data) >= size else None
 
     def own_frames(self, now: float, active: bool) -> list[can.Message]:
+        """The host's heartbeat; with it, NMT start again to a device that reports itself
+        pre-operational or stopped while the driver is active and not setting it up (it
+        left operational on its own, e.g. after its heartbeat consumer timed out)."""
         if not active or now < self._heartbeat_next:
             return []
         self._heartbeat_next = max(self._heartbeat_next + self.heartbeat_ms / 1000.0,
                                    now - self.heartbeat_ms / 1000.0)
-        return [can.Message(arbitration_id=0x700 + self.host_node_id, is_extended_id=False,
-                            data=bytes([0x05]))]
+        frames = [can.Message(arbitration_id=0x700 + self.host_node_id, is_extended_id=False,
+                              data=bytes([0x05]))]
+        with self._lock:
+            restart = (self.device_state in ('pre-operational', 'stopped')
+                       and not self._setting_up)
+        if restart:
+            logger.warning('canopen node %d reports %s while active: NMT start again',
+                           self.node_id, self.device_state)
+            frames.append(self._nmt_frame(_NMT_START))
+        return frames
 
     def next_own_due(self) -> float:
         return self._heartbeat_next if self._heartbeat_next > 0.0 else math.inf
@@ -273,6 +303,41 @@ class CanopenProtocol(DeviceProtocol):
         if abort:
             out.append(DeviceFault(abort))
         return out
+
+    def clear_faults(self, timeout_s: float) -> ClearResult:
+        """NMT reset communication: the device boots, the driver sets it up again and
+        starts it; then its error register (0x1001) and the EMCYs since say what is left.
+
+        CiA 301 offers no other host request that clears a fault; a reset of the
+        communication ends the device's communication errors (its heartbeat consumer's
+        among them) and keeps its application. Meanwhile the output takes its error value
+        (CiA 401), which de-energises the valve for about one set-up.
+        """
+        before = tuple(f.text for f in self.faults())
+        with self._lock:
+            setups = self.setups
+        self._nmt(_NMT_RESET_COMMUNICATION)
+        with self._lock:
+            if not self._setup_done.wait_for(lambda: self.setups > setups, timeout_s):
+                return ClearResult(False, (), before,
+                                   f'NMT reset communication sent, but canopen node '
+                                   f'{self.node_id} was not set up again within '
+                                   f'{timeout_s:g} s')
+        try:
+            register = self._node.sdo.upload(0x1001, 0)[0]
+        except (SdoCommunicationError, SdoAbortedError, can.CanError) as err:
+            return ClearResult(False, (), before, f'canopen node {self.node_id} set up '
+                               f'again, but its error register (0x1001) did not answer: {err}')
+        still = tuple(f.text for f in self.faults())
+        if register:
+            bits = [name for i, name in enumerate(ERROR_REGISTER_BITS) if register >> i & 1]
+            still += (f'error register 0x{register:02X} ({", ".join(bits)})',)
+        cleared = tuple(text for text in before if text not in still)
+        message = (f'NMT reset communication: canopen node {self.node_id} set up again; '
+                   f'cleared: {", ".join(cleared) or "nothing"}; still active: '
+                   f'{", ".join(still) or "nothing"}')
+        logger.info('clear faults: %s', message)
+        return ClearResult(not still, cleared, still, message)
 
     def describe(self) -> dict:
         with self._lock:

@@ -20,7 +20,7 @@ from valve_driver_pkg.errors import MappingError
 from valve_model_pkg.errors import MapError
 from valve_model_pkg.maps import DutyMap, FlowToDutyInverter, load_map
 
-__all__ = ['DerivedOpening']
+__all__ = ['DerivedOpening', 'derived_opening_for']
 
 #: Duties and pressures are rounded this far before the map is read (cache keys).
 _DUTY_STEP = 1e-4
@@ -88,3 +88,24 @@ class DerivedOpening:
                 self.map, pwm_frequency_hz)
         fraction = inverter.duty_to_position(duty, supply_pa)
         return fraction * inverter.constants.stroke_m
+
+
+def derived_opening_for(measures_position: bool, map_file: str, params: object,
+                        params_source: str, pwm_frequency_hz: float) -> DerivedOpening | None:
+    """The derivation a device needs: None if it reports its position, else the duty map.
+
+    Raises
+    ------
+    MappingError
+        The map cannot be read, was made for other valve parameters, or has no curve at
+        ``pwm_frequency_hz`` (the device's PWM frequency); each named.
+    """
+    if measures_position:
+        return None
+    derived = DerivedOpening.load(map_file, params, params_source)
+    if not derived.covers(pwm_frequency_hz):
+        raise MappingError(
+            f'pwm_frequency_hz {pwm_frequency_hz:g} (the device\'s PWM frequency) has no '
+            f'curve in the duty map {derived.map_path} '
+            f'({", ".join(f"{f:g}" for f in derived.frequencies_hz)} Hz)')
+    return derived

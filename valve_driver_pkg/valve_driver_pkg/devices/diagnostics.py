@@ -13,8 +13,7 @@ from dataclasses import dataclass
 
 from valve_driver_pkg.devices.base import LIVENESS_PERIODS, DeviceFault
 from valve_driver_pkg.driver.config import DriverConfig
-from valve_driver_pkg.driver.diagnostics import Level, StatusReport
-from valve_driver_pkg.protocol.error_frames import BusCondition
+from valve_driver_pkg.driver.diagnostics import BUS_COUNTERS, BusSnapshot, Level, StatusReport
 
 __all__ = ['DeviceSnapshot', 'diagnose_device', 'STATUS_NAMES']
 
@@ -33,17 +32,15 @@ class DeviceSnapshot:
     recent: frozenset[str]
     closed: bool
     active: bool
-    bus_failed: bool
-    bus_error_text: str
-    bus_condition: BusCondition
-    last_error_frame: str
+    bus: BusSnapshot
     bus_problem: str
     setup_state: str
     setup_ok: bool
     device_lost: bool
     lost_after_s: float
     device_age_s: float
-    liveness_period_s: float
+    liveness_limit_s: float
+    next_restart_in_s: float
     faults: tuple[DeviceFault, ...]
     device_values: Mapping
     duty: float
@@ -57,29 +54,26 @@ def _count(s: DeviceSnapshot, *keys: str) -> dict:
 
 
 def _bus(s: DeviceSnapshot) -> StatusReport:
+    problem = s.bus.problem()
     if s.closed:
         level, text = Level.STALE, 'bus closed'
-    elif s.bus_failed:
-        level, text = Level.ERROR, f'bus failed ({s.bus_error_text}); reopening with back-off'
-    elif s.bus_condition is BusCondition.BUS_OFF:
-        level, text = Level.ERROR, f'bus-off ({s.last_error_frame}); restarting'
+    elif problem is not None and problem[0] is Level.ERROR:
+        level, text = Level.ERROR, (f'{problem[1]}; next restart in '
+                                    f'{s.next_restart_in_s:.2f} s (bounded back-off)')
     elif s.bus_problem:
         level, text = Level.ERROR, s.bus_problem
-    elif s.bus_condition is BusCondition.ERROR_PASSIVE:
-        level, text = Level.WARN, f'error passive ({s.last_error_frame})'
-    elif s.bus_condition is BusCondition.WARNING:
-        level, text = Level.WARN, f'error warning ({s.last_error_frame})'
+    elif problem is not None:
+        level, text = problem
     else:
         level, text = Level.OK, 'error active'
     return StatusReport('CAN bus', level, text, {
-        'condition': s.bus_condition.value, 'last_error_frame': s.last_error_frame,
-        **_count(s, 'error_frames', 'error_passive_events', 'bus_off_events',
-                 'bus_recoveries', 'bus_failures', 'bus_reopens', 'bus_restarts',
-                 'tx_errors', 'frames_sent')})
+        'condition': s.bus.condition.value, 'last_error_frame': s.bus.last_error_frame,
+        'next_restart_in_s': s.next_restart_in_s,
+        **_count(s, *BUS_COUNTERS, 'bus_restarts', 'frames_sent')})
 
 
 def _device(s: DeviceSnapshot) -> StatusReport:
-    limit_s = LIVENESS_PERIODS * s.liveness_period_s
+    limit_s = s.liveness_limit_s
     if s.closed:
         level, text = Level.STALE, 'bus closed'
     elif not s.setup_ok and s.setup_state.startswith('set-up failed'):

@@ -18,6 +18,10 @@ device reads the same messages with code of its own.
   byte 4, byte 5 bits 6-8), FMI (byte 5 bits 1-5), occurrence count (byte 6 bits 1-7).
   SPN 0 / FMI 0 means no active DTC.
 * **Address Claimed**, PGN 60928 (J1939-81): the 8-byte NAME, little-endian.
+* **Request**, PGN 59904 (J1939-21, destination specific): the requested PGN in 3 bytes,
+  little-endian; a Request for **DM11** (PGN 65235) asks the device to clear its active
+  DTCs (J1939-73), which it answers with an **Acknowledgment** (PGN 59392: control byte
+  0 ACK, 1 NACK, 2 access denied, 3 cannot respond; bytes 6-8 the PGN).
 """
 from __future__ import annotations
 
@@ -25,7 +29,8 @@ import math
 from dataclasses import dataclass
 
 __all__ = ['PGN_VALVE_COMMAND', 'PGN_ESTIMATED_FLOW', 'PGN_DM1', 'PGN_ADDRESS_CLAIMED',
-           'PGN_REQUEST', 'STATE_BLOCK', 'STATE_EXTEND', 'FMI_NAMES', 'make_id', 'split_id',
+           'PGN_REQUEST', 'PGN_DM11', 'PGN_ACKNOWLEDGMENT', 'request_frame', 'STATE_BLOCK',
+           'STATE_EXTEND', 'FMI_NAMES', 'make_id', 'split_id',
            'encode_valve_command', 'decode_estimated_flow', 'EstimatedFlow', 'Dtc',
            'DiagnosticMessage', 'decode_dm1']
 
@@ -34,6 +39,11 @@ PGN_ESTIMATED_FLOW = 65040
 PGN_DM1 = 65226
 PGN_ADDRESS_CLAIMED = 60928
 PGN_REQUEST = 59904
+#: DM11, diagnostic data clear/reset for active DTCs (J1939-73), asked for by a Request.
+PGN_DM11 = 65235
+#: Acknowledgment (J1939-21): control byte 0 ACK, 1 NACK, 2 access denied, 3 cannot respond.
+PGN_ACKNOWLEDGMENT = 59392
+_REQUEST_PRIORITY = 6
 STATE_BLOCK, STATE_EXTEND = 0, 1
 _FLOW_STEP_PCT = 0.4
 _EXTENDED_STEP_PCT = 0.0015625
@@ -71,6 +81,12 @@ def split_id(can_id: int) -> tuple[int, int, int, int]:
         pgn &= 0x3FF00
         destination = ps
     return (can_id >> 26) & 7, pgn, can_id & 0xFF, destination
+
+
+def request_frame(pgn: int, source: int, destination: int) -> tuple[int, bytes]:
+    """``(can id, data)`` of a Request (PGN 59904, J1939-21) for ``pgn`` to ``destination``."""
+    return (make_id(_REQUEST_PRIORITY, PGN_REQUEST, source, destination),
+            pgn.to_bytes(3, 'little'))
 
 
 def encode_valve_command(valve_index: int, source: int, duty: float) -> tuple[int, bytes]:

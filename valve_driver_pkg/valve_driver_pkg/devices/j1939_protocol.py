@@ -15,6 +15,8 @@ factory.
   device reports it; coil current and voltage NaN. DM1 (PGN 65226) of the valve's source
   address -> faults by SPN and FMI. An Address Claimed of another NAME for our address:
   if its NAME wins (lower), the claim is lost and reported (CAN bus ERROR).
+* **Clear faults**: a Request for DM11 (clear active DTCs) to the valve's address; the
+  valve's Acknowledgment and its next DM1 say what is left.
 """
 from __future__ import annotations
 
@@ -26,11 +28,13 @@ import can
 import j1939
 
 from valve_driver_pkg.devices.base import DeviceFault, DeviceProtocol, DeviceReading, FrameOutcome
-from valve_driver_pkg.devices.j1939_codec import (PGN_ADDRESS_CLAIMED, PGN_DM1,
-                                                  PGN_ESTIMATED_FLOW, PGN_VALVE_COMMAND,
-                                                  STATE_EXTEND, DiagnosticMessage,
-                                                  decode_dm1, decode_estimated_flow,
-                                                  encode_valve_command, split_id)
+from valve_driver_pkg.devices.j1939_codec import (PGN_ACKNOWLEDGMENT, PGN_ADDRESS_CLAIMED,
+                                                  PGN_DM1, PGN_DM11, PGN_ESTIMATED_FLOW,
+                                                  PGN_VALVE_COMMAND, STATE_EXTEND,
+                                                  DiagnosticMessage, decode_dm1,
+                                                  decode_estimated_flow, encode_valve_command,
+                                                  request_frame, split_id)
+from valve_driver_pkg.driver.core_base import ClearResult
 from valve_driver_pkg.errors import DeviceSetupError, MappingError
 
 __all__ = ['J1939Protocol', 'ESTIMATED_FLOW_PERIOD_S']
@@ -39,6 +43,9 @@ logger = logging.getLogger(__name__)
 
 #: Estimated Flow repetition (ISO 11783-7: 100 ms): the device's liveness period [s].
 ESTIMATED_FLOW_PERIOD_S = 0.1
+#: DM1 repetition (J1939-73: once a second): a clear is judged on the DM1 after it [s].
+DM1_PERIOD_S = 1.0
+_ACK_NAMES = {0: 'ACK', 1: 'NACK', 2: 'access denied', 3: 'cannot respond'}
 
 
 class J1939Protocol(DeviceProtocol):
@@ -57,6 +64,7 @@ class J1939Protocol(DeviceProtocol):
     """
 
     name = 'j1939'
+    clear_timeout_s = 2.5 * DM1_PERIOD_S
 
     def __init__(self, source_address: int, name: int, valve_index: int,
                  command_period_s: float) -> None:
@@ -69,6 +77,9 @@ class J1939Protocol(DeviceProtocol):
         self.name_value = name
         self.valve_index = valve_index
         self._lock = threading.Lock()
+        self._dm1_arrived = threading.Condition(self._lock)
+        self.dm1_count = 0
+        self.last_ack: tuple[int, int] | None = None   # (control byte, PGN) of the last one
         self._ecu: j1939.ElectronicControlUnit | None = None
         self._ca: j1939.ControllerApplication | None = None
         self.device_address: int | None = None
@@ -136,6 +147,10 @@ class J1939Protocol(DeviceProtocol):
         if pgn == PGN_ADDRESS_CLAIMED:
             self._on_claim(source, data)
             return FrameOutcome()
+        if pgn == PGN_ACKNOWLEDGMENT and source == self.device_address and len(data) >= 8:
+            with self._lock:
+                self.last_ack = (data[0], int.from_bytes(data[5:8], 'little'))
+                self._dm1_arrived.notify_all()
         if pgn != PGN_ESTIMATED_FLOW + self.valve_index:
             return FrameOutcome(from_device=source == self.device_address)
         flow = decode_estimated_flow(data)
@@ -169,6 +184,8 @@ class J1939Protocol(DeviceProtocol):
             if self.device_address is not None and sa != self.device_address:
                 return
             self.dm1 = decode_dm1(bytes(data))
+            self.dm1_count += 1
+            self._dm1_arrived.notify_all()
 
     def faults(self) -> list[DeviceFault]:
         with self._lock:
@@ -183,6 +200,39 @@ class J1939Protocol(DeviceProtocol):
                             error=severe, values={'dm1_dtcs': ','.join(
                                 f'{d.spn}:{d.fmi}' for d in dm1.dtcs)})
                 for dtc in dm1.dtcs]
+
+    def clear_faults(self, timeout_s: float) -> ClearResult:
+        """DM11 (clear active DTCs) asked of the valve by a Request; the valve's
+        Acknowledgment and its next DM1 say what was cleared and what is left."""
+        ca = self._ca
+        with self._lock:
+            address = self.device_address
+            count, self.last_ack = self.dm1_count, None
+        before = tuple(f.text for f in self.faults())
+        if address is None or ca is None or ca.state != j1939.ControllerApplication.State.NORMAL:
+            return ClearResult(False, (), before, 'not cleared: no claimed address of ours or '
+                               'no valve heard yet')
+        can_id, data = request_frame(PGN_DM11, ca.device_address, address)
+        if not self._send(can.Message(arbitration_id=can_id, is_extended_id=True, data=data)):
+            return ClearResult(False, (), before, 'not cleared: the DM11 request could not be '
+                               'sent (bus down?)')
+        with self._lock:
+            answered = self._dm1_arrived.wait_for(
+                lambda: self.dm1_count > count or (self.last_ack is not None
+                                                   and self.last_ack[0] != 0), timeout_s)
+            ack = self.last_ack
+        if ack is not None and ack[0] != 0:
+            return ClearResult(False, (), before, f'j1939 valve at address {address} refused '
+                               f'DM11: {_ACK_NAMES.get(ack[0], f"control byte {ack[0]}")}')
+        if not answered:
+            return ClearResult(False, (), before, f'DM11 sent, but no DM1 from the valve '
+                               f'within {timeout_s:g} s')
+        still = tuple(f.text for f in self.faults())
+        cleared = tuple(text for text in before if text not in still)
+        message = (f'DM11 to address {address}: cleared: {", ".join(cleared) or "nothing"}; '
+                   f'still active: {", ".join(still) or "nothing"}')
+        logger.info('clear faults: %s', message)
+        return ClearResult(not still, cleared, still, message)
 
     def bus_problem(self) -> str:
         with self._lock:

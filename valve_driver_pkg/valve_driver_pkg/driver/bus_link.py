@@ -17,7 +17,7 @@ from collections.abc import Callable
 import can
 
 from valve_driver_pkg.driver.config import DriverConfig
-from valve_driver_pkg.driver.diagnostics import Tally
+from valve_driver_pkg.driver.diagnostics import BusSnapshot, Tally
 from valve_driver_pkg.driver.frame_log import FrameLog
 from valve_driver_pkg.errors import BusOpenError
 from valve_driver_pkg.protocol.error_frames import BusCondition, parse_error_frame
@@ -205,6 +205,10 @@ class BusLink:
                 self._tally.mark('tx_error', time.monotonic())
             logger.debug('send failed: %s', err)
             return False
+
+    def snapshot(self) -> BusSnapshot:
+        """The link's state for the diagnostics. Lock held."""
+        return BusSnapshot(self.failed, self.error_text, self.condition, self.last_error_frame)
 
     # --- receive thread ----------------------------------------------------------------------
     @property

@@ -15,7 +15,7 @@ from valve_driver_pkg.protocol.codec import MAX_NODE_ID, DriveMode
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
 from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
 
-__all__ = ['DriverConfig', 'setting', 'DRIVE_MODE_NAMES', 'PROTOCOLS']
+__all__ = ['DriverConfig', 'setting', 'DRIVE_MODE_NAMES', 'PROTOCOLS', 'check_protocol_settings']
 
 #: Values of the ``protocol`` setting: the suite's own protocol and the devices' protocols.
 PROTOCOLS = ('suite', 'canopen', 'j1939', 'dbc')
@@ -123,17 +123,15 @@ class DriverConfig:
                               'supply while duty = 1; bare-coil steps for identification). '
                               'Settable at run time; the controller switches at its next PWM '
                               'period start, at once while duty 0 is in force. Duty 0 and '
-                              'every stop act at once in either mode')
+                              'every stop act at once in either mode. Protocol suite only '
+                              '(the device protocols carry no drive mode: normal)')
 
     log_frames_file: str = setting('', 'Write every frame received and sent to this candump '
                                    '.log file (python-can\'s logger); empty = off. '
                                    'valve_can_replay turns it into a bag')
 
     def __post_init__(self) -> None:
-        DriveMode.parse(self.drive_mode)   # ValueError naming the value and the choices
-        if self.protocol not in PROTOCOLS:
-            raise ValueError(f'protocol {self.protocol!r} is not one of '
-                             f'{", ".join(PROTOCOLS)}')
+        check_protocol_settings(self.protocol, self.drive_mode)
 
     @property
     def telemetry_period_s(self) -> float:
@@ -155,3 +153,21 @@ class DriverConfig:
     def hardware_id(self) -> str:
         """``interface:channel node n``, the hardware id of the diagnostics."""
         return f'{self.interface}:{self.channel} node {self.node_id}'
+
+
+def check_protocol_settings(protocol: str, drive_mode: str) -> None:
+    """Refuse a protocol that is not one, a drive mode that is not one, and a drive mode
+    other than ``normal`` with a device protocol (only the suite's protocol carries one).
+
+    Raises
+    ------
+    ValueError
+        Naming the value and the choices.
+    """
+    DriveMode.parse(drive_mode)
+    if protocol not in PROTOCOLS:
+        raise ValueError(f'protocol {protocol!r} is not one of {", ".join(PROTOCOLS)}')
+    if protocol != 'suite' and drive_mode != 'normal':
+        raise ValueError(f'drive_mode {drive_mode!r} needs protocol suite: protocol '
+                         f'{protocol} carries no drive mode (the device\'s own configuration '
+                         'sets its electronics); use normal')

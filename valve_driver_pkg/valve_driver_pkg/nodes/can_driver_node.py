@@ -14,15 +14,19 @@ apart):
   level change (from configure to cleanup), named ``<namespace/node name> node <id>:
   <status>`` (e.g. ``left/valve_can_driver node 3: telemetry``), so two drivers never
   share a name;
-- serves ``~/clear_faults`` (std_srvs/Trigger): sends ``ClearFaults`` once, waits for the
-  controller's next heartbeat and answers what was cleared and what is still active
-  (success = no latched fault left).
+- serves ``~/clear_faults`` (std_srvs/Trigger) and answers what was cleared and what is
+  still active: protocol ``suite`` sends ``ClearFaults`` once and waits for the
+  controller's next heartbeat (success = no latched fault left); ``canopen`` resets the
+  device's communication (NMT) and reads its error register once it is set up again;
+  ``j1939`` asks the valve for DM11 and reads its next DM1; ``dbc`` refuses (success
+  false, the message says why).
 - parameter ``drive_mode`` (``normal`` | ``bench``, checked at start-up and on every set;
   settable at run time, the change is logged): sent as ``ValveCommand.DriveMode`` in every
   command frame; the controller's ``ValveDrive`` report (mode in force, holding-current and
   capacitor set points, supply voltage) is published in the controller status of
   ``/diagnostics``. Stops (duty 0, deactivate, watchdog, shutdown) act at once in either
-  mode.
+  mode. The device protocols carry no drive mode: anything but ``normal`` is refused
+  with them (at start-up, and when set).
 
 Duty commands are counted (received, rejected, on the bus, superseded, lost by their
 ``sequence`` per ``header.frame_id``, stale: older than ``stale_command_s`` from their
@@ -61,10 +65,9 @@ from std_srvs.srv import Trigger
 from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_driver_pkg.devices.settings import PROTOCOL_SETTINGS, build_protocol
-from valve_driver_pkg.driver.config import PROTOCOLS, DriverConfig, setting
+from valve_driver_pkg.driver.config import DriverConfig, check_protocol_settings, setting
 from valve_driver_pkg.driver.core import CanDriverCore
-from valve_driver_pkg.errors import MappingError, ValveDriverError
-from valve_driver_pkg.protocol.codec import DriveMode
+from valve_driver_pkg.errors import ValveDriverError
 from valve_model_pkg.interface import (TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
                                        TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
                                        TOPIC_SUPPLY_PRESSURE, gauge_from_absolute)
@@ -138,10 +141,10 @@ class CanDriverNode(Node):
         self._hardware_id = ''
         self._status_prefix = self.get_fully_qualified_name().lstrip('/')
         self._clear_service = None
-        # A bad drive_mode or protocol refuses the start (exit 2) with the value and the
-        # choices.
-        DriveMode.parse(self.get_parameter('drive_mode').value)
-        _check_protocol(self.get_parameter('protocol').value)
+        # A bad drive_mode or protocol, or a drive mode the protocol cannot carry, refuses
+        # the start (exit 2) with the value and the choices.
+        check_protocol_settings(self.get_parameter('protocol').value,
+                                self.get_parameter('drive_mode').value)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
@@ -152,24 +155,20 @@ class CanDriverNode(Node):
 
     def _make_core(self, config: DriverConfig, options: NodeOptions) -> CanDriverCore:
         """The suite's core, or the device core with the protocol ``config.protocol``."""
-        params = _load_parameters(options.params_file)
-        mass_flow = _mass_flow_function(params)
+        from valve_driver_pkg.driver.receive import mass_flow_function
+        from valve_model_pkg.model import load_parameters
+        params = load_parameters(options.params_file or None)
+        mass_flow = mass_flow_function(params)
         if config.protocol == 'suite':
             return CanDriverCore(config, mass_flow=mass_flow, on_state=self._publish_state,
                                  on_diagnostics_changed=self._publish_diagnostics)
         from valve_driver_pkg.devices.core import DeviceDriverCore
-        from valve_driver_pkg.devices.derived import DerivedOpening
+        from valve_driver_pkg.devices.derived import derived_opening_for
         protocol = build_protocol(config, *(self._read(cls, f'{prefix}.')
                                             for prefix, cls in PROTOCOL_SETTINGS.items()))
-        derived = None
-        if not protocol.measures_position:
-            derived = DerivedOpening.load(options.duty_map_file, params,
-                                          options.params_file or 'the suite\'s valve.yaml')
-            if not derived.covers(config.pwm_frequency_hz):
-                raise MappingError(
-                    f'pwm_frequency_hz {config.pwm_frequency_hz:g} (the device\'s PWM '
-                    f'frequency) has no curve in the duty map {derived.map_path} '
-                    f'({", ".join(f"{f:g}" for f in derived.frequencies_hz)} Hz)')
+        derived = derived_opening_for(protocol.measures_position, options.duty_map_file,
+                                      params, options.params_file or 'the suite\'s valve.yaml',
+                                      config.pwm_frequency_hz)
         return DeviceDriverCore(config, protocol, mass_flow=mass_flow,
                                 on_state=self._publish_state,
                                 on_diagnostics_changed=self._publish_diagnostics,
@@ -284,18 +283,17 @@ class CanDriverNode(Node):
 
     # --- parameters --------------------------------------------------------------------------
     def _check_parameters(self, parameters: list) -> SetParametersResult:
-        """Refuse a drive_mode or protocol that is not one (the others: as declared)."""
-        for param in parameters:
-            if param.name == 'protocol':
-                try:
-                    _check_protocol(param.value)
-                except ValueError as err:
-                    return SetParametersResult(successful=False, reason=str(err))
-            if param.name == 'drive_mode':
-                try:
-                    DriveMode.parse(param.value)
-                except ValueError as err:
-                    return SetParametersResult(successful=False, reason=str(err))
+        """Refuse a protocol or drive_mode that is not one, or a drive mode the protocol
+        cannot carry (the others: as declared)."""
+        values = {p.name: p.value for p in parameters if p.name in ('protocol', 'drive_mode')}
+        if not values:
+            return SetParametersResult(successful=True)
+        try:
+            check_protocol_settings(
+                values.get('protocol', self.get_parameter('protocol').value),
+                values.get('drive_mode', self.get_parameter('drive_mode').value))
+        except ValueError as err:
+            return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, parameters: list) -> None:
@@ -397,31 +395,8 @@ class CanDriverNode(Node):
         self._publish(pub, array)
 
 
-def _check_protocol(value: str) -> None:
-    """Raise ValueError naming ``value`` and the choices unless it is a protocol."""
-    if value not in PROTOCOLS:
-        raise ValueError(f'protocol {value!r} is not one of {", ".join(PROTOCOLS)}')
-
-
 def _text(value: object) -> str:
     return f'{value:.6g}' if isinstance(value, float) else str(value)
-
-
-def _load_parameters(params_file: str):
-    """The valve parameter set (``''``: the model's default)."""
-    from valve_model_pkg.model import load_parameters
-    return load_parameters(params_file or None)
-
-
-def _mass_flow_function(params):
-    """eq. (12) with the valve's parameter set."""
-    from valve_model_pkg.model.orifice import orifice_mass_flow
-
-    def mass_flow(position_avg_m: float, supply_pa: float, output_pa: float) -> float:
-        return float(orifice_mass_flow(position_avg_m, supply_pa, output_pa, params))
-
-    mass_flow(params.stroke_m * 0.5, 400_000.0, 0.0)   # compile (numba) before traffic
-    return mass_flow
 
 
 def main(args: list[str] | None = None) -> None:

@@ -22,7 +22,8 @@ class does:
   heartbeat of that node; when it then misses the time, the module sends EMCY 0x8130
   (life guard / heartbeat error), enters pre-operational and sets every output to its
   error value where its error mode says so (0x6443 = 1 -> 0x6444, per mille; 0x6206 bit
-  set -> 0x6207 bit). The next heartbeat ends the error (EMCY 0x0000).
+  set -> 0x6207 bit). The next heartbeat ends the error (EMCY 0x0000). The error register
+  (0x1001) carries the generic and communication bits while the error lasts.
 
 Every change of the output prints ``valve_canopen_device: output duty D at monotonic T:
 REASON`` (CLOCK_MONOTONIC), which the tests and the fail-safe table read.
@@ -40,8 +41,7 @@ import canopen
 from canopen.sdo.exceptions import SdoAbortedError
 
 from valve_driver_pkg.devices.canopen_mapping import default_eds_path
-from valve_driver_pkg.standins.common import (OutputLog, add_bus_arguments, open_device_bus,
-                                              run_device)
+from valve_driver_pkg.standins.common import DeviceLoop, OutputLog, device_parser, serve
 from valve_driver_pkg.standins.plant import ValvePlant
 
 __all__ = ['CanopenDevice', 'main', 'build_parser']
@@ -89,24 +89,19 @@ class CanopenDevice:
         self._host_seen: float | None = None
         self._comm_error = False
         self._next_tpdo = 0.0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name='canopen_device', daemon=True)
-        self._notifier: can.Notifier | None = None
+        self._subscribed_host = 0
+        self._loop = DeviceLoop(self.network.bus, self.network.listeners, self._tick, _TICK_S,
+                                'canopen_device')
         self.rpdo_count = 0
 
     # --- life --------------------------------------------------------------------------------
     def start(self) -> None:
-        self._notifier = can.Notifier(self.network.bus, self.network.listeners, 0.1)
+        self._loop.start()
         self._boot(reset_application=True)
-        self._thread.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=2.0)
+        self._loop.stop()
         self.node.nmt.stop_heartbeat()
-        if self._notifier is not None:
-            self._notifier.stop()
 
     def _boot(self, reset_application: bool) -> None:
         """Power-on / reset: defaults, boot-up frame, pre-operational."""
@@ -243,7 +238,11 @@ class CanopenDevice:
             self._update_output('heartbeat back')
 
     def _error_register(self) -> int:
-        return 0x11 if self._comm_error else 0x00
+        """The error register (0x1001, CiA 301): generic and communication bits while the
+        heartbeat consumer's error lasts; kept in the dictionary, readable by SDO."""
+        register = 0x11 if self._comm_error else 0x00
+        self._set(0x1001, 0, register)
+        return register
 
     # --- the output --------------------------------------------------------------------------
     def _gate_mapped(self) -> bool:
@@ -266,22 +265,19 @@ class CanopenDevice:
         self.plant.set_output(duty)
         self.log.output(duty, reason)
 
-    def _loop(self) -> None:
-        subscribed = None
-        while not self._stop.wait(_TICK_S):
-            now = time.monotonic()
-            host, timeout = self._consumer
-            if host != subscribed:
-                if subscribed:
-                    self.network.unsubscribe(0x700 + subscribed, self._on_heartbeat)
-                if host:
-                    self.network.subscribe(0x700 + host, self._on_heartbeat)
-                subscribed = host
-            self._check_consumer(now, host, timeout)
-            reading = self.plant.read()
-            current_ma = max(-32768, min(32767, round(reading.coil_current_a * 1000.0)))
-            self._set(0x6401, 1, current_ma)
-            self._send_tpdo(now)
+    def _tick(self, now: float) -> None:
+        host, timeout = self._consumer
+        if host != self._subscribed_host:
+            if self._subscribed_host:
+                self.network.unsubscribe(0x700 + self._subscribed_host, self._on_heartbeat)
+            if host:
+                self.network.subscribe(0x700 + host, self._on_heartbeat)
+            self._subscribed_host = host
+        self._check_consumer(now, host, timeout)
+        reading = self.plant.read()
+        current_ma = max(-32768, min(32767, round(reading.coil_current_a * 1000.0)))
+        self._set(0x6401, 1, current_ma)
+        self._send_tpdo(now)
 
     def _check_consumer(self, now: float, host: int, timeout: float) -> None:
         with self._lock:
@@ -313,15 +309,11 @@ class CanopenDevice:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command-line interface."""
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split('\n')[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter,
-                                epilog=__doc__.split('\n', 2)[2])
-    add_bus_arguments(p)
+    p = device_parser(PROG, __doc__)
     p.add_argument('--node-id', type=int, default=5, help='CANopen node id 1..127 (default 5)')
     p.add_argument('--eds', default='', help='EDS file (default: the generic CiA 401 EDS)')
     p.add_argument('--pwm-frequency-hz', type=float, default=50.0,
                    help='PWM frequency of the output [Hz] (the module\'s own setting)')
-    p.add_argument('--duration-s', type=float, default=0.0, help='stop after this long')
     return p
 
 
@@ -329,24 +321,9 @@ def main(args: list[str] | None = None) -> None:
     opts = build_parser().parse_args(args)
     if not 1 <= opts.node_id <= 127:
         build_parser().error(f'--node-id {opts.node_id} outside 1..127')
-    state: dict = {}
-
-    def start() -> str:
-        bus, hub, channel = open_device_bus(opts)
-        device = CanopenDevice(bus, opts.node_id, ValvePlant(opts.pwm_frequency_hz,
-                                                             opts.params_file), opts.eds)
-        state.update(bus=bus, hub=hub, device=device)
-        device.start()
-        return f'{opts.interface} {channel} node {opts.node_id}'
-
-    def stop() -> None:
-        if 'device' in state:
-            state['device'].stop()
-            state['bus'].shutdown()
-        if state.get('hub') is not None:
-            state['hub'].close()
-
-    run_device(PROG, start, stop, opts.duration_s)
+    serve(PROG, opts, lambda bus: CanopenDevice(
+        bus, opts.node_id, ValvePlant(opts.pwm_frequency_hz, opts.params_file), opts.eds),
+        f'node {opts.node_id}')
 
 
 if __name__ == '__main__':

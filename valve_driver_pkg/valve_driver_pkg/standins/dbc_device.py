@@ -26,8 +26,7 @@ import can
 import cantools
 
 from valve_driver_pkg.devices.dbc_protocol import example_dbc_path
-from valve_driver_pkg.standins.common import (OutputLog, add_bus_arguments, open_device_bus,
-                                              run_device)
+from valve_driver_pkg.standins.common import DeviceLoop, OutputLog, device_parser, serve
 from valve_driver_pkg.standins.plant import ValvePlant
 
 __all__ = ['DbcDevice', 'main', 'build_parser']
@@ -53,21 +52,16 @@ class DbcDevice:
         self._alive: int | None = None
         self._last: float | None = None
         self._timed_out = False
-        self._stop = threading.Event()
-        self._notifier: can.Notifier | None = None
-        self._thread = threading.Thread(target=self._loop, name='dbc_device', daemon=True)
+        self._next_status = 0.0
+        self._status_period_s = (self.status.cycle_time or 100) / 1000.0
+        self._loop = DeviceLoop(bus, [self._on_frame], self._tick, _TICK_S, 'dbc_device')
         self.ignored = 0
 
     def start(self) -> None:
-        self._notifier = can.Notifier(self.bus, [self._on_frame], timeout=0.1)
-        self._thread.start()
+        self._loop.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=2.0)
-        if self._notifier is not None:
-            self._notifier.stop()
+        self._loop.stop()
 
     def _on_frame(self, msg: can.Message) -> None:
         if msg.arbitration_id != self.command.frame_id or msg.is_extended_id \
@@ -89,25 +83,22 @@ class DbcDevice:
         self.plant.set_output(duty, float(sig['PwmFreq']))
         self.log.output(duty, 'BoardCommand')
 
-    def _loop(self) -> None:
-        next_status = 0.0
-        period = (self.status.cycle_time or 100) / 1000.0
-        while not self._stop.wait(_TICK_S):
-            now = time.monotonic()
-            with self._lock:
-                last = self._last
-                expired = (last is not None and not self._timed_out
-                           and now - last > self.command_timeout_s)
-                if expired:
-                    self._timed_out = True
+    def _tick(self, now: float) -> None:
+        with self._lock:
+            last = self._last
+            expired = (last is not None and not self._timed_out
+                       and now - last > self.command_timeout_s)
             if expired:
-                self.plant.set_output(0.0)
-                self.log.output(0.0, f'command timeout ({(now - last) * 1e3:.0f} ms without '
-                                'BoardCommand)')
-            reading = self.plant.read()
-            if now >= next_status:
-                next_status = max(next_status + period, now - period)
-                self._send_status(reading)
+                self._timed_out = True
+        if expired:
+            self.plant.set_output(0.0)
+            self.log.output(0.0, f'command timeout ({(now - last) * 1e3:.0f} ms without '
+                            'BoardCommand)')
+        reading = self.plant.read()
+        if now >= self._next_status:
+            period = self._status_period_s
+            self._next_status = max(self._next_status + period, now - period)
+            self._send_status(reading)
 
     def _send_status(self, reading) -> None:
         current_ma = max(-32768, min(32767, round(reading.coil_current_a * 1000.0)))
@@ -124,37 +115,19 @@ class DbcDevice:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split('\n')[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter,
-                                epilog=__doc__.split('\n', 2)[2])
-    add_bus_arguments(p)
+    """The command-line interface."""
+    p = device_parser(PROG, __doc__)
     p.add_argument('--dbc', default='', help='the board\'s DBC (default: the example)')
     p.add_argument('--command-timeout-ms', type=float, default=200.0,
                    help='no BoardCommand this long switches the output off (default 200)')
-    p.add_argument('--duration-s', type=float, default=0.0, help='stop after this long')
     return p
 
 
 def main(args: list[str] | None = None) -> None:
     opts = build_parser().parse_args(args)
-    state: dict = {}
-
-    def start() -> str:
-        bus, hub, channel = open_device_bus(opts)
-        device = DbcDevice(bus, ValvePlant(50.0, opts.params_file), opts.dbc,
-                           opts.command_timeout_ms / 1000.0)
-        state.update(bus=bus, hub=hub, device=device)
-        device.start()
-        return f'{opts.interface} {channel} board {device.command.name}'
-
-    def stop() -> None:
-        if 'device' in state:
-            state['device'].stop()
-            state['bus'].shutdown()
-        if state.get('hub') is not None:
-            state['hub'].close()
-
-    run_device(PROG, start, stop, opts.duration_s)
+    serve(PROG, opts, lambda bus: DbcDevice(bus, ValvePlant(50.0, opts.params_file), opts.dbc,
+                                            opts.command_timeout_ms / 1000.0),
+          'board BoardCommand')
 
 
 if __name__ == '__main__':

@@ -19,6 +19,8 @@ claim) and J1939-73 (DM1), with python-can frames of its own (not the driver's s
   exit/reason code.
 * **DM1** (PGN 65226) every second: lamps and the DTCs given with ``--dtc SPN:FMI``
   (amber lamp on while any), else "no DTC".
+* **DM11** (a Request for PGN 65235 to its address): the DTCs are cleared, an
+  Acknowledgment (ACK) and a DM1 answer at once.
 
 Every change of the output prints ``valve_j1939_device: output duty D at monotonic T:
 REASON``.
@@ -31,8 +33,7 @@ import time
 
 import can
 
-from valve_driver_pkg.standins.common import (OutputLog, add_bus_arguments, open_device_bus,
-                                              run_device)
+from valve_driver_pkg.standins.common import DeviceLoop, OutputLog, device_parser, serve
 from valve_driver_pkg.standins.plant import ValvePlant
 
 __all__ = ['J1939Device', 'main', 'build_parser']
@@ -43,6 +44,7 @@ PROG = 'valve_j1939_device'
 DEFAULT_NAME = (2 << 60) | (130 << 40) | 0x1939
 _PRIORITY_CONTROL, _PRIORITY_INFO = 3, 6
 _NULL_ADDRESS, _GLOBAL = 254, 255
+_DM11 = (65235).to_bytes(3, 'little')     # PGN of DM11, as a Request carries it
 _TICK_S = 0.002
 
 
@@ -72,21 +74,15 @@ class J1939Device:
         self._fail_safe = 0
         self._exit_code = 0
         self._last_command: float | None = None
-        self._stop = threading.Event()
-        self._notifier: can.Notifier | None = None
-        self._thread = threading.Thread(target=self._loop, name='j1939_device', daemon=True)
+        self._next_flow = self._next_dm1 = 0.0
+        self._loop = DeviceLoop(bus, [self._on_frame], self._tick, _TICK_S, 'j1939_device')
 
     def start(self) -> None:
         self._claim(self.address)
-        self._notifier = can.Notifier(self.bus, [self._on_frame], timeout=0.1)
-        self._thread.start()
+        self._loop.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=2.0)
-        if self._notifier is not None:
-            self._notifier.stop()
+        self._loop.stop()
 
     def _send(self, can_id: int, data: bytes) -> None:
         try:
@@ -110,8 +106,21 @@ class J1939Device:
         elif pf == 0xEA and ps in (self.address, _GLOBAL) and data[:3] == b'\x00\xEE\x00':
             if not self._silent:
                 self._claim(self.address)
+        elif pf == 0xEA and ps == self.address and data[:3] == _DM11 and not self._silent:
+            self._clear_dtcs(source)
         elif pf == 0xFE and ps == 0x30 + self.valve_index and not self._silent:
             self._on_command(data)
+
+    def _clear_dtcs(self, requester: int) -> None:
+        """DM11: the active DTCs are cleared (their simulated condition is gone); the
+        Acknowledgment (PGN 59392, ACK) goes to global with the requester's address, and a
+        DM1 follows at once."""
+        with self._lock:
+            cleared, self.dtcs = self.dtcs, ()
+        self.log.note(f'DM11 from address {requester}: {len(cleared)} DTC(s) cleared')
+        self._send(_frame_id(_PRIORITY_INFO, 0xE8, _GLOBAL, self.address),
+                   bytes([0, 0xFF, 0xFF, 0xFF, requester]) + _DM11)
+        self._send_dm1()
 
     def _contend(self, theirs: int) -> None:
         if theirs == self.name or self._silent:
@@ -146,20 +155,17 @@ class J1939Device:
         self.log.output(duty, 'Auxiliary Valve Command')
 
     # --- cyclic ------------------------------------------------------------------------------
-    def _loop(self) -> None:
-        next_flow = next_dm1 = 0.0
-        while not self._stop.wait(_TICK_S):
-            now = time.monotonic()
-            self._check_timeout(now)
-            self.plant.read()
-            if self._silent:
-                continue
-            if now >= next_flow:
-                next_flow = max(next_flow + 0.1, now - 0.1)
-                self._send_estimated_flow()
-            if now >= next_dm1:
-                next_dm1 = max(next_dm1 + 1.0, now - 1.0)
-                self._send_dm1()
+    def _tick(self, now: float) -> None:
+        self._check_timeout(now)
+        self.plant.read()
+        if self._silent:
+            return
+        if now >= self._next_flow:
+            self._next_flow = max(self._next_flow + 0.1, now - 0.1)
+            self._send_estimated_flow()
+        if now >= self._next_dm1:
+            self._next_dm1 = max(self._next_dm1 + 1.0, now - 1.0)
+            self._send_dm1()
 
     def _check_timeout(self, now: float) -> None:
         with self._lock:
@@ -217,10 +223,8 @@ def _dtc(text: str) -> tuple[int, int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split('\n')[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter,
-                                epilog=__doc__.split('\n', 2)[2])
-    add_bus_arguments(p)
+    """The command-line interface."""
+    p = device_parser(PROG, __doc__)
     p.add_argument('--source-address', type=int, default=0xF0,
                    help='address the valve claims (default 240)')
     p.add_argument('--name', type=lambda s: int(s, 0), default=DEFAULT_NAME,
@@ -232,7 +236,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help='PWM frequency of the valve driver [Hz]')
     p.add_argument('--dtc', type=_dtc, action='append', default=[], metavar='SPN:FMI',
                    help='an active DTC reported in DM1 (repeatable)')
-    p.add_argument('--duration-s', type=float, default=0.0, help='stop after this long')
     return p
 
 
@@ -240,26 +243,10 @@ def main(args: list[str] | None = None) -> None:
     opts = build_parser().parse_args(args)
     if not 0 <= opts.valve_index <= 15:
         build_parser().error(f'--valve-index {opts.valve_index} outside 0..15')
-    state: dict = {}
-
-    def start() -> str:
-        bus, hub, channel = open_device_bus(opts)
-        device = J1939Device(bus, ValvePlant(opts.pwm_frequency_hz, opts.params_file),
-                             opts.source_address, opts.valve_index, opts.name,
-                             opts.command_timeout_ms / 1000.0, tuple(opts.dtc))
-        state.update(bus=bus, hub=hub, device=device)
-        device.start()
-        return f'{opts.interface} {channel} address {opts.source_address} valve ' \
-               f'{opts.valve_index}'
-
-    def stop() -> None:
-        if 'device' in state:
-            state['device'].stop()
-            state['bus'].shutdown()
-        if state.get('hub') is not None:
-            state['hub'].close()
-
-    run_device(PROG, start, stop, opts.duration_s)
+    serve(PROG, opts, lambda bus: J1939Device(
+        bus, ValvePlant(opts.pwm_frequency_hz, opts.params_file), opts.source_address,
+        opts.valve_index, opts.name, opts.command_timeout_ms / 1000.0, tuple(opts.dtc)),
+        f'address {opts.source_address} valve {opts.valve_index}')
 
 
 if __name__ == '__main__':
