@@ -1,12 +1,20 @@
-"""A bus from the command line of a bus device (the emulator, the stand-ins).
+"""A bus from the command line of a bus device (the emulator, the stand-ins), and the
+``tcp_loopback`` hub as a process of its own.
 
 :func:`add_bus_arguments` adds ``--interface``, ``--channel``, ``--bitrate`` and
 ``--no-hub``; :func:`open_device_bus` opens that bus and, for ``tcp_loopback`` without
 ``--no-hub``, first hosts the loopback hub the other bus clients join.
+
+``python -m valve_driver_pkg.canbus.cli [--channel 127.0.0.1:PORT]`` hosts a hub alone (port
+0: a free one), prints ``tcp_loopback hub ready: HOST:PORT`` and forwards frames until
+SIGINT/SIGTERM: a bus that outlives every device on it (a device may die and come back).
 """
 from __future__ import annotations
 
 import argparse
+import signal
+import sys
+import threading
 from dataclasses import dataclass
 
 import can
@@ -15,7 +23,7 @@ from valve_driver_pkg.canbus.factory import open_bus
 from valve_driver_pkg.canbus.tcp_loopback import TcpLoopbackHub
 from valve_driver_pkg.errors import BusOpenError
 
-__all__ = ['add_bus_arguments', 'open_device_bus', 'DeviceBus']
+__all__ = ['add_bus_arguments', 'open_device_bus', 'DeviceBus', 'hub_main']
 
 
 def add_bus_arguments(parser: argparse.ArgumentParser) -> argparse._ArgumentGroup:
@@ -66,3 +74,29 @@ def open_device_bus(args: argparse.Namespace, connect_timeout: float = 5.0) -> D
         if hub is not None:
             hub.close()
         raise
+
+
+def hub_main(args: list[str] | None = None) -> None:
+    """Host a tcp_loopback hub until SIGINT/SIGTERM (exit 2 if it cannot listen)."""
+    parser = argparse.ArgumentParser(prog='python -m valve_driver_pkg.canbus.cli',
+                                     description='host a tcp_loopback CAN hub (loopback only)')
+    parser.add_argument('--channel', default='127.0.0.1:0',
+                        help='HOST:PORT to listen on (port 0: a free port)')
+    opts = parser.parse_args(args)
+    done = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: done.set())
+    try:
+        hub = TcpLoopbackHub(opts.channel).start()
+    except (OSError, ValueError) as err:
+        print(f'tcp_loopback hub: error: {err}', file=sys.stderr)
+        sys.exit(2)
+    print(f'tcp_loopback hub ready: {hub.channel}', flush=True)
+    try:
+        done.wait()
+    finally:
+        hub.close()
+
+
+if __name__ == '__main__':
+    hub_main()

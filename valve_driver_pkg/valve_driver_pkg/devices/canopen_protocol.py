@@ -332,12 +332,10 @@ class CanopenProtocol(DeviceProtocol):
         if register:
             bits = [name for i, name in enumerate(ERROR_REGISTER_BITS) if register >> i & 1]
             still += (f'error register 0x{register:02X} ({", ".join(bits)})',)
-        cleared = tuple(text for text in before if text not in still)
-        message = (f'NMT reset communication: canopen node {self.node_id} set up again; '
-                   f'cleared: {", ".join(cleared) or "nothing"}; still active: '
-                   f'{", ".join(still) or "nothing"}')
-        logger.info('clear faults: %s', message)
-        return ClearResult(not still, cleared, still, message)
+        result = ClearResult.judged(f'NMT reset communication: canopen node {self.node_id} '
+                                    'set up again', before, still)
+        logger.info('clear faults: %s', result.message)
+        return result
 
     def describe(self) -> dict:
         with self._lock:

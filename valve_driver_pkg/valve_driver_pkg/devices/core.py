@@ -64,6 +64,8 @@ MAX_BACKOFF_FACTOR = 16
 BUS_OFF_RESTART_S = 0.2
 #: How long one set-up may take (configure, and again after a device boot-up) [s].
 _SETUP_TIMEOUT_S = 5.0
+#: A frame timestamp this far from the wall clock belongs to another clock [s].
+_CLOCK_APART_S = 3600.0
 
 
 class DeviceDriverCore(DriverCoreBase):
@@ -111,6 +113,7 @@ class DeviceDriverCore(DriverCoreBase):
         self._next_setup = math.inf
         self._restarts_in_row = 0       # k of the back-off
         self._last_restart_mono = -math.inf
+        self._backoff_s = 0.0           # the wait scheduled after the last reopen or restart
         self._next_command_t = 0.0
         self._next_level_check = 0.0
 
@@ -239,12 +242,25 @@ class DeviceDriverCore(DriverCoreBase):
     # --- receive thread ----------------------------------------------------------------------
     def handle_frame(self, msg: can.Message) -> None:
         """The receive path for one (non-error) frame: the protocol reads it; a frame from
-        the device keeps it alive; a reading from a live device while active is published."""
+        the device keeps it alive; a reading from a live device while active is published.
+
+        A device frame older than the device's silence limit when it is handled (its
+        timestamp: the interface's receive time, or the sender's on ``tcp_loopback``) is
+        stale: counted (``stale_frames``), neither proof of life nor published. A timestamp
+        more than :data:`_CLOCK_APART_S` from the wall clock is another clock's (some
+        adapters count from their own start) and is not judged.
+        """
         outcome = self.protocol.on_frame(msg)
         if not outcome.from_device:
             return
         now = time.monotonic()
+        wall = time.time()
+        age = wall - msg.timestamp if msg.timestamp else 0.0
         with self._lock:
+            if self.liveness.limit_s < age < _CLOCK_APART_S:
+                self._tally.count('stale_frames')
+                self._tally.mark('stale_frame', now)
+                return
             back = self.liveness.heard(now)
             self._tally.count('device_frames')
             self.link.note_valid_traffic()
@@ -255,7 +271,7 @@ class DeviceDriverCore(DriverCoreBase):
                 sample = self._states.sample(outcome.reading, CommandContext(
                     duty_sent, pwm_hz if sends_freq else self.config.pwm_frequency_hz,
                     sends_freq, self.commands.supply_pa, self.commands.output_pa),
-                    now, time.time())
+                    now, wall)
         if back:
             logger.info('%s is back', self.protocol.label)
             self._check_levels()
@@ -355,8 +371,8 @@ class DeviceDriverCore(DriverCoreBase):
                 link.bus_off_since = now
             self._restarts_in_row = 0 if ok and not stuck else self._restarts_in_row + 1
             self._last_restart_mono = now
-            factor = min(2 ** self._restarts_in_row, MAX_BACKOFF_FACTOR)
-            link.next_reopen = time.monotonic() + period * factor
+            self._backoff_s = period * min(2 ** self._restarts_in_row, MAX_BACKOFF_FACTOR)
+            link.next_reopen = time.monotonic() + self._backoff_s
         if ok:
             self.protocol.attach(self._send, link.bus)
             with self._lock:
@@ -380,6 +396,7 @@ class DeviceDriverCore(DriverCoreBase):
                 device_lost=live.lost, lost_after_s=live.lost_after_s,
                 device_age_s=live.age_s(now), liveness_limit_s=live.limit_s,
                 next_restart_in_s=max(0.0, link.next_reopen - now),
+                restarts_in_row=self._restarts_in_row, restart_backoff_s=self._backoff_s,
                 faults=tuple(self.protocol.faults()), device_values=self.protocol.describe(),
                 duty=0.0 if cmd.watchdog_tripped else cmd.duty, pwm_frequency_hz=cmd.pwm_hz,
                 watchdog_tripped=cmd.watchdog_tripped, last_command_note=cmd.last_command_note)

@@ -12,8 +12,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from valve_driver_pkg.devices.base import LIVENESS_PERIODS, DeviceFault
-from valve_driver_pkg.driver.config import DriverConfig
-from valve_driver_pkg.driver.diagnostics import BUS_COUNTERS, BusSnapshot, Level, StatusReport
+from valve_driver_pkg.driver.diagnostics import BUS_COUNTERS, CoreSnapshot, Level, StatusReport
 
 __all__ = ['DeviceSnapshot', 'diagnose_device', 'STATUS_NAMES']
 
@@ -22,17 +21,10 @@ STATUS_NAMES = ('CAN bus', 'device', 'commands', 'faults')
 
 
 @dataclass(frozen=True)
-class DeviceSnapshot:
+class DeviceSnapshot(CoreSnapshot):
     """Everything the device diagnostics need, copied at one instant."""
 
-    config: DriverConfig
     label: str
-    now: float
-    counters: Mapping[str, int]
-    recent: frozenset[str]
-    closed: bool
-    active: bool
-    bus: BusSnapshot
     bus_problem: str
     setup_state: str
     setup_ok: bool
@@ -41,6 +33,8 @@ class DeviceSnapshot:
     device_age_s: float
     liveness_limit_s: float
     next_restart_in_s: float
+    restarts_in_row: int
+    restart_backoff_s: float
     faults: tuple[DeviceFault, ...]
     device_values: Mapping
     duty: float
@@ -68,7 +62,8 @@ def _bus(s: DeviceSnapshot) -> StatusReport:
         level, text = Level.OK, 'error active'
     return StatusReport('CAN bus', level, text, {
         'condition': s.bus.condition.value, 'last_error_frame': s.bus.last_error_frame,
-        'next_restart_in_s': s.next_restart_in_s,
+        'next_restart_in_s': s.next_restart_in_s, 'restarts_in_row': s.restarts_in_row,
+        'restart_backoff_s': s.restart_backoff_s,
         **_count(s, *BUS_COUNTERS, 'bus_restarts', 'frames_sent')})
 
 
@@ -84,11 +79,15 @@ def _device(s: DeviceSnapshot) -> StatusReport:
                                     f'{limit_s * 1e3:.0f} ms); valve/state stopped')
     elif not s.setup_ok:
         level, text = Level.WARN, f'{s.label}: {s.setup_state}'
+    elif 'stale_frame' in s.recent:
+        level, text = Level.WARN, (f'{s.label}: frames older than {limit_s * 1e3:.0f} ms '
+                                   'when handled were dropped (the host falls behind the bus)')
     else:
         level, text = Level.OK, f'{s.label}: set up, answering'
     values = {'setup': s.setup_state, 'lost': s.device_lost, 'lost_after_s': s.lost_after_s,
               'age_s': s.device_age_s, 'liveness_limit_s': limit_s,
-              **_count(s, 'device_frames', 'device_losses', 'setups', 'setup_failures')}
+              **_count(s, 'device_frames', 'stale_frames', 'device_losses', 'setups',
+                       'setup_failures')}
     values.update(s.device_values)
     return StatusReport('device', level, text, values)
 

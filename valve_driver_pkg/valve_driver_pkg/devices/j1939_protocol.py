@@ -227,12 +227,10 @@ class J1939Protocol(DeviceProtocol):
         if not answered:
             return ClearResult(False, (), before, f'DM11 sent, but no DM1 from the valve '
                                f'within {timeout_s:g} s')
-        still = tuple(f.text for f in self.faults())
-        cleared = tuple(text for text in before if text not in still)
-        message = (f'DM11 to address {address}: cleared: {", ".join(cleared) or "nothing"}; '
-                   f'still active: {", ".join(still) or "nothing"}')
-        logger.info('clear faults: %s', message)
-        return ClearResult(not still, cleared, still, message)
+        result = ClearResult.judged(f'DM11 to address {address}', before,
+                                    tuple(f.text for f in self.faults()))
+        logger.info('clear faults: %s', result.message)
+        return result
 
     def bus_problem(self) -> str:
         with self._lock:

@@ -121,6 +121,7 @@ class BusLink:
         self.nice = config.io_nice
         self.realtime = config.io_realtime_priority
         self.bus_off_since = 0.0
+        self._polled = False      # the condition came from python-can's bus state
         #: Every frame received and sent goes here too when set (``log_frames_file``).
         self.frame_log: FrameLog | None = None
 
@@ -241,7 +242,8 @@ class BusLink:
         """Follow python-can's bus state (``bus.state``: active, passive, bus-off).
 
         Interfaces that report no state answer ``ACTIVE`` (python-can's default) and leave
-        the condition to the error frames.
+        the condition to the error frames; ``ACTIVE`` ends only a condition that the bus
+        state itself reported.
         """
         bus = self._bus
         if bus is None or self.failed:
@@ -251,9 +253,15 @@ class BusLink:
         except (NotImplementedError, can.CanError, OSError):
             return
         if state is can.BusState.PASSIVE and self.condition is not BusCondition.ERROR_PASSIVE:
+            self._polled = True
             self.apply_condition(BusCondition.ERROR_PASSIVE, 'python-can bus state: passive')
         elif state is can.BusState.ERROR and self.condition is not BusCondition.BUS_OFF:
+            self._polled = True
             self.apply_condition(BusCondition.BUS_OFF, 'python-can bus state: bus-off')
+        elif (state is can.BusState.ACTIVE and self._polled
+              and self.condition is not BusCondition.ERROR_ACTIVE):
+            self._polled = False
+            self.apply_condition(BusCondition.ERROR_ACTIVE, 'python-can bus state: active')
 
     def apply_condition(self, condition: BusCondition, text: str) -> None:
         """Enter the controller state ``condition`` reported by ``text`` (any thread)."""

@@ -48,6 +48,15 @@ class ClearResult:
     still_active: tuple[str, ...]
     message: str
 
+    @classmethod
+    def judged(cls, action: str, before: tuple[str, ...],
+               after: tuple[str, ...]) -> ClearResult:
+        """The faults ``before`` and ``after`` the clear ``action``: success if none is left."""
+        cleared = tuple(text for text in before if text not in after)
+        return cls(not after, cleared, after,
+                   f'{action}: cleared: {", ".join(cleared) or "nothing"}; still active: '
+                   f'{", ".join(after) or "nothing"}')
+
 
 class DriverCoreBase:
     """The skeleton of a driver core (module docstring). Thread-safe.

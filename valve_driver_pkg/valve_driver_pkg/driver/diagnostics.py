@@ -17,7 +17,8 @@ from valve_driver_pkg.protocol.codec import DriveMode, RejectReason
 from valve_driver_pkg.protocol.error_frames import BusCondition
 
 __all__ = ['Level', 'StatusReport', 'Tally', 'COUNTER_KEYS', 'LATCHED_FLAGS', 'DriverSnapshot',
-           'BusSnapshot', 'diagnose', 'overall_level', 'fault_flags']
+           'CoreSnapshot', 'BusSnapshot', 'BUS_COUNTERS', 'diagnose', 'overall_level',
+           'fault_flags']
 
 
 class Level(enum.IntEnum):
@@ -115,8 +116,10 @@ BUS_COUNTERS = ('error_frames', 'error_passive_events', 'bus_off_events', 'bus_r
 
 
 @dataclass(frozen=True)
-class DriverSnapshot:
-    """Everything the diagnostics need, copied at one instant (monotonic ``now``)."""
+class CoreSnapshot:
+    """What every driver core's diagnostics need, copied at one instant (monotonic
+    ``now``): the configuration, the counters and recent event marks, open and active,
+    the bus."""
 
     config: DriverConfig
     now: float
@@ -125,6 +128,12 @@ class DriverSnapshot:
     closed: bool
     active: bool
     bus: BusSnapshot
+
+
+@dataclass(frozen=True)
+class DriverSnapshot(CoreSnapshot):
+    """Everything the suite's diagnostics need, copied at one instant."""
+
     # receive tracker
     last_reject: str
     telemetry_age_s: float

@@ -3,7 +3,9 @@
 Every frame the driver receives and sends is written as one candump line
 ``(timestamp) channel id#data R|T`` through python-can's
 :class:`can.io.CanutilsLogWriter`; ``candump -l``, ``canplayer``, ``python -m can.player``
-and ``valve_can_replay`` read it back. The channel column is the driver's channel with
+and ``valve_can_replay`` read it back. The file is flushed at least every
+``flush_period_s`` (as the suite's recorder flushes its bag), so a driver that is killed
+loses at most that much of the log. The channel column is the driver's channel with
 characters that candump cannot carry (spaces, ``:``) replaced, so the line stays one token.
 """
 from __future__ import annotations
@@ -27,15 +29,21 @@ class FrameLog:
         The ``.log`` file (created; its folder too).
     channel : str
         The channel name written in each line.
+    flush_period_s : float
+        The file is flushed when a frame comes this long after the last flush [s]
+        (0: after every frame).
     """
 
-    def __init__(self, path: str | Path, channel: str = 'can0') -> None:
+    def __init__(self, path: str | Path, channel: str = 'can0',
+                 flush_period_s: float = 1.0) -> None:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         self.path = path
         self.channel = re.sub(r'[^A-Za-z0-9_]', '_', channel) or 'can0'
         self._writer = can.io.CanutilsLogWriter(str(path), channel=self.channel)
         self._lock = threading.Lock()
+        self._flush_period_s = flush_period_s
+        self._last_flush = time.monotonic()
         self.frames = 0
 
     def write(self, msg: can.Message, received: bool) -> None:
@@ -52,6 +60,10 @@ class FrameLog:
                 return
             self._writer.on_message_received(copy)
             self.frames += 1
+            now = time.monotonic()
+            if now - self._last_flush >= self._flush_period_s:
+                self._writer.file.flush()
+                self._last_flush = now
 
     def close(self) -> None:
         """Flush and close the file; safe to call more than once."""
