@@ -119,7 +119,8 @@ class CanDriverCore(DriverCoreBase):
         return self.scheduler.drive_mode.name.lower()
 
     def clear_faults(self, timeout_s: float = 1.0) -> ClearResult:
-        """Send ``ClearFaults=1`` once and wait for the controller's next ``ValveStatus``.
+        """Send ``ClearFaults=1`` once and read what is left from the controller's
+        ``ValveStatus`` after it (see :meth:`_flags_after`).
 
         Works while configured (active or not): the frame carries the command in force
         (duty 0 and ``Enable=0`` while inactive). Call it from a thread other than the
@@ -147,15 +148,8 @@ class CanDriverCore(DriverCoreBase):
                 self.scheduler.clear_pending = False
                 return ClearResult(False, (), tuple(before), 'not cleared: the ClearFaults '
                                    'frame could not be sent (bus down?)')
-        # The controller's next heartbeat after the frame tells what is left.
-        while time.monotonic() < deadline:
-            with self._lock:
-                mono = self.tracker.last_status_mono
-                if mono is not None and mono > sent + 0.001:
-                    after = fault_flags(self.tracker.last_status)
-                    break
-            time.sleep(0.005)
-        else:
+        after = self._flags_after(sent, deadline)
+        if after is None:
             return ClearResult(False, (), tuple(before), 'ClearFaults sent, but no ValveStatus '
                                f'from the controller within {timeout_s:g} s')
         cleared = tuple(f for f in before if f not in after)
@@ -167,6 +161,23 @@ class CanDriverCore(DriverCoreBase):
             message += ' (latched faults stay while their condition persists)'
         logger.info('clear faults: %s', message)
         return ClearResult(not latched, cleared, still, message)
+
+    def _flags_after(self, sent: float, deadline: float) -> list[str] | None:
+        """The fault flags once the controller has handled a frame sent at ``sent``: those of
+        the first ValveStatus after it that shows no latched flag, else of the last one by
+        ``deadline`` (the protocol has no acknowledgment: a status may have left a busy
+        controller before it handled the frame); None if no status came."""
+        after, last = None, sent + 0.001
+        while time.monotonic() < deadline:
+            with self._lock:
+                mono = self.tracker.last_status_mono
+                if mono is not None and mono > last:
+                    last = mono
+                    after = fault_flags(self.tracker.last_status)
+            if after is not None and not any(f in LATCHED_FLAGS for f in after):
+                break
+            time.sleep(0.005)
+        return after
 
     def handle_frame(self, msg: can.Message) -> None:
         """The receive path for one frame, as the receive thread hands it on (error frames

@@ -15,8 +15,8 @@ apart):
   <status>`` (e.g. ``left/valve_can_driver node 3: telemetry``), so two drivers never
   share a name;
 - serves ``~/clear_faults`` (std_srvs/Trigger) and answers what was cleared and what is
-  still active: protocol ``suite`` sends ``ClearFaults`` once and waits for the
-  controller's next heartbeat (success = no latched fault left); ``canopen`` resets the
+  still active: protocol ``suite`` sends ``ClearFaults`` once and reads the controller's
+  heartbeat after it (success = no latched fault left); ``canopen`` resets the
   device's communication (NMT) and reads its error register once it is set up again;
   ``j1939`` asks the valve for DM11 and reads its next DM1; ``dbc`` refuses (success
   false, the message says why).
