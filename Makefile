@@ -9,6 +9,8 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 
 # make demo BACKEND=can runs the same demo with the CAN driver + controller emulator.
 BACKEND ?= sim
+# make demo BACKEND=can PROTOCOL=canopen|j1939|dbc: the driver against a stand-in device.
+PROTOCOL ?= suite
 # make demo CYLINDER=double: the double-acting example; LIVE=1: Foxglove WebSocket view.
 CYLINDER ?= single
 LIVE ?= 0
@@ -30,7 +32,7 @@ setup:
 	@bash $(ROOT)/scripts/setup.sh
 
 demo: setup
-	@$(ENV) && valve_demo --backend $(BACKEND) --cylinder $(CYLINDER) \
+	@$(ENV) && valve_demo --backend $(BACKEND) --protocol $(PROTOCOL) --cylinder $(CYLINDER) \
 		$(if $(filter 1 yes true,$(LIVE)),--live,) $(DEMO_ARGS)
 
 test: setup

@@ -14,7 +14,8 @@ setup(
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     # The DBC files live beside protocol/codec.py, which finds them there.
-    package_data={package_name: ['protocol/*.dbc']},
+    package_data={package_name: ['protocol/*.dbc', 'devices/data/*.eds', 'devices/data/*.yaml',
+                                 'devices/data/examples/*']},
     install_requires=['setuptools'],
     # `colcon test` runs pytest in this directory (test/: the repository's tests of this
     # package, see README "Tests and packages").
@@ -28,6 +29,10 @@ setup(
         'console_scripts': [
             'valve_can_driver = valve_driver_pkg.nodes.can_driver_node:main',
             'valve_controller_emulator = valve_driver_pkg.emulator.emulator_main:main',
+            'valve_canopen_device = valve_driver_pkg.standins.canopen_device:main',
+            'valve_j1939_device = valve_driver_pkg.standins.j1939_device:main',
+            'valve_dbc_device = valve_driver_pkg.standins.dbc_device:main',
+            'valve_can_replay = valve_driver_pkg.replay:main',
         ],
         # python-can finds the loopback bus by name: can.Bus(interface='tcp_loopback', ...)
         'can.interface': [

@@ -23,7 +23,7 @@ def test_report_changes_nothing_and_diagnose_is_pure() -> None:
         core.activate()
         codec = ValveCodec(0)
         for counter in range(5):
-            core._on_frame(codec.encode(TELEMETRY, {
+            core.handle_frame(codec.encode(TELEMETRY, {
                 'CoilCurrent': 0.1, 'CoilVoltage': 24.0, 'SpoolPosition': 1e-4, 'Enabled': 1,
                 'PositionValid': 1, 'FaultActive': 0, 'CommandTimeout': 0}, counter))
         before = core.counters

@@ -6,6 +6,7 @@ import itertools
 import can
 import numpy as np
 import pytest
+from suite_waits import wait_until
 
 from valve_driver_pkg.emulator import (ControllerEmulator, ControllerState, EmulatorConfig,
                                        EmulatorFault, EmulatorRemote, parse_fault_spec)
@@ -149,7 +150,7 @@ def test_bad_command_checksum_is_ignored_and_flagged(rig) -> None:
     rig.emu.step(0.1)
     status = rig.decoded(STATUS)[-1]
     assert status.signals['FaultCommandChecksum'] == 1
-    assert rig.emu._duty == pytest.approx(0.4)
+    assert rig.emu.command.duty == pytest.approx(0.4)
     assert rig.emu.stats['commands_rejected'] == 1
 
 
@@ -157,7 +158,7 @@ def test_frozen_command_counter_is_ignored(rig) -> None:
     rig.command(0.4)
     rig.counter = (rig.counter - 1) & 0xF          # repeat the previous counter
     rig.command(0.9)
-    assert rig.emu._duty == pytest.approx(0.4)
+    assert rig.emu.command.duty == pytest.approx(0.4)
     rig.emu.step(0.1)
     assert rig.decoded(STATUS)[-1].signals['FaultCommandCounter'] == 1
 
@@ -489,8 +490,6 @@ def test_duty_0_switches_off_at_once_in_either_mode(mode) -> None:
 def test_the_drivers_drive_mode_reaches_the_emulator() -> None:
     """drive_mode of the driver -> ValveCommand.DriveMode -> the emulator's electronics, and
     the emulator's ValveDrive back into the driver's controller diagnostics."""
-    import time
-
     from valve_driver_pkg.driver import CanDriverCore, DriverConfig
 
     channel = f'emu_test_{next(_channels)}'
@@ -501,10 +500,7 @@ def test_the_drivers_drive_mode_reaches_the_emulator() -> None:
                                       drive_mode='bench', command_timeout_s=0.0))
 
     def poll_until(predicate, what: str) -> None:
-        deadline = time.monotonic() + 5.0
-        while not predicate():
-            emu.poll(0.05)
-            assert time.monotonic() < deadline, f'timed out waiting for {what}'
+        wait_until(predicate, what=what, step=lambda: emu.poll(0.05))
 
     try:
         assert core.drive_mode == 'bench'
@@ -515,10 +511,8 @@ def test_the_drivers_drive_mode_reaches_the_emulator() -> None:
         emu.step(0.06)
         assert emu.mode_active is DriveMode.BENCH
         assert stepper.sample().coil_voltage_v == pytest.approx(24.0)
-        deadline = time.monotonic() + 5.0
-        while core.report()[3].values.get('drive_mode') != 'bench':
-            assert time.monotonic() < deadline, 'no ValveDrive reached the driver'
-            time.sleep(0.01)
+        wait_until(lambda: core.report()[3].values.get('drive_mode') == 'bench',
+                   what='a ValveDrive at the driver')
         values = core.report()[3].values
         assert values['drive_mode_requested'] == 'bench'
         assert values['holding_current_a'] == 0.0

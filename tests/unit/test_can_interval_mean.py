@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import itertools
 import math
-import time
 
 import can
 import numpy as np
 import pytest
+from suite_waits import wait_until
 
 from valve_driver_pkg.driver import CanDriverCore, DriverConfig
 from valve_driver_pkg.emulator import ControllerEmulator, EmulatorConfig
@@ -78,10 +78,7 @@ def test_the_driver_publishes_the_means() -> None:
         core.open()
         core.activate()
         core.set_command(0.5, 50.0)
-        deadline = time.monotonic() + 5.0
-        while len(states) < 300:
-            assert time.monotonic() < deadline, 'no states'
-            time.sleep(0.01)
+        wait_until(lambda: len(states) >= 300, what='300 states')
     finally:
         core.close()
         emu.stop()

@@ -12,7 +12,9 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 
 CORES = ('valve_driver_pkg.protocol', 'valve_driver_pkg.canbus', 'valve_driver_pkg.driver',
          'valve_driver_pkg.emulator', 'valve_driver_pkg.emulator.emulator_main',
-         'valve_driver_pkg.errors')
+         'valve_driver_pkg.errors', 'valve_driver_pkg.devices.core',
+         'valve_driver_pkg.standins.canopen_device', 'valve_driver_pkg.standins.j1939_device',
+         'valve_driver_pkg.standins.dbc_device', 'valve_driver_pkg.replay')
 ROS = ('rclpy', 'rcl_interfaces', 'std_msgs', 'sensor_msgs', 'diagnostic_msgs', 'valve_msgs',
        'lifecycle_msgs', 'builtin_interfaces')
 

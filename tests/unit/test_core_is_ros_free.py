@@ -16,7 +16,8 @@ CORE_DIRS = [
                  'dataformat', 'analysis')
 ] + [
     REPO_ROOT / 'valve_driver_pkg' / 'valve_driver_pkg' / name
-    for name in ('protocol', 'emulator', 'driver', 'canbus')
+    for name in ('protocol', 'emulator', 'driver', 'canbus', 'devices', 'standins',
+                 'replay.py')
 ] + [
     # What starts the suite: the process supervisor and the CAN backend's command lines.
     REPO_ROOT / 'valve_bringup' / 'valve_bringup' / name
@@ -69,6 +70,8 @@ def test_importing_the_cores_loads_no_ros_module() -> None:
         '            "valve_model_pkg.recording", "valve_model_pkg.analysis",\n'
         '            "valve_driver_pkg.protocol", "valve_driver_pkg.emulator",\n'
         '            "valve_driver_pkg.driver", "valve_driver_pkg.canbus",\n'
+        '            "valve_driver_pkg.devices", "valve_driver_pkg.standins",\n'
+        '            "valve_driver_pkg.replay",\n'
         '            "valve_bringup.supervisor", "valve_bringup.backend"):\n'
         '    try:\n'
         '        m = importlib.import_module(pkg)\n'

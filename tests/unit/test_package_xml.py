@@ -29,7 +29,8 @@ ROSDEP_PYTHON_KEYS = frozenset({
     'python3-numpy', 'python3-scipy', 'python3-yaml', 'python3-matplotlib', 'python3-numba',
     'python3-can', 'python3-cantools-pip', 'python3-rosbags-pip', 'python-crccheck-pip',
     'mcap-ros2-support', 'python3-pytest', 'python3-hypothesis', 'python3-setuptools',
-    'python3-tqdm', 'python3-pytest-xdist', 'python3-h5py',
+    'python3-tqdm', 'python3-pytest-xdist', 'python3-h5py', 'canopen-pip',
+    'python3-can-j1939-pip',
 })
 #: rosdistro jazzy/distribution.yaml (commit 8468e88c): released ROS packages.
 JAZZY_PACKAGES = frozenset({
@@ -48,7 +49,7 @@ IMPORT_KEYS = {
     'crccheck': 'python-crccheck-pip', 'mcap': 'mcap-ros2-support',
     'mcap_ros2': 'mcap-ros2-support', 'setuptools': 'python3-setuptools',
     'pytest': 'python3-pytest', 'hypothesis': 'python3-hypothesis', 'tqdm': 'python3-tqdm',
-    'h5py': 'python3-h5py',
+    'h5py': 'python3-h5py', 'canopen': 'canopen-pip', 'j1939': 'python3-can-j1939-pip',
     **{name: name for name in JAZZY_PACKAGES | set(SUITE_PACKAGES)},
 }
 #: Optional modules with no rosdep key in rosdistro (commit 8468e88c): imported lazily, only

@@ -17,7 +17,13 @@ from collections.abc import Sequence
 
 from valve_bringup.supervisor import ProcessSpec
 
-__all__ = ['can_backend_processes', 'can_backend_commands', 'free_loopback_port']
+__all__ = ['can_backend_processes', 'can_backend_commands', 'free_loopback_port',
+           'device_backend_processes', 'DEVICE_STATE_PERIOD_S']
+
+#: How often the stand-in device of each protocol reports, so how often valve/state comes
+#: [s]: CiA 401 TPDO1 at the driver's command period (10 ms), the J1939 Estimated Flow
+#: every 100 ms (ISO 11783-7), the example board's status every 100 ms (its DBC).
+DEVICE_STATE_PERIOD_S = {'canopen': 0.01, 'j1939': 0.1, 'dbc': 0.1}
 
 
 def free_loopback_port() -> int:
@@ -79,3 +85,24 @@ def can_backend_processes(rate_hz: float = 1000.0, **kwargs: object) -> list[Pro
     # sees its bus vanish while it shuts down.
     return [ProcessSpec(name, argv, stop_last=name == 'valve_controller_emulator')
             for name, argv in commands.items()]
+
+
+def device_backend_processes(protocol: str, *, port: int | None = None,
+                             command_timeout_s: float = 2.0) -> list[ProcessSpec]:
+    """A stand-in device of ``protocol`` (canopen, j1939, dbc; it hosts the bus) and the
+    driver speaking that protocol to it, on wall-clock time (valve_driver_pkg.standins)."""
+    from valve_driver_pkg.devices.dbc_protocol import example_dbc_path, example_mapping_path
+    channel = f'127.0.0.1:{port if port is not None else free_loopback_port()}'
+    device, params = {
+        'canopen': (['valve_canopen_device', '--node-id', '1'], ['canopen.node_id:=1']),
+        'j1939': (['valve_j1939_device'], []),
+        'dbc': (['valve_dbc_device'], [f'dbc.file:={example_dbc_path()}',
+                                       f'dbc.mapping_file:={example_mapping_path()}']),
+    }[protocol]
+    driver = ['valve_can_driver', '--ros-args', '-p', f'protocol:={protocol}',
+              '-p', 'interface:=tcp_loopback', '-p', f'channel:={channel}',
+              '-p', f'command_timeout_s:={float(command_timeout_s)}', '-p', 'autostart:=true',
+              *(a for p in params for a in ('-p', p))]
+    return [ProcessSpec(device[0], [*device, '--interface', 'tcp_loopback', '--channel',
+                                    channel], stop_last=True),
+            ProcessSpec('valve_can_driver', driver)]

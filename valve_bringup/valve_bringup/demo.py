@@ -41,7 +41,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
-from valve_bringup.backend import can_backend_processes
+from valve_bringup.backend import (DEVICE_STATE_PERIOD_S, can_backend_processes,
+                                   device_backend_processes)
 from valve_bringup.supervisor import ChildExited, ProcessSpec, Supervisor
 from valve_bringup.watcher import DemoWatcher, valve_topic
 from valve_model_pkg.analysis import write_run_report
@@ -94,6 +95,8 @@ class DemoConfig:
     #: through) carry it; flow_to_duty and the controller keep theirs. None = the suite's.
     #: Lockstep clock only.
     plant_params_file: Path | None = None
+    #: The can backend's device: suite (the emulator) | canopen | j1939 | dbc (stand-ins).
+    protocol: str = 'suite'
 
     @property
     def lockstep(self) -> bool:
@@ -107,8 +110,11 @@ class DemoConfig:
 
 
 def backend_processes(backend: str, *, rate_hz: float = 1000.0,
-                      emulator_args: tuple[str, ...] = ()) -> list[ProcessSpec]:
+                      emulator_args: tuple[str, ...] = (),
+                      protocol: str = 'suite') -> list[ProcessSpec]:
     """The processes that provide ``valve/state`` for a backend (``sim`` or ``can``)."""
+    if backend == 'can' and protocol != 'suite':
+        return device_backend_processes(protocol)
     if backend == 'sim':
         return [ProcessSpec('valve_simulator', [
             'valve_simulator', '--ros-args', '-p', f'publish_rate_hz:={rate_hz}'])]
@@ -120,6 +126,19 @@ def backend_processes(backend: str, *, rate_hz: float = 1000.0,
 def _plant_emulator_args(cfg: DemoConfig) -> tuple[str, ...]:
     """The emulator's ``--params-file`` when the physical valve is not the suite's."""
     return ('--params-file', str(cfg.plant_params_file)) if cfg.plant_params_file else ()
+
+
+def _plant_gap_args(cfg: DemoConfig) -> tuple[str, ...]:
+    """The cylinder integrates across the gap between two states of a slow device.
+
+    The plant advances on each valve/state; a device that reports every 100 ms (J1939,
+    the example board) leaves gaps the default limit (50 ms) would cut short, so the
+    plant would run slower than the wall clock. The limit becomes 2.5 of its periods.
+    """
+    if cfg.backend != 'can' or cfg.protocol == 'suite':
+        return ()
+    gap_s = max(2.5 * DEVICE_STATE_PERIOD_S[cfg.protocol], 0.05)
+    return ('--ros-args', '-p', f'max_advance_per_tick_s:={gap_s:g}')
 
 
 def recorded_topics(cfg: DemoConfig) -> list[str]:
@@ -145,11 +164,11 @@ def suite_processes(cfg: DemoConfig, bag: Path) -> list[ProcessSpec]:
             backend = backend_processes('sim', rate_hz=cfg.rate_hz)
         else:
             backend = backend_processes(cfg.backend, rate_hz=cfg.rate_hz,
-                                        emulator_args=cfg.effect_args)
+                                        emulator_args=cfg.effect_args, protocol=cfg.protocol)
         return backend + [
             ProcessSpec('flow_to_duty', ['flow_to_duty', *(
                 ('--ros-args', *cfg.flow_to_duty_args) if cfg.flow_to_duty_args else ())]),
-            ProcessSpec('pneumatic_cylinder', ['pneumatic_cylinder']),
+            ProcessSpec('pneumatic_cylinder', ['pneumatic_cylinder', *_plant_gap_args(cfg)]),
             ProcessSpec('position_controller', ['position_controller']),
             recorder,
         ]
@@ -462,6 +481,10 @@ def main(argv: list[str] | None = None) -> int:
                         help='lockstep: simulation time, the simulation waits for the '
                         'controller (default; with --backend can the emulator\'s valve '
                         'advances on /clock); wall: separate processes on wall-clock time')
+    parser.add_argument('--protocol', choices=('suite', 'canopen', 'j1939', 'dbc'),
+                        default='suite', help='(--backend can) what the driver speaks: the '
+                        'suite\'s emulator, or a stand-in CANopen / J1939 / DBC device '
+                        '(wall clock)')
     parser.add_argument('--as-fast-as-possible', action='store_true',
                         help='(lockstep) do not cap the real-time factor at 1')
     parser.add_argument('--cylinder', choices=('single', 'double'), default='single',
@@ -500,8 +523,12 @@ def main(argv: list[str] | None = None) -> int:
     def _interrupt(signum: int, _frame: object) -> None:
         raise KeyboardInterrupt(signal.Signals(signum).name)
     signal.signal(signal.SIGTERM, _interrupt)
+    if args.protocol != 'suite':   # the stand-in devices run on the wall clock
+        if args.backend != 'can':
+            parser.error('--protocol needs --backend can')
+        args.clock = 'wall'
     cfg = DemoConfig(args.backend, args.out or Path('demo_output'), args.rate, effect_args,
-                     goals, clock=args.clock,
+                     goals, clock=args.clock, protocol=args.protocol,
                      real_time_factor_max=0.0 if args.as_fast_as_possible else 1.0,
                      cylinder=args.cylinder, live=args.live, live_port=args.live_port)
     return run(cfg, out_given=args.out is not None)

@@ -6,7 +6,11 @@
     ├── ProtocolError
     │   ├── DbcError (ValueError)            the DBC breaks the protocol's layout rules
     │   ├── ProtocolEncodeError (ValueError) a signal value outside its DBC range (strict)
-    │   └── FrameRejected                    a received frame failed a check (has reason)
+    │   ├── FrameRejected                    a received frame failed a check (has reason)
+    │   └── MappingError (ValueError)        a device mapping names what is not there
+    ├── DeviceError
+    │   ├── DeviceSetupError (RuntimeError)  the device could not be set up (no answer, abort)
+    │   └── SdoAbortError (RuntimeError)     a CANopen device refused an SDO access (has code)
     └── BusError
         ├── BusOpenError (OSError)           the bus could not be opened
         └── BusClosedError (ConnectionError) the bus went away while in use
@@ -15,6 +19,7 @@ from __future__ import annotations
 
 __all__ = [
     'ValveDriverError', 'ProtocolError', 'DbcError', 'ProtocolEncodeError', 'FrameRejected',
+    'MappingError', 'DeviceError', 'DeviceSetupError', 'SdoAbortError',
     'BusError', 'BusOpenError', 'BusClosedError',
 ]
 
@@ -50,6 +55,35 @@ class FrameRejected(ProtocolError):
         super().__init__(detail)
         self.reason = reason
         self.detail = detail
+
+
+class MappingError(ProtocolError, ValueError):
+    """A device mapping (CANopen objects, DBC messages and signals) cannot be used; the
+    message names the file, the role and the missing object, message or signal."""
+
+
+class DeviceError(ValveDriverError):
+    """Base class of errors a device on the bus causes."""
+
+
+class DeviceSetupError(DeviceError, RuntimeError):
+    """The device did not answer its set-up in time, or refused it."""
+
+
+class SdoAbortError(DeviceError, RuntimeError):
+    """A CANopen device aborted an SDO transfer; ``code`` is the CiA 301 abort code.
+
+    Parameters
+    ----------
+    code : int
+        The 32-bit abort code.
+    detail : str
+        What was accessed and the code's name.
+    """
+
+    def __init__(self, code: int, detail: str) -> None:
+        super().__init__(detail)
+        self.code = code
 
 
 class BusError(ValveDriverError):

@@ -17,7 +17,8 @@ from collections.abc import Callable
 import can
 
 from valve_driver_pkg.driver.config import DriverConfig
-from valve_driver_pkg.driver.diagnostics import Tally
+from valve_driver_pkg.driver.diagnostics import BusSnapshot, Tally
+from valve_driver_pkg.driver.frame_log import FrameLog
 from valve_driver_pkg.errors import BusOpenError
 from valve_driver_pkg.protocol.error_frames import BusCondition, parse_error_frame
 
@@ -119,6 +120,10 @@ class BusLink:
         self.last_error_frame = ''
         self.nice = config.io_nice
         self.realtime = config.io_realtime_priority
+        self.bus_off_since = 0.0
+        self._polled = False      # the condition came from python-can's bus state
+        #: Every frame received and sent goes here too when set (``log_frames_file``).
+        self.frame_log: FrameLog | None = None
 
     # --- open / close (caller's thread or the I/O thread) ------------------------------------
     def open(self, connect_timeout: float | None = None) -> None:
@@ -192,6 +197,8 @@ class BusLink:
             return False
         try:
             bus.send(msg, timeout=0.01)
+            if self.frame_log is not None:
+                self.frame_log.write(msg, received=False)
             return True
         except can.CanError as err:
             with self._lock:
@@ -200,8 +207,19 @@ class BusLink:
             logger.debug('send failed: %s', err)
             return False
 
+    def snapshot(self) -> BusSnapshot:
+        """The link's state for the diagnostics. Lock held."""
+        return BusSnapshot(self.failed, self.error_text, self.condition, self.last_error_frame)
+
     # --- receive thread ----------------------------------------------------------------------
+    @property
+    def bus(self) -> can.BusABC | None:
+        """The open python-can bus (None while closed)."""
+        return self._bus
+
     def _deliver(self, msg: can.Message) -> None:
+        if self.frame_log is not None:
+            self.frame_log.write(msg, received=True)
         try:
             if msg.is_error_frame:
                 self.on_error_frame(msg)
@@ -218,12 +236,42 @@ class BusLink:
         with self._lock:
             self._tally.count('error_frames')
             self._tally.mark('error_frame', time.monotonic())
-            self.last_error_frame = info.text
+        self.apply_condition(info.condition, info.text)
+
+    def poll_state(self) -> None:
+        """Follow python-can's bus state (``bus.state``: active, passive, bus-off).
+
+        Interfaces that report no state answer ``ACTIVE`` (python-can's default) and leave
+        the condition to the error frames; ``ACTIVE`` ends only a condition that the bus
+        state itself reported.
+        """
+        bus = self._bus
+        if bus is None or self.failed:
+            return
+        try:
+            state = bus.state
+        except (NotImplementedError, can.CanError, OSError):
+            return
+        if state is can.BusState.PASSIVE and self.condition is not BusCondition.ERROR_PASSIVE:
+            self._polled = True
+            self.apply_condition(BusCondition.ERROR_PASSIVE, 'python-can bus state: passive')
+        elif state is can.BusState.ERROR and self.condition is not BusCondition.BUS_OFF:
+            self._polled = True
+            self.apply_condition(BusCondition.BUS_OFF, 'python-can bus state: bus-off')
+        elif (state is can.BusState.ACTIVE and self._polled
+              and self.condition is not BusCondition.ERROR_ACTIVE):
+            self._polled = False
+            self.apply_condition(BusCondition.ERROR_ACTIVE, 'python-can bus state: active')
+
+    def apply_condition(self, condition: BusCondition, text: str) -> None:
+        """Enter the controller state ``condition`` reported by ``text`` (any thread)."""
+        with self._lock:
+            self.last_error_frame = text
             previous = self.condition
-            condition = info.condition
             if condition is BusCondition.BUS_OFF:
                 if previous is not BusCondition.BUS_OFF:
                     self._tally.count('bus_off_events')
+                    self.bus_off_since = time.monotonic()
                 self.condition = BusCondition.BUS_OFF
             elif condition is BusCondition.ERROR_PASSIVE:
                 if previous is not BusCondition.ERROR_PASSIVE:
@@ -239,7 +287,7 @@ class BusLink:
                 self.condition = BusCondition.ERROR_ACTIVE
             changed = self.condition is not previous
         if changed:
-            logger.warning('CAN bus %s: %s', self.condition.value, info.text)
+            logger.warning('CAN bus %s: %s', self.condition.value, text)
             self._on_change()
 
     def note_valid_traffic(self) -> None:

@@ -15,7 +15,10 @@ from valve_driver_pkg.protocol.codec import MAX_NODE_ID, DriveMode
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
 from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
 
-__all__ = ['DriverConfig', 'setting', 'DRIVE_MODE_NAMES']
+__all__ = ['DriverConfig', 'setting', 'DRIVE_MODE_NAMES', 'PROTOCOLS', 'check_protocol_settings']
+
+#: Values of the ``protocol`` setting: the suite's own protocol and the devices' protocols.
+PROTOCOLS = ('suite', 'canopen', 'j1939', 'dbc')
 
 #: Values of the ``drive_mode`` setting (``ValveCommand.DriveMode``, lower case).
 DRIVE_MODE_NAMES = tuple(mode.name.lower() for mode in DriveMode)
@@ -46,6 +49,10 @@ class DriverConfig:
     descriptions are the documentation of the fields.
     """
 
+    protocol: str = setting('suite', 'What the device on the bus speaks: suite (the suite\'s '
+                            'own DBC, valve_controller_emulator), canopen (CiA 401 I/O '
+                            'module), j1939 (ISO 11783-7 auxiliary valve), dbc (the user\'s '
+                            'own DBC); see docs/controllers.md')
     interface: str = setting('socketcan', 'python-can interface (socketcan, virtual, pcan, '
                              '...) or tcp_loopback (the emulator\'s loopback hub)')
     channel: str = setting('can0', 'Channel: can0, a virtual channel name, or '
@@ -88,7 +95,10 @@ class DriverConfig:
     frozen_counter_limit: int = setting(3, 'Repeated ValveTelemetry counters in a row that '
                                         'make the counter "frozen" (ERROR)', 1, 100)
     pwm_frequency_hz: float = setting(50.0, 'PWM frequency in force until a command sets one '
-                                      '[Hz]', MIN_PWM_FREQUENCY_HZ, MAX_PWM_FREQUENCY_HZ)
+                                      '[Hz]; for a protocol that carries none (canopen, '
+                                      'j1939) the device\'s own PWM frequency, for the '
+                                      'derived position and flow', MIN_PWM_FREQUENCY_HZ,
+                                      MAX_PWM_FREQUENCY_HZ)
     max_pwm_frequency_hz: float = setting(MAX_PWM_FREQUENCY_HZ, 'Commands above this PWM '
                                           'frequency are clamped [Hz] (to the DBC limit if '
                                           'lower)', MIN_PWM_FREQUENCY_HZ, MAX_PWM_FREQUENCY_HZ)
@@ -113,10 +123,15 @@ class DriverConfig:
                               'supply while duty = 1; bare-coil steps for identification). '
                               'Settable at run time; the controller switches at its next PWM '
                               'period start, at once while duty 0 is in force. Duty 0 and '
-                              'every stop act at once in either mode')
+                              'every stop act at once in either mode. Protocol suite only '
+                              '(the device protocols carry no drive mode: normal)')
+
+    log_frames_file: str = setting('', 'Write every frame received and sent to this candump '
+                                   '.log file (python-can\'s logger); empty = off. '
+                                   'valve_can_replay turns it into a bag')
 
     def __post_init__(self) -> None:
-        DriveMode.parse(self.drive_mode)   # ValueError naming the value and the choices
+        check_protocol_settings(self.protocol, self.drive_mode)
 
     @property
     def telemetry_period_s(self) -> float:
@@ -138,3 +153,21 @@ class DriverConfig:
     def hardware_id(self) -> str:
         """``interface:channel node n``, the hardware id of the diagnostics."""
         return f'{self.interface}:{self.channel} node {self.node_id}'
+
+
+def check_protocol_settings(protocol: str, drive_mode: str) -> None:
+    """Refuse a protocol that is not one, a drive mode that is not one, and a drive mode
+    other than ``normal`` with a device protocol (only the suite's protocol carries one).
+
+    Raises
+    ------
+    ValueError
+        Naming the value and the choices.
+    """
+    DriveMode.parse(drive_mode)
+    if protocol not in PROTOCOLS:
+        raise ValueError(f'protocol {protocol!r} is not one of {", ".join(PROTOCOLS)}')
+    if protocol != 'suite' and drive_mode != 'normal':
+        raise ValueError(f'drive_mode {drive_mode!r} needs protocol suite: protocol '
+                         f'{protocol} carries no drive mode (the device\'s own configuration '
+                         'sets its electronics); use normal')

@@ -1,9 +1,9 @@
-"""The CAN driver without ROS: a small facade over the link, the scheduler and the tracker.
+"""The suite's CAN driver without ROS: a small facade over the link, the scheduler and the
+tracker.
 
-:class:`CanDriverCore` composes
+:class:`CanDriverCore` is a :class:`~valve_driver_pkg.driver.core_base.DriverCoreBase`
+(bus link, one lock, I/O thread, lifecycle) for the suite's own protocol. It composes
 
-* :class:`~valve_driver_pkg.driver.bus_link.BusLink`: the bus, the **receive thread** (a
-  ``can.Notifier``), the bus condition;
 * :class:`~valve_driver_pkg.driver.transmit.TransmitScheduler`: duty command, pressures,
   watchdog, when frames are due;
 * :class:`~valve_driver_pkg.driver.receive.ReceiveTracker`: frames -> counters, sequence
@@ -11,37 +11,31 @@
   the receive thread);
 * :func:`~valve_driver_pkg.driver.diagnostics.diagnose`: snapshot -> statuses;
 
-and runs the **I/O thread**: it sends what is due, runs the watchdog, judges the
-telemetry (:mod:`~valve_driver_pkg.driver.health`: lost on silence or counter gaps, with
-hysteresis), and reopens a failed bus every ``reopen_period_s``. Whenever a diagnostic
-level changes it calls ``on_diagnostics_changed`` at once. Both bus threads lower their
-nice value to ``io_nice`` where the system permits (:func:`raise_thread_priority`), so
-other processes' load delays bus I/O less.
-
-Thread ownership: one lock (``threading.Condition`` over an ``RLock``) guards the state of
-all four parts; every write happens under it, callbacks and bus I/O happen outside it.
-The I/O thread waits on the same condition, so a new command wakes it. Nothing that reads
-(``report``, ``counters``, ``command``) changes state.
+and its I/O thread sends what is due, runs the watchdog, judges the telemetry
+(:mod:`~valve_driver_pkg.driver.health`: lost on silence or counter gaps, with
+hysteresis), and reopens a failed bus every ``reopen_period_s``. Both bus threads lower
+their nice value to ``io_nice`` where the system permits (:func:`raise_thread_priority`),
+so other processes' load delays bus I/O less. Nothing that reads (``report``,
+``counters``, ``command``) changes state.
 """
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import can
 
 from valve_driver_pkg.canbus.factory import open_bus
-from valve_driver_pkg.driver.bus_link import BusLink, raise_thread_priority
+from valve_driver_pkg.driver.bus_link import raise_thread_priority
 from valve_driver_pkg.driver.config import DriverConfig
+from valve_driver_pkg.driver.core_base import ClearResult, DriverCoreBase
 from valve_driver_pkg.driver.diagnostics import (LATCHED_FLAGS, DriverSnapshot, Level,
-                                                 StatusReport, Tally, age, diagnose,
-                                                 fault_flags, overall_level)
+                                                 StatusReport, age, diagnose, fault_flags)
+from valve_driver_pkg.driver.host_command import CommandResult, HostCommand
 from valve_driver_pkg.driver.receive import MassFlowFunction, ReceiveTracker
-from valve_driver_pkg.driver.transmit import CommandResult, TransmitScheduler
+from valve_driver_pkg.driver.transmit import TransmitScheduler
 from valve_driver_pkg.protocol.codec import ValveCodec
 from valve_model_pkg.model.sample import ValveSample
 
@@ -54,17 +48,7 @@ logger = logging.getLogger(__name__)
 _LEVEL_CHECK_S = 0.05
 
 
-@dataclass(frozen=True, slots=True)
-class ClearResult:
-    """What :meth:`CanDriverCore.clear_faults` achieved."""
-
-    success: bool
-    cleared: tuple[str, ...]
-    still_active: tuple[str, ...]
-    message: str
-
-
-class CanDriverCore:
+class CanDriverCore(DriverCoreBase):
     """The driver without ROS. Thread-safe; see the module docstring for the threads.
 
     Parameters
@@ -85,94 +69,30 @@ class CanDriverCore:
                  on_state: Callable[[ValveSample], None] | None = None,
                  on_diagnostics_changed: Callable[[], None] | None = None,
                  bus_factory: Callable[..., can.BusABC] = open_bus) -> None:
-        self.config = config
+        super().__init__(config, on_diagnostics_changed, bus_factory, 'valve_can_io')
         self.codec = ValveCodec(config.node_id, config.dbc_path or None)
-        self._on_diag = on_diagnostics_changed
-        self._lock = threading.Condition(threading.RLock())
-        self._stop = threading.Event()
-        self._tally = Tally()
-        self._closed = True
-        self._levels: tuple[Level, ...] = ()
-        self._io_thread: threading.Thread | None = None
-        self.io_priority_raised = False
-        self.link = BusLink(config, self._lock, self._tally, self._stop, self._on_frame,
-                            self._check_levels, bus_factory)
         self.scheduler = TransmitScheduler(config, self.codec, self._lock, self._tally)
         self.tracker = ReceiveTracker(config, self.codec, self._lock, self._tally, self.link,
                                       self.scheduler, mass_flow, on_state,
                                       self._check_levels)
+        self._next_level_check = 0.0
+
+    @property
+    def host_command(self) -> HostCommand:
+        return self.scheduler
 
     # --- lifecycle ---------------------------------------------------------------------------
-    def open(self) -> None:
-        """Open the bus and start receiving (no frames are sent until :meth:`activate`).
+    def _on_open(self, now: float) -> None:
+        self.tracker.on_open(now)
+        self._next_level_check = 0.0
 
-        Raises
-        ------
-        BusOpenError
-            The bus could not be opened; nothing is left open.
-        """
-        if not self._closed:
-            return
-        self._stop.clear()
-        self.link.open()
-        with self._lock:
-            self._closed = False
-            self.tracker.on_open(time.monotonic())
-        self._io_thread = threading.Thread(target=self._io_loop, name='valve_can_io',
-                                           daemon=True)
-        self._io_thread.start()
-        cfg = self.config
-        logger.info('CAN bus %s open; DBC %s', cfg.hardware_id, self.codec.dbc_path)
+    def _after_open(self) -> None:
+        logger.info('CAN bus %s open; DBC %s', self.config.hardware_id, self.codec.dbc_path)
 
     def activate(self) -> None:
         """Start sending commands; the command starts at duty 0 until one arrives."""
         with self._lock:
             self.scheduler.activate()
-
-    def deactivate(self, timeout_s: float = 0.2) -> bool:
-        """Command duty 0 (output disabled), wait until that frame is sent, stop sending.
-
-        Returns
-        -------
-        bool
-            True if the duty-0 frame went out within ``timeout_s``.
-        """
-        with self._lock:
-            if not self.scheduler.deactivate():
-                return True
-            deadline = time.monotonic() + timeout_s
-            while (self.scheduler.disable_pending and not self._closed
-                   and time.monotonic() < deadline):
-                self._lock.wait(deadline - time.monotonic())
-            return not self.scheduler.disable_pending
-
-    def close(self) -> None:
-        """Stop the threads and close the bus; safe to call more than once."""
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            self.scheduler.active = False
-            self._stop.set()
-            self._lock.notify_all()
-        if self._io_thread is not None and self._io_thread is not threading.current_thread():
-            self._io_thread.join(timeout=2.0)
-        self._io_thread = None
-        self.link.close()
-
-    @property
-    def is_open(self) -> bool:
-        return not self._closed
-
-    @property
-    def is_active(self) -> bool:
-        return self.scheduler.active
-
-    # --- inputs ------------------------------------------------------------------------------
-    def set_command(self, duty: float, pwm_frequency_hz: float = 0.0, age_s: float = 0.0,
-                    sequence: int | None = None, source: str = '') -> CommandResult:
-        """See :meth:`TransmitScheduler.set_command`."""
-        return self.scheduler.set_command(duty, pwm_frequency_hz, age_s, sequence, source)
 
     def set_drive_mode(self, mode: str) -> str:
         """Drive mode sent to the controller from now on (``'normal'`` | ``'bench'``).
@@ -199,7 +119,8 @@ class CanDriverCore:
         return self.scheduler.drive_mode.name.lower()
 
     def clear_faults(self, timeout_s: float = 1.0) -> ClearResult:
-        """Send ``ClearFaults=1`` once and wait for the controller's next ``ValveStatus``.
+        """Send ``ClearFaults=1`` once and read what is left from the controller's
+        ``ValveStatus`` after it (see :meth:`_flags_after`).
 
         Works while configured (active or not): the frame carries the command in force
         (duty 0 and ``Enable=0`` while inactive). Call it from a thread other than the
@@ -227,15 +148,8 @@ class CanDriverCore:
                 self.scheduler.clear_pending = False
                 return ClearResult(False, (), tuple(before), 'not cleared: the ClearFaults '
                                    'frame could not be sent (bus down?)')
-        # The controller's next heartbeat after the frame tells what is left.
-        while time.monotonic() < deadline:
-            with self._lock:
-                mono = self.tracker.last_status_mono
-                if mono is not None and mono > sent + 0.001:
-                    after = fault_flags(self.tracker.last_status)
-                    break
-            time.sleep(0.005)
-        else:
+        after = self._flags_after(sent, deadline)
+        if after is None:
             return ClearResult(False, (), tuple(before), 'ClearFaults sent, but no ValveStatus '
                                f'from the controller within {timeout_s:g} s')
         cleared = tuple(f for f in before if f not in after)
@@ -248,30 +162,32 @@ class CanDriverCore:
         logger.info('clear faults: %s', message)
         return ClearResult(not latched, cleared, still, message)
 
-    def set_pressures(self, supply_pa: float | None = None,
-                      output_pa: float | None = None) -> bool:
-        """Set the port pressures (gauge Pa); a non-finite value is rejected (False)."""
-        return self.scheduler.set_pressures(supply_pa, output_pa)
+    def _flags_after(self, sent: float, deadline: float) -> list[str] | None:
+        """The fault flags once the controller has handled a frame sent at ``sent``: those of
+        the first ValveStatus after it that shows no latched flag, else of the last one by
+        ``deadline`` (the protocol has no acknowledgment: a status may have left a busy
+        controller before it handled the frame); None if no status came."""
+        after, last = None, sent + 0.001
+        while time.monotonic() < deadline:
+            with self._lock:
+                mono = self.tracker.last_status_mono
+                if mono is not None and mono > last:
+                    last = mono
+                    after = fault_flags(self.tracker.last_status)
+            if after is not None and not any(f in LATCHED_FLAGS for f in after):
+                break
+            time.sleep(0.005)
+        return after
 
-    @property
-    def command(self) -> tuple[float, float]:
-        """``(duty, pwm_frequency_hz)`` the driver sends (0 while the watchdog holds)."""
-        return self.scheduler.command
-
-    def _on_frame(self, msg: can.Message) -> None:
-        """One received frame (receive thread; error frames go to the link)."""
+    def handle_frame(self, msg: can.Message) -> None:
+        """The receive path for one frame, as the receive thread hands it on (error frames
+        go to the link's bus condition, the others to the receive tracker)."""
         if msg.is_error_frame:
             self.link.on_error_frame(msg)
         else:
             self.tracker.on_frame(msg)
 
     # --- diagnostics -------------------------------------------------------------------------
-    @property
-    def counters(self) -> dict[str, int]:
-        """A copy of every counter of the driver."""
-        with self._lock:
-            return self._tally.copy()
-
     def snapshot(self) -> DriverSnapshot:
         """Copy the state the diagnostics need, under the lock."""
         now = time.monotonic()
@@ -280,15 +196,14 @@ class CanDriverCore:
             return DriverSnapshot(
                 config=self.config, now=now, counters=self._tally.copy(),
                 recent=self._tally.recent(now, self.config.fault_hold_s),
-                closed=self._closed, active=sched.active, bus_failed=link.failed,
-                bus_error_text=link.error_text, bus_condition=link.condition,
-                last_error_frame=link.last_error_frame, last_reject=tracker.last_reject,
+                closed=self._closed, active=sched.active, bus=link.snapshot(),
+                last_reject=tracker.last_reject,
                 telemetry_age_s=age(now, tracker.last_valid_mono),
                 telemetry_lost=tracker.lost, lost_after_s=tracker.lost_after_s,
                 loss_reason=tracker.health.reason,
                 frozen_run=tracker.frozen_run, frozen_counter=tracker.frozen_counter,
                 telemetry_rate_hz=tracker.rate_hz,
-                average_source=tracker.average_source(now),
+                average_source=tracker.average_source(),
                 last_status=tracker.last_status,
                 heartbeat_age_s=age(now, tracker.last_status_mono or None),
                 duty=0.0 if sched.watchdog_tripped else sched.duty,
@@ -304,52 +219,27 @@ class CanDriverCore:
         """The driver's diagnostics now: bus, telemetry, commands, controller."""
         return diagnose(self.snapshot())
 
-    def overall_level(self) -> Level:
-        """Worst level of :meth:`report` (STALE counts as ERROR)."""
-        return overall_level(self.report())
-
-    def _check_levels(self) -> None:
-        """Call ``on_diagnostics_changed`` if a level differs from the last check."""
-        levels = tuple(r.level for r in self.report())
-        with self._lock:
-            changed, self._levels = levels != self._levels, levels
-        if changed and self._on_diag is not None:
-            try:
-                self._on_diag()
-            except Exception:   # noqa: BLE001 - a callback must not stop a driver thread
-                logger.exception('diagnostics callback failed')
-
     @staticmethod
     def default_dbc_path() -> Path:
         from valve_driver_pkg.protocol.codec import default_dbc_path
         return default_dbc_path()
 
     # --- I/O thread --------------------------------------------------------------------------
-    def _io_loop(self) -> None:
-        self.io_priority_raised = raise_thread_priority(
-            self.config.io_nice, 'I/O', self.config.io_realtime_priority)
-        next_level_check = 0.0
-        while not self._stop.is_set():
-            try:
-                now = time.monotonic()
-                if self.link.failed and now >= self.link.next_reopen:
-                    self._reopen()
-                    continue
-                changed = self.tracker.check_loss(now)
-                changed |= self.scheduler.check_watchdog(now)
-                if changed:
-                    self._check_levels()
-                self.scheduler.send_due(now, self.link)
-                if now >= next_level_check:
-                    self.tracker.update_rate(now)
-                    self._check_levels()
-                    next_level_check = now + _LEVEL_CHECK_S
-                self._wait(next_level_check)
-            except Exception:   # noqa: BLE001 - the I/O thread must survive anything
-                with self._lock:
-                    self._tally.count('internal_errors')
-                logger.exception('unexpected error in the CAN I/O thread')
-                self._stop.wait(0.01)
+    def _io_round(self) -> None:
+        now = time.monotonic()
+        if self.link.failed and now >= self.link.next_reopen:
+            self._reopen()
+            return
+        changed = self.tracker.check_loss(now)
+        changed |= self.scheduler.check_watchdog(now)
+        if changed:
+            self._check_levels()
+        self.scheduler.send_due(now, self.link)
+        if now >= self._next_level_check:
+            self.tracker.update_rate(now)
+            self._check_levels()
+            self._next_level_check = now + _LEVEL_CHECK_S
+        self._wait(self._next_level_check)
 
     def _wait(self, next_level_check: float) -> None:
         """Sleep until something is due or a caller wakes the thread."""

@@ -17,7 +17,8 @@ from valve_driver_pkg.protocol.codec import DriveMode, RejectReason
 from valve_driver_pkg.protocol.error_frames import BusCondition
 
 __all__ = ['Level', 'StatusReport', 'Tally', 'COUNTER_KEYS', 'LATCHED_FLAGS', 'DriverSnapshot',
-           'diagnose', 'overall_level', 'fault_flags']
+           'CoreSnapshot', 'BusSnapshot', 'BUS_COUNTERS', 'diagnose', 'overall_level',
+           'fault_flags']
 
 
 class Level(enum.IntEnum):
@@ -86,9 +87,39 @@ class Tally:
         return dict(self.counts)
 
 
+@dataclass(frozen=True, slots=True)
+class BusSnapshot:
+    """The bus link's state at one instant (see :class:`~.bus_link.BusLink`)."""
+
+    failed: bool
+    error_text: str
+    condition: BusCondition
+    last_error_frame: str
+
+    def problem(self) -> tuple[Level, str] | None:
+        """The level and text of a bus problem (failed, bus-off, error passive or warning);
+        None while the controller is error active."""
+        if self.failed:
+            return Level.ERROR, f'bus failed ({self.error_text}); reopening'
+        if self.condition is BusCondition.BUS_OFF:
+            return Level.ERROR, f'bus-off ({self.last_error_frame})'
+        if self.condition is BusCondition.ERROR_PASSIVE:
+            return Level.WARN, f'error passive ({self.last_error_frame})'
+        if self.condition is BusCondition.WARNING:
+            return Level.WARN, f'error warning ({self.last_error_frame})'
+        return None
+
+
+#: The bus counters both drivers report in the ``CAN bus`` status.
+BUS_COUNTERS = ('error_frames', 'error_passive_events', 'bus_off_events', 'bus_recoveries',
+                'bus_failures', 'bus_reopens', 'tx_errors')
+
+
 @dataclass(frozen=True)
-class DriverSnapshot:
-    """Everything the diagnostics need, copied at one instant (monotonic ``now``)."""
+class CoreSnapshot:
+    """What every driver core's diagnostics need, copied at one instant (monotonic
+    ``now``): the configuration, the counters and recent event marks, open and active,
+    the bus."""
 
     config: DriverConfig
     now: float
@@ -96,11 +127,13 @@ class DriverSnapshot:
     recent: frozenset[str]
     closed: bool
     active: bool
-    # bus link
-    bus_failed: bool
-    bus_error_text: str
-    bus_condition: BusCondition
-    last_error_frame: str
+    bus: BusSnapshot
+
+
+@dataclass(frozen=True)
+class DriverSnapshot(CoreSnapshot):
+    """Everything the suite's diagnostics need, copied at one instant."""
+
     # receive tracker
     last_reject: str
     telemetry_age_s: float
@@ -134,29 +167,21 @@ def _pick(counters: Mapping[str, int], keys: Iterable[str]) -> dict[str, int]:
 
 def _bus_status(s: DriverSnapshot) -> StatusReport:
     recent = s.recent
+    problem = s.bus.problem()
     if s.closed:
         status = StatusReport('CAN bus', Level.STALE, 'bus closed')
-    elif s.bus_failed:
-        status = StatusReport('CAN bus', Level.ERROR, f'bus failed ({s.bus_error_text}); '
-                              'reopening')
-    elif s.bus_condition is BusCondition.BUS_OFF:
-        status = StatusReport('CAN bus', Level.ERROR, f'bus-off ({s.last_error_frame})')
-    elif s.bus_condition is BusCondition.ERROR_PASSIVE:
-        status = StatusReport('CAN bus', Level.WARN, f'error passive ({s.last_error_frame})')
-    elif s.bus_condition is BusCondition.WARNING:
-        status = StatusReport('CAN bus', Level.WARN, f'error warning ({s.last_error_frame})')
+    elif problem is not None:
+        status = StatusReport('CAN bus', *problem)
     elif recent & {'rejected_unknown_id', 'rejected_frame_type', 'tx_error'}:
         status = StatusReport('CAN bus', Level.WARN, 'send errors' if 'tx_error' in recent
                               else f'bus problems: {s.last_reject}')
     else:
         status = StatusReport('CAN bus', Level.OK, 'error active')
     status.values = {
-        'hardware': s.config.hardware_id, 'condition': s.bus_condition.value,
-        **_pick(s.counters, ('error_frames', 'error_passive_events', 'bus_off_events',
-                             'bus_recoveries', 'bus_failures', 'bus_reopens', 'tx_errors',
-                             'rejected_unknown_id', 'rejected_frame_type',
+        'hardware': s.config.hardware_id, 'condition': s.bus.condition.value,
+        **_pick(s.counters, (*BUS_COUNTERS, 'rejected_unknown_id', 'rejected_frame_type',
                              'other_node_frames')),
-        'last_error_frame': s.last_error_frame}
+        'last_error_frame': s.bus.last_error_frame}
     return status
 
 

@@ -47,21 +47,35 @@ from valve_driver_pkg.protocol.codec import (COMMAND, DRIVE, PERIOD, PRESSURE, S
                                              CounterTracker, DriveMode, RejectReason,
                                              ValveCodec)
 from valve_model_pkg.model.averaging import PeriodAverager
+from valve_model_pkg.model.orifice import orifice_mass_flow
+from valve_model_pkg.model.parameters import ValveParameters
 from valve_model_pkg.model.sample import ValveSample
 
-__all__ = ['ReceiveTracker', 'MassFlowFunction']
+__all__ = ['ReceiveTracker', 'MassFlowFunction', 'mass_flow_function']
 
 logger = logging.getLogger(__name__)
 
 #: ``f(position_avg_m, supply_pa, output_pa) -> kg/s`` (gauge pressures).
 MassFlowFunction = Callable[[float, float, float], float]
 
+
 #: Telemetry losses are logged at most this often (the diagnostics count every one) [s].
 _LOG_INTERVAL_S = 5.0
 #: A ValvePeriod older than this no longer counts; the driver's own average is used [s].
+#: The age is counted in telemetry periods since that ValvePeriod (the controller's clock),
+#: not on the host's, so a host that falls behind does not turn it stale.
 _PERIOD_FRESH_S = 0.5
 #: The telemetry rate is measured over windows of this length [s].
 _RATE_WINDOW_S = 0.5
+
+
+def mass_flow_function(params: ValveParameters) -> MassFlowFunction:
+    """eq. (12) with the valve's parameter set, its compiled code loaded before traffic."""
+    def mass_flow(position_avg_m: float, supply_pa: float, output_pa: float) -> float:
+        return float(orifice_mass_flow(position_avg_m, supply_pa, output_pa, params))
+
+    mass_flow(params.stroke_m * 0.5, 400_000.0, 0.0)   # the first call loads it (seconds)
+    return mass_flow
 
 
 class ReceiveTracker:
@@ -125,7 +139,8 @@ class ReceiveTracker:
         self.last_status_mono: float | None = None
         self.last_drive: dict | None = None         # the last ValveDrive's signals
         self.last_drive_mono: float | None = None
-        self.period: tuple[float, float, float, float] | None = None   # avg, duty, f, mono
+        self.period: tuple[float, float, float] | None = None   # avg, duty, f
+        self._periods_since_valve_period = 0     # telemetry periods since the last ValvePeriod
         self.rate_hz = 0.0
         self._rate_window = (time.monotonic(), 0)
         self._last_loss_log = -math.inf
@@ -161,11 +176,12 @@ class ReceiveTracker:
         """The repeated telemetry counter value (for the diagnostics)."""
         return self._telemetry_counter.last
 
-    def average_source(self, now: float) -> str:
-        """``'controller'`` while ValvePeriod frames are fresh, else ``'driver'``."""
-        period = self.period
-        return ('controller' if period is not None and now - period[3] <= _PERIOD_FRESH_S
-                else 'driver')
+    def average_source(self) -> str:
+        """``'controller'`` while ValvePeriod frames are fresh (at most ``_PERIOD_FRESH_S``
+        of telemetry periods old), else ``'driver'``."""
+        fresh = (self._periods_since_valve_period * self._config.telemetry_period_s
+                 <= _PERIOD_FRESH_S)
+        return 'controller' if self.period is not None and fresh else 'driver'
 
     # --- receive thread ----------------------------------------------------------------------
     def on_frame(self, msg: can.Message) -> None:
@@ -245,7 +261,8 @@ class ReceiveTracker:
             return
         self._tally.count('period_frames')
         self.period = (float(signals['PositionAverage']), float(signals['DutyActive']),
-                       float(signals['PwmFrequencyActive']), time.monotonic())
+                       float(signals['PwmFrequencyActive']))
+        self._periods_since_valve_period = 0
 
     def _on_mean(self, signals: dict, counter: int) -> None:
         if self._mean_counter.check(counter) is CounterCheck.FROZEN:
@@ -334,6 +351,7 @@ class ReceiveTracker:
             self._last_position = None
             steps = 1
         self._tally.count('telemetry_frames')
+        self._periods_since_valve_period += 1 + self._telemetry_counter.lost
         self.last_valid_mono = now
         self._link.note_valid_traffic()
         period_s = cfg.telemetry_period_s
@@ -348,7 +366,7 @@ class ReceiveTracker:
         duty_sent, pwm_hz = scheduler.last_sent_duty, scheduler.pwm_hz
         supply, output = scheduler.supply_pa, scheduler.output_pa
         duty = duty_sent if signals['Enabled'] else 0.0
-        if self.average_source(now) == 'controller':
+        if self.average_source() == 'controller':
             average, duty, pwm_hz = self.period[0], self.period[1], self.period[2] or pwm_hz
         if not scheduler.active:
             return None, False

@@ -17,15 +17,14 @@ sequence numbers, per source, are ``commands_lost`` (lost before they reached th
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
 
 from valve_driver_pkg.driver.bus_link import BusLink
 from valve_driver_pkg.driver.config import DriverConfig
 from valve_driver_pkg.driver.diagnostics import Tally
+from valve_driver_pkg.driver.host_command import CommandResult, HostCommand
 from valve_driver_pkg.errors import ProtocolEncodeError
 from valve_driver_pkg.protocol.codec import COMMAND, PRESSURE, DriveMode, ValveCodec
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
@@ -41,18 +40,7 @@ _IDLE_S = 0.05
 _ECHO_MEMORY = 16
 
 
-@dataclass(frozen=True, slots=True)
-class CommandResult:
-    """What ``set_command`` did with a duty command."""
-
-    accepted: bool
-    duty: float
-    pwm_frequency_hz: float
-    clamped: bool
-    message: str
-
-
-class TransmitScheduler:
+class TransmitScheduler(HostCommand):
     """Command and pressure state, and when their frames are due.
 
     Parameters
@@ -68,29 +56,17 @@ class TransmitScheduler:
 
     def __init__(self, config: DriverConfig, codec: ValveCodec, lock: threading.Condition,
                  tally: Tally) -> None:
-        self._config = config
-        self._codec = codec
-        self._lock = lock
-        self._tally = tally
         f_lo, f_hi = codec.signal_range(COMMAND, 'PwmFrequency')
         # The suite's one pair of limits; a custom DBC can only narrow them.
-        self._f_min = max(f_lo, MIN_PWM_FREQUENCY_HZ)
-        self._f_max = min(f_hi, config.max_pwm_frequency_hz, MAX_PWM_FREQUENCY_HZ)
+        super().__init__(config, lock, tally, max(f_lo, MIN_PWM_FREQUENCY_HZ),
+                         min(f_hi, config.max_pwm_frequency_hz, MAX_PWM_FREQUENCY_HZ))
+        self._codec = codec
         self.host_id = config.effective_host_id
         self._p_lo, self._p_hi = codec.signal_range(PRESSURE, 'SupplyPressure')
         self._command_period = 1.0 / config.command_rate_hz
         self._pressure_period = 1.0 / config.pressure_rate_hz
-        self.active = False
-        self.duty = 0.0
-        self.pwm_hz = min(max(config.pwm_frequency_hz, self._f_min), self._f_max)
-        self.supply_pa = float(config.supply_pressure_pa)
-        self.output_pa = float(config.output_pressure_pa)
         self.drive_mode = DriveMode.parse(config.drive_mode)
-        self.watchdog_tripped = False
-        self.disable_pending = False     # deactivate(): one "disable" frame still to send
         self.last_sent_duty = 0.0
-        self.last_command_note = ''
-        self._last_command_mono: float | None = None
         self._command_dirty = False
         self._pressure_dirty = True
         self._command_gen = 0            # +1 per change; a send clears "dirty" only if unchanged
@@ -104,7 +80,6 @@ class TransmitScheduler:
         self._origin: float | None = None   # origin (monotonic) of the command not yet sent
         self.max_command_age_s = 0.0     # largest origin-to-bus age of a command [s]
         self.last_stale_age_s = 0.0
-        self._sequences: dict[str, int] = {}
         self._sent = deque(maxlen=_ECHO_MEMORY)
 
     def sent_recently(self, data: bytes) -> bool:
@@ -120,136 +95,30 @@ class TransmitScheduler:
     # --- the caller's side (any thread) ------------------------------------------------------
     def mark_dirty(self) -> None:
         """Send both frames at once (activation, a reopened bus). Lock held."""
-        self._command_dirty = self._pressure_dirty = True
-        self._command_gen += 1
-        self._pressure_gen += 1
+        self._command_changed()
+        self._pressures_changed()
         self._lock.notify_all()
 
-    def activate(self) -> None:
-        """Start sending; duty 0 until a command arrives. Lock held."""
-        self.duty = 0.0
-        self._last_command_mono = None
+    def _command_changed(self) -> None:
+        self._command_dirty = True
+        self._command_gen += 1
+
+    def _pressures_changed(self) -> None:
+        self._pressure_dirty = True
+        self._pressure_gen += 1
+
+    def _accepted(self, now: float, age_s: float) -> None:
+        """Accounting: the command not yet on the bus is superseded; this one's origin."""
+        if self._origin is not None:
+            self._tally.count('commands_superseded')   # replaced before its frame went out
+        self._origin = now - age_s
+
+    def _activated(self) -> None:
         self._drop_pending()
-        self.watchdog_tripped = False
-        self.active = True
-        self.disable_pending = False
         self.mark_dirty()
 
-    def deactivate(self) -> bool:
-        """Ask for one duty-0 frame with ``Enable=0``, then silence. Lock held.
-
-        Returns
-        -------
-        bool
-            False if the scheduler was not active (nothing to send).
-        """
-        if not self.active:
-            return False
-        self.active = False
-        self.duty = 0.0
+    def _deactivated(self) -> None:
         self._drop_pending()
-        self.disable_pending = True
-        self._lock.notify_all()
-        return True
-
-    @property
-    def command(self) -> tuple[float, float]:
-        """``(duty, pwm_frequency_hz)`` the driver sends (0 while the watchdog holds)."""
-        with self._lock:
-            return (0.0 if self.watchdog_tripped else self.duty), self.pwm_hz
-
-    def set_command(self, duty: float, pwm_frequency_hz: float = 0.0, age_s: float = 0.0,
-                    sequence: int | None = None, source: str = '') -> CommandResult:
-        """Take a duty command (DutyCommand semantics); never raises, never sends raw.
-
-        Non-finite values and a negative frequency are rejected (the last valid command
-        stays); a duty outside [0, 1] and a frequency outside the protocol's range are
-        clamped. Frequency 0 keeps the frequency in force. Both are counted and reported.
-
-        Parameters
-        ----------
-        duty, pwm_frequency_hz : float
-            The command ([1], [Hz]).
-        age_s : float
-            How old the command already is on arrival (now minus its header stamp) [s];
-            its frame is stale if it reaches the bus more than ``stale_command_s`` after
-            that origin.
-        sequence : int | None
-            The command's sequence number; gaps per ``source`` are counted as lost.
-        source : str
-            The publisher the sequence numbers belong to.
-        """
-        duty = float(duty)
-        freq = float(pwm_frequency_hz)
-        with self._lock:
-            now = time.monotonic()
-            self._tally.count('commands_received')
-            if sequence is not None:
-                self._check_sequence(int(sequence), source)
-            if not (math.isfinite(duty) and math.isfinite(freq)) or freq < 0.0:
-                self._tally.count('commands_rejected')
-                self._tally.mark('command_rejected', now)
-                note = (f'duty command rejected: duty={duty!r}, pwm_frequency={freq!r} '
-                        '(not finite or negative frequency); keeping the last valid command')
-                self.last_command_note = note
-                return CommandResult(False, self.duty, self.pwm_hz, False, note)
-            notes = []
-            if freq == 0.0:
-                freq = self.pwm_hz
-            elif not self._f_min <= freq <= self._f_max:
-                clamped_f = min(max(freq, self._f_min), self._f_max)
-                notes.append(f'pwm_frequency {freq!r} Hz outside [{self._f_min:g}, '
-                             f'{self._f_max:g}] clamped to {clamped_f:g}')
-                freq = clamped_f
-            if not 0.0 <= duty <= 1.0:
-                clamped_d = min(max(duty, 0.0), 1.0)
-                notes.append(f'duty {duty!r} outside [0, 1] clamped to {clamped_d:g}')
-                duty = clamped_d
-            if notes:
-                self._tally.count('commands_clamped')
-                self._tally.mark('command_clamped', now)
-                self.last_command_note = '; '.join(notes)
-            self.duty, self.pwm_hz = duty, freq
-            self._last_command_mono = now
-            if self._origin is not None:
-                self._tally.count('commands_superseded')   # replaced before its frame went out
-            age = float(age_s) if math.isfinite(age_s) and 0.0 <= age_s < 3600.0 else 0.0
-            self._origin = now - age
-            if self.watchdog_tripped:
-                logger.info('duty commands are back; watchdog released')
-            self.watchdog_tripped = False
-            self._command_dirty = True
-            self._command_gen += 1
-            self._lock.notify_all()
-            return CommandResult(True, duty, freq, bool(notes), '; '.join(notes))
-
-    def _check_sequence(self, sequence: int, source: str) -> None:
-        """Count the sequence numbers missing since the last command of ``source``."""
-        last = self._sequences.get(source)
-        self._sequences[source] = sequence
-        if last is None:
-            return
-        if sequence > last + 1:
-            self._tally.count('commands_lost', sequence - last - 1)
-            self._tally.mark('command_lost', time.monotonic())
-        elif sequence <= last:
-            self._tally.count('commands_out_of_order')   # a restarted publisher, or reordering
-
-    def set_pressures(self, supply_pa: float | None = None,
-                      output_pa: float | None = None) -> bool:
-        """Set the port pressures (gauge Pa); a non-finite value is rejected (False)."""
-        with self._lock:
-            for value in (supply_pa, output_pa):
-                if value is not None and not math.isfinite(value):
-                    return False
-            if supply_pa is not None:
-                self.supply_pa = float(supply_pa)
-            if output_pa is not None:
-                self.output_pa = float(output_pa)
-            self._pressure_dirty = True
-            self._pressure_gen += 1
-            self._lock.notify_all()
-            return True
 
     def set_drive_mode(self, mode: str | DriveMode) -> DriveMode:
         """Send ``mode`` in every ValveCommand from now on, the next frame at once.
@@ -271,27 +140,11 @@ class TransmitScheduler:
         with self._lock:
             old, self.drive_mode = self.drive_mode, new
             if new != old:
-                self._command_dirty = True
-                self._command_gen += 1
+                self._command_changed()
                 self._lock.notify_all()
         return old
 
     # --- I/O thread --------------------------------------------------------------------------
-    def check_watchdog(self, now: float) -> bool:
-        """Trip the duty watchdog if commands stopped; True if it tripped now."""
-        limit = self._config.command_timeout_s
-        with self._lock:
-            if not (self.active and limit > 0.0 and not self.watchdog_tripped
-                    and self._last_command_mono is not None
-                    and now - self._last_command_mono > limit):
-                return False
-            self.watchdog_tripped = True
-            self._tally.count('watchdog_trips')
-            self._command_dirty = True
-            self._command_gen += 1
-        logger.warning('watchdog: no duty command for %.3f s; valve commanded closed', limit)
-        return True
-
     def next_due(self) -> float:
         """Monotonic time of the next scheduled frame. Lock held."""
         return min(self._next_command_t, self._next_pressure_t)

@@ -51,6 +51,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from dataclasses import dataclass
 
 import can
 import numpy as np
@@ -68,9 +69,19 @@ from valve_driver_pkg.protocol.codec import (COMMAND, CONTROL, DRIVE, PERIOD, PR
                                              ValveCodec)
 
 __all__ = ['StepperLike', 'EmulatorConfig', 'ControllerEmulator', 'ControllerState',
-           'UNKNOWN_INJECTED_ID']
+           'UNKNOWN_INJECTED_ID', 'CommandInForce']
 
 logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class CommandInForce:
+    """The last valid ``ValveCommand`` the firmware took: enable, duty [1], PWM frequency
+    [Hz]. What the valve is driven at follows from it and the faults (``output_duty``)."""
+
+    enabled: bool
+    duty: float
+    pwm_frequency_hz: float
 
 
 class ControllerEmulator(FaultHandling):
@@ -152,6 +163,20 @@ class ControllerEmulator(FaultHandling):
         stepper.reset()
         stepper.set_pressures(supply_pressure_pa, output_pressure_pa)
         stepper.set_command(0.0, self._pwm_hz)
+
+    # --- read-only views ----------------------------------------------------------------------
+    @property
+    def command(self) -> CommandInForce:
+        """The command in force (the last valid ``ValveCommand``)."""
+        with self._lock:
+            return CommandInForce(self._enabled, self._duty, self._pwm_hz)
+
+    @property
+    def output_duty(self) -> float:
+        """The duty the valve is driven at now: the command's, 0 while disabled, timed out
+        or switched off by an overcurrent."""
+        with self._lock:
+            return self._applied_duty
 
     # --- inputs ------------------------------------------------------------------------------
     @property

@@ -36,8 +36,7 @@ import threading
 
 import can
 
-from valve_driver_pkg.canbus.factory import open_bus
-from valve_driver_pkg.canbus.tcp_loopback import TcpLoopbackHub
+from valve_driver_pkg.canbus.cli import add_bus_arguments, open_device_bus
 from valve_driver_pkg.emulator.config import DEFAULT_COMMAND_TIMEOUT_S
 from valve_driver_pkg.emulator.controller import ControllerEmulator, EmulatorConfig
 from valve_driver_pkg.emulator.faults import FAULT_NAMES, parse_fault_spec
@@ -58,14 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 description=__doc__.split('\n')[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog=__doc__.split('\n', 2)[2])
-    bus = p.add_argument_group('bus')
-    bus.add_argument('--interface', default='tcp_loopback',
-                     help='python-can interface, or tcp_loopback (default)')
-    bus.add_argument('--channel', default='127.0.0.1:29536',
-                     help='channel (tcp_loopback: HOST:PORT, port 0 = any free port)')
-    bus.add_argument('--bitrate', type=int, default=500_000, help='bit rate [bit/s]')
-    bus.add_argument('--no-hub', action='store_true',
-                     help='tcp_loopback: join an existing hub instead of hosting one')
+    bus = add_bus_arguments(p)
     bus.add_argument('--node-id', type=int, default=0, help='node id 0..15 (default 0)')
     fw = p.add_argument_group('firmware')
     fw.add_argument('--telemetry-rate-hz', type=float, default=1000.0)
@@ -238,19 +230,12 @@ def main(argv: list[str] | None = None) -> int:
         logger.error('cannot start: %s', err)
         return 2
 
-    hub = None
-    bus = None
-    channel = args.channel
     try:
-        if args.interface == 'tcp_loopback' and not args.no_hub:
-            hub = TcpLoopbackHub(channel).start()
-            channel = hub.channel
-        bus = open_bus(args.interface, channel, args.bitrate, connect_timeout=5.0)
+        device_bus = open_device_bus(args)
     except (BusOpenError, OSError, ValueError) as err:
         logger.error('cannot open the bus: %s', err)
-        if hub is not None:
-            hub.close()
         return 1
+    bus, channel = device_bus.bus, device_bus.channel
 
     stop = threading.Event()
 
@@ -294,9 +279,7 @@ def main(argv: list[str] | None = None) -> int:
         logger.error('bus failed: %s', err)
         code = 1
     finally:
-        bus.shutdown()
-        if hub is not None:
-            hub.close()
+        device_bus.close()
     return code
 
 

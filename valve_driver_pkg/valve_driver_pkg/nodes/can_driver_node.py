@@ -14,15 +14,19 @@ apart):
   level change (from configure to cleanup), named ``<namespace/node name> node <id>:
   <status>`` (e.g. ``left/valve_can_driver node 3: telemetry``), so two drivers never
   share a name;
-- serves ``~/clear_faults`` (std_srvs/Trigger): sends ``ClearFaults`` once, waits for the
-  controller's next heartbeat and answers what was cleared and what is still active
-  (success = no latched fault left).
+- serves ``~/clear_faults`` (std_srvs/Trigger) and answers what was cleared and what is
+  still active: protocol ``suite`` sends ``ClearFaults`` once and reads the controller's
+  heartbeat after it (success = no latched fault left); ``canopen`` resets the
+  device's communication (NMT) and reads its error register once it is set up again;
+  ``j1939`` asks the valve for DM11 and reads its next DM1; ``dbc`` refuses (success
+  false, the message says why).
 - parameter ``drive_mode`` (``normal`` | ``bench``, checked at start-up and on every set;
   settable at run time, the change is logged): sent as ``ValveCommand.DriveMode`` in every
   command frame; the controller's ``ValveDrive`` report (mode in force, holding-current and
   capacitor set points, supply voltage) is published in the controller status of
   ``/diagnostics``. Stops (duty 0, deactivate, watchdog, shutdown) act at once in either
-  mode.
+  mode. The device protocols carry no drive mode: anything but ``normal`` is refused
+  with them (at start-up, and when set).
 
 Duty commands are counted (received, rejected, on the bus, superseded, lost by their
 ``sequence`` per ``header.frame_id``, stale: older than ``stale_command_s`` from their
@@ -60,10 +64,10 @@ from sensor_msgs.msg import FluidPressure
 from std_srvs.srv import Trigger
 from valve_msgs.msg import DutyCommand, ValveState
 
-from valve_driver_pkg.driver.config import DriverConfig, setting
+from valve_driver_pkg.devices.settings import PROTOCOL_SETTINGS, build_protocol
+from valve_driver_pkg.driver.config import DriverConfig, check_protocol_settings, setting
 from valve_driver_pkg.driver.core import CanDriverCore
 from valve_driver_pkg.errors import ValveDriverError
-from valve_driver_pkg.protocol.codec import DriveMode
 from valve_model_pkg.interface import (TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
                                        TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
                                        TOPIC_SUPPLY_PRESSURE, gauge_from_absolute)
@@ -83,6 +87,10 @@ class NodeOptions:
 
     params_file: str = setting('', 'Valve parameter YAML for the orifice equation; empty = '
                                'the model\'s default config/valve.yaml')
+    duty_map_file: str = setting('', 'Static duty map of the valve (valve_map) for a device '
+                                 'that reports no spool position (canopen, j1939): the '
+                                 'period-mean position and the flow are derived from the '
+                                 'duty in force at pwm_frequency_hz; empty = the suite\'s map')
     valve_name: str = setting('valve', 'Name of the valve, used as header.frame_id')
     diagnostics_period_s: float = setting(1.0, 'Period of the diagnostics summary [s]',
                                           0.05, 60.0)
@@ -118,6 +126,10 @@ class CanDriverNode(Node):
         super().__init__(node_name)
         for field in dataclasses.fields(DriverConfig) + dataclasses.fields(NodeOptions):
             self.declare_parameter(field.name, field.default, _descriptor(field))
+        for prefix, settings in PROTOCOL_SETTINGS.items():
+            for field in dataclasses.fields(settings):
+                self.declare_parameter(f'{prefix}.{field.name}', field.default,
+                                       _descriptor(field))
         self._log_handler = forward_logging(self, CORE_LOGGER)
         self._core: CanDriverCore | None = None
         self._state_pub = None
@@ -129,15 +141,38 @@ class CanDriverNode(Node):
         self._hardware_id = ''
         self._status_prefix = self.get_fully_qualified_name().lstrip('/')
         self._clear_service = None
-        # A bad drive_mode refuses the start (exit 2) with the value and the choices.
-        DriveMode.parse(self.get_parameter('drive_mode').value)
+        # A bad drive_mode or protocol, or a drive mode the protocol cannot carry, refuses
+        # the start (exit 2) with the value and the choices.
+        check_protocol_settings(self.get_parameter('protocol').value,
+                                self.get_parameter('drive_mode').value)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-    def _read(self, settings: type) -> object:
+    def _read(self, settings: type, prefix: str = '') -> object:
         """The typed snapshot of a settings dataclass from the parameters."""
-        return settings(**{f.name: self.get_parameter(f.name).value
+        return settings(**{f.name: self.get_parameter(prefix + f.name).value
                            for f in dataclasses.fields(settings)})
+
+    def _make_core(self, config: DriverConfig, options: NodeOptions) -> CanDriverCore:
+        """The suite's core, or the device core with the protocol ``config.protocol``."""
+        from valve_driver_pkg.driver.receive import mass_flow_function
+        from valve_model_pkg.model import load_parameters
+        params = load_parameters(options.params_file or None)
+        mass_flow = mass_flow_function(params)
+        if config.protocol == 'suite':
+            return CanDriverCore(config, mass_flow=mass_flow, on_state=self._publish_state,
+                                 on_diagnostics_changed=self._publish_diagnostics)
+        from valve_driver_pkg.devices.core import DeviceDriverCore
+        from valve_driver_pkg.devices.derived import derived_opening_for
+        protocol = build_protocol(config, *(self._read(cls, f'{prefix}.')
+                                            for prefix, cls in PROTOCOL_SETTINGS.items()))
+        derived = derived_opening_for(protocol.measures_position, options.duty_map_file,
+                                      params, options.params_file or 'the suite\'s valve.yaml',
+                                      config.pwm_frequency_hz)
+        return DeviceDriverCore(config, protocol, mass_flow=mass_flow,
+                                on_state=self._publish_state,
+                                on_diagnostics_changed=self._publish_diagnostics,
+                                derived=derived)
 
     # --- lifecycle ---------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -148,9 +183,11 @@ class CanDriverNode(Node):
         self._status_prefix = (f'{self.get_fully_qualified_name().lstrip("/")} '
                                f'node {config.node_id}')
         try:
-            mass_flow = _mass_flow_function(options.params_file)
-            core = CanDriverCore(config, mass_flow=mass_flow, on_state=self._publish_state,
-                                 on_diagnostics_changed=self._publish_diagnostics)
+            core = self._make_core(config, options)
+            if config.protocol != 'suite':
+                self._status_prefix = (f'{self.get_fully_qualified_name().lstrip("/")} '
+                                       f'{core.protocol.label}')
+                self._hardware_id = f'{config.interface}:{config.channel} {core.protocol.label}'
             self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
             self._state_pub = self.create_lifecycle_publisher(ValveState, TOPIC_STATE,
                                                               STATE_QOS)
@@ -172,7 +209,9 @@ class CanDriverNode(Node):
                                           self._publish_diagnostics)]
         self._clear_service = self.create_service(Trigger, '~/clear_faults',
                                                   self._on_clear_faults)
-        self.get_logger().info(f'configured: {self._hardware_id}, DBC {core.codec.dbc_path}')
+        what = (f'DBC {core.codec.dbc_path}' if config.protocol == 'suite'
+                else f'protocol {config.protocol}')
+        self.get_logger().info(f'configured: {self._hardware_id}, {what}')
         self._publish_diagnostics()
         return TransitionCallbackReturn.SUCCESS
 
@@ -244,13 +283,17 @@ class CanDriverNode(Node):
 
     # --- parameters --------------------------------------------------------------------------
     def _check_parameters(self, parameters: list) -> SetParametersResult:
-        """Refuse a drive_mode that is not a drive mode (the others: as declared)."""
-        for param in parameters:
-            if param.name == 'drive_mode':
-                try:
-                    DriveMode.parse(param.value)
-                except ValueError as err:
-                    return SetParametersResult(successful=False, reason=str(err))
+        """Refuse a protocol or drive_mode that is not one, or a drive mode the protocol
+        cannot carry (the others: as declared)."""
+        values = {p.name: p.value for p in parameters if p.name in ('protocol', 'drive_mode')}
+        if not values:
+            return SetParametersResult(successful=True)
+        try:
+            check_protocol_settings(
+                values.get('protocol', self.get_parameter('protocol').value),
+                values.get('drive_mode', self.get_parameter('drive_mode').value))
+        except ValueError as err:
+            return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, parameters: list) -> None:
@@ -354,20 +397,6 @@ class CanDriverNode(Node):
 
 def _text(value: object) -> str:
     return f'{value:.6g}' if isinstance(value, float) else str(value)
-
-
-def _mass_flow_function(params_file: str):
-    """eq. (12) from the valve model with the given (or default) parameter set."""
-    from valve_model_pkg.model import load_parameters
-    from valve_model_pkg.model.orifice import orifice_mass_flow
-
-    params = load_parameters(params_file or None)
-
-    def mass_flow(position_avg_m: float, supply_pa: float, output_pa: float) -> float:
-        return float(orifice_mass_flow(position_avg_m, supply_pa, output_pa, params))
-
-    mass_flow(params.stroke_m * 0.5, 400_000.0, 0.0)   # compile (numba) before traffic
-    return mass_flow
 
 
 def main(args: list[str] | None = None) -> None:

@@ -243,14 +243,15 @@ def _valve_panels(data: Mapping[str, TopicData], vtopic, state: TopicData, ts: n
 
 
 def _current_line(ts: np.ndarray, state: TopicData) -> tuple[np.ndarray, np.ndarray, str]:
-    """The interval-mean current if ValveState carries it, else a 1 ms moving mean of the
-    sampled current, labelled as such."""
+    """The interval-mean current if ValveState carries it (a finite value), else a 1 ms
+    moving mean of the sampled current, labelled as such."""
     for name in state.fields:
-        if 'current' in name and ('mean' in name or 'avg' in name):
+        if 'current' in name and ('mean' in name or 'avg' in name) \
+                and np.isfinite(np.asarray(state[name], dtype=float)).any():
             return ts, state[name], f'{name} (interval mean)'
     return (ts, moving_mean(ts, state['coil_current'], _CURRENT_MEAN_S),
-            'coil current, 1 ms moving mean of the valve/state samples (no interval-mean '
-            'field in ValveState)')
+            'coil current, 1 ms moving mean of the valve/state samples (no interval mean '
+            'in ValveState)')
 
 
 def _closeup(out: Path, state: TopicData, ts: np.ndarray, mid: int) -> Path:

@@ -78,6 +78,10 @@ class CylinderNode(Node):
         self._inputs = InputGuard(self.get_logger())
         self._states_used = 0
         self._stamps_backwards = 0
+        # The orifice equation is compiled code whose first call loads it (seconds): done
+        # here on a throw-away plant, not on the first valve/state, which would stall.
+        Cylinder(self._params, CylinderState(position_m=y0), valve).step_with_valve(
+            self._params.step_s, 0.0, 0.0)
         self._cylinder = Cylinder(self._params, CylinderState(position_m=y0), valve)
         self._opening_m = 0.0
         self._supply_pa = 0.0
