@@ -81,5 +81,6 @@ def bench_current(current_a: np.ndarray, rng: np.random.Generator, noise_a: floa
     noisy = current_a + (rng.normal(0.0, noise_a, current_a.size) if noise_a > 0.0 else 0.0)
     if lsb_a <= 0.0:
         return noisy
-    codes = np.clip(np.round(noisy / lsb_a), 0, 2 ** adc_bits - 1)
+    # (+ 0.0: a code of -0.0 reads 0)
+    codes = np.clip(np.round(noisy / lsb_a), 0, 2 ** adc_bits - 1) + 0.0
     return codes * lsb_a

@@ -122,11 +122,14 @@ class PiChopperHold:
     """A chopper at ``frequency_hz`` [Hz] whose duty a discrete PI controller sets at each
     period start from the sampled current.
 
-    ``duty = kp e + z``, ``z <- clip(z + ki e T, 0, 1)``, ``e = current_a - i``; the duty is
-    clipped to [0, 1]; the supply is on for ``duty T``, then ``off_voltage_v`` [V] for the
-    rest of the period (0 V or a diode drop: slow decay; minus the supply: fast decay). The
-    integrator starts at the feed-forward duty that makes the mean voltage
-    ``feedforward_resistance_ohm * current_a``.
+    ``duty = kp e + z``, ``e = current_a - i``, clipped to [0, 1]; the supply is on for
+    ``duty T``, then ``off_voltage_v`` [V] for the rest of the period (0 V or a diode drop:
+    slow decay; minus the supply: fast decay). The integrator ``z`` starts at the
+    feed-forward duty that makes the mean voltage ``feedforward_resistance_ohm *
+    current_a``; each period it adds ``ki e T`` and is clipped to [0, 1]. ``anti_windup``:
+    ``conditional`` integrates only while the duty is not saturated (or the error leads it
+    back), ``clamp`` always (the integrator then unwinds to 0 while the current falls from
+    the peak to the set point and climbs back with the time constant kp/ki).
     """
 
     current_a: float = 0.5
@@ -135,6 +138,12 @@ class PiChopperHold:
     ki_per_a_s: float = 1000.0
     off_voltage_v: float = 0.0
     feedforward_resistance_ohm: float = 13.0
+    anti_windup: str = 'conditional'
+
+    def __post_init__(self) -> None:
+        if self.anti_windup not in ('conditional', 'clamp'):
+            raise ValueError(f'PiChopperHold.anti_windup {self.anti_windup!r}: choose '
+                             'conditional or clamp')
 
 
 @dataclass(frozen=True)
@@ -297,7 +306,7 @@ FORMS: dict[str, DriveElectronics] = {
     'suite_like': DriveElectronics(
         peak=DipRisePeak(dip_a=0.01, rise_a=0.0, max_s=0.010, clock_hz=20_000.0),
         hold=PiChopperHold(current_a=0.5, frequency_hz=20_000.0, kp_per_a=20.0,
-                           ki_per_a_s=2000.0, off_voltage_v=0.0),
+                           ki_per_a_s=2000.0, off_voltage_v=0.0, anti_windup='clamp'),
         release=CapacitorRelease(voltage_v=24.0, charge_time_s=1e-3, discharge_time_s=0.5e-3,
                                  charging='high', initial_voltage_v=0.0)),
     # dip and rise, a 20 kHz PI chopper with fast decay (-24 V), a capacitor charged only
@@ -534,8 +543,10 @@ class Drive:
             return
         if isinstance(h, PiChopperHold):
             err = h.current_a - i
-            self.integ = min(max(self.integ + h.ki_per_a_s * err * self.hold_period_s, 0.0),
-                             1.0)
+            raw = h.kp_per_a * err + self.integ
+            if h.anti_windup == 'clamp' or 0.0 < raw < 1.0 or (raw <= 0.0) == (err > 0.0):
+                self.integ = min(max(self.integ + h.ki_per_a_s * err * self.hold_period_s,
+                                     0.0), 1.0)
             duty = min(max(h.kp_per_a * err + self.integ, 0.0), 1.0)
         else:
             duty = h.duty
