@@ -75,6 +75,7 @@ def effect_changes(effect: str) -> dict[str, float]:
         'magnetic_saturation': {'saturation_current_a': 2.6},
         'eddy_current': {'eddy_resistance_ohm': 250.0},
         'coulomb_friction': {'friction_n': 2.0},
+        'coulomb_friction_stiction': {'friction_n': 2.0, 'stiction_n': 2.5},
         'coil_heating': {'thermal_capacity_j_k': 6.0, 'thermal_resistance_k_w': 15.0},
         'leakage_inductance': {'leakage_inductance_h': 0.02},
         'end_stop_bounce': {'restitution': 0.5},
@@ -85,6 +86,17 @@ def effect_changes(effect: str) -> dict[str, float]:
     if effect not in table:
         raise ValueError(f'unknown case {effect!r}; choose from {sorted(table)}')
     return table[effect]
+
+
+#: Variants of a listed effect (another form or size of it), by the listed name they are.
+EFFECT_VARIANTS = {'coulomb_friction_stiction': 'coulomb_friction'}
+
+
+def effect_name(effect: str) -> str:
+    """The listed effect (or ``none``) that an effect or a variant of it is."""
+    if effect in ('none', 'paper'):
+        return 'none'
+    return EFFECT_VARIANTS.get(effect, effect)
 
 
 def case_valve(case: str, seed: int) -> TruthValve:

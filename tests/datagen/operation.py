@@ -1,44 +1,38 @@
 """Operational records (``experiment: operation``) from the truth valve with its own driver.
 
 What a valve in service reports: the main PWM command in force and the coil current as a
-1 ms interval mean, with the drive electronics on. The valve is the independent truth model
-of :mod:`.truth` (its :class:`~.truth._Truth` right-hand side, flux, force and the effects);
-the drive electronics are written here again, in a form of their own, independently of the
-suite's (``valve_model_pkg.model.electronics`` / ``kernel``, which this module never
-imports), so a shared mistake cannot hide itself in the data:
+1 ms interval mean, with the drive electronics on, and where the controller measures it the
+coil voltage as a mean over the same interval. The valve is the independent truth model of
+:mod:`.truth` (its :class:`~.truth._Truth` right-hand side, flux, force and the effects);
+the drive electronics are those of :mod:`.electronics`, a family of peak-and-hold forms
+written independently of the suite's (``valve_model_pkg.model.electronics`` / ``kernel``,
+which the generator never imports), so a shared mistake cannot hide itself in the data:
 
 1. **Main PWM.** A schedule of periods (frequency 20-100 Hz, duty per period); the command
    in force changes only at a period start.
-2. **Boost.** At each rising edge the supply voltage is applied. An analogue peak/valley
-   detector watches the coil current at every integration step: it arms once the current
-   has fallen ``dip_threshold_a`` below its running peak (the spool moves), then ends the
-   boost when the current has risen ``valley_rise_a`` above its running minimum (the end
-   of stroke). ``max_boost_s`` bounds the boost.
-3. **Hold: a clocked hysteresis (bang-bang) regulator**, not a PI chopper. A comparator
-   sampled by a ``comparator_clock_hz`` clock (20 kHz) switches the coil to the supply when
-   the current is below ``hold_current_a - band/2`` and to free-wheeling (0 V) when above
-   ``hold_current_a + band/2``, and keeps its state in between; so the switching rate is at
-   most the clock rate and every switching instant lies on the integration grid.
-4. **Release.** A capacitor charged towards ``capacitor_voltage_v`` (first order,
-   ``capacitor_charge_time_s``, while it is not connected) is applied reversed at the
-   falling edge and discharges as a first-order decay (``capacitor_discharge_time_s``)
-   until the coil current reaches zero.
-5. **Reverse blocking.** The terminal current never goes below 0: when it reaches 0 in the
-   off phase the driver's diode opens the circuit until the next rising edge.
+2. **Peak, hold, release, reverse blocking** as the driver's forms say
+   (:class:`~.electronics.DriveElectronics`). The default, :class:`~.electronics.
+   DriveCircuit`, is an analogue dip-and-rise detector ending the peak phase, a clocked
+   hysteresis regulator (20 kHz comparator clock) holding 0.5 A with 0 V free-wheeling, a
+   capacitor release pulse (charged whenever idle) and a diode blocking reverse current.
 
-Integration: a fixed-step classical Runge-Kutta (RK4) at ``step_s`` (25 us by default,
-two steps per comparator tick) in plain Python floats over the truth model's ``rhs``. The
-driver's voltage is constant within a step except the capacitor's exponential, which is
-evaluated at the stage times. Step ends that cross an event (end stop, release of a held
-spool, friction sticking, the current reaching zero) are split at the crossing, found by
-Illinois regula falsi on the event function and redone. A spool that lands on a stop while
-the net force already pulls it away (the next boost began before it had closed) leaves
-the stop at once; the truth model's own event loop never meets that case on bench steps.
-The interval means integrate the terminal current with the trapezoid rule per step.
+Integration: a fixed-step classical Runge-Kutta (RK4) at ``step_s`` (25 us by default) in
+plain Python floats over the truth model's ``rhs``. The driver's voltage is constant within
+a step except a capacitor's exponential and an open terminal's voltage, which are evaluated
+at the stage times. Main PWM edges and the driver's switching instants inside a step (a
+timer's end, a chopper's turn-off) split the step; the driver's clocked decisions fall on
+the grid. Step ends that cross an event (end stop, release of a held spool, friction
+sticking, the current reaching zero where the driver stops it, a peak-current threshold)
+are split at the crossing, found by Illinois regula falsi on the event function and redone.
+A spool that lands on a stop while the net force already pulls it away (the next boost
+began before it had closed) leaves the stop at once; the truth model's own event loop never
+meets that case on bench steps. The interval means integrate the terminal current with the
+trapezoid rule per step and the terminal voltage with the RK4 quadrature of its stage
+values.
 
-Only :mod:`valve_model_pkg.dataformat` (the one home of the CSV format) is used from the
-suite, to write the file. ``supply_ripple`` is not offered here (the truth model applies
-its ripple to every commanded voltage, the capacitor's included).
+Nothing of the suite is imported: the file is written by :mod:`.csvfile` in the shared
+format. ``supply_ripple`` is not offered here (the truth model applies its ripple to every
+commanded voltage, the capacitor's included).
 """
 from __future__ import annotations
 
@@ -50,39 +44,20 @@ from pathlib import Path
 
 import numpy as np
 
-from .generate import LISTED_EFFECTS, effect_changes
+from .csvfile import bench_current, write_table
+from .electronics import Drive, DriveCircuit, DriveElectronics
+from .generate import LISTED_EFFECTS, effect_changes, effect_name
 from .truth import _FREE, _HELD, _V_STICK, TruthValve, _Truth, perturbed
 
-__all__ = ['DriveCircuit', 'PwmSchedule', 'OperationTrace', 'OPERATION_EFFECTS',
-           'simulate_operation', 'write_operation_record', 'default_schedule']
+__all__ = ['DriveCircuit', 'DriveElectronics', 'PwmSchedule', 'OperationTrace',
+           'OPERATION_EFFECTS', 'simulate_operation', 'write_operation_record',
+           'default_schedule', 'electronics_of']
 
-#: Effects an operational record can carry (``none`` or one of the listed ones).
-OPERATION_EFFECTS = ('none',) + LISTED_EFFECTS
+#: Effects an operational record can carry (``none``, a listed one, or friction with
+#: stiction).
+OPERATION_EFFECTS = ('none',) + LISTED_EFFECTS + ('coulomb_friction_stiction',)
 #: Noise levels of the interval-mean current the tests and benchmarks use [A].
 NOISE_LEVELS_A = (0.0, 1e-3, 3e-3, 10e-3)
-
-# Electronics phases.
-_BOOST, _HOLD, _RELEASE, _BLOCKED = 'boost', 'hold', 'release', 'blocked'
-
-
-@dataclass(frozen=True)
-class DriveCircuit:
-    """Constants of the generator's drive electronics (SI units)."""
-
-    supply_voltage_v: float = 24.0
-    hold_current_a: float = 0.5
-    #: Total width of the hysteresis band around the hold current [A].
-    hysteresis_band_a: float = 0.02
-    #: Rate at which the hold comparator is sampled (upper bound of the switching rate) [Hz].
-    comparator_clock_hz: float = 20_000.0
-    #: Fall below the running peak that arms the end-of-stroke detection [A].
-    dip_threshold_a: float = 0.01
-    #: Rise above the running minimum after arming that ends the boost [A].
-    valley_rise_a: float = 0.002
-    max_boost_s: float = 0.010
-    capacitor_voltage_v: float = 24.0
-    capacitor_charge_time_s: float = 1.0e-3
-    capacitor_discharge_time_s: float = 0.5e-3
 
 
 @dataclass(frozen=True)
@@ -182,7 +157,13 @@ class OperationTrace:
     """Output of :func:`simulate_operation`.
 
     ``t_s`` .. ``phase`` are the fine trace at the integration step ends, shape (n,);
-    ``sample_t_s`` and ``interval_mean_current_a`` the telemetry, shape (m,).
+    ``coil_voltage_v`` is the driver's voltage just after its decisions there.
+    ``sample_t_s``, ``interval_mean_current_a`` and ``interval_mean_coil_voltage_v`` the
+    telemetry (means over the sample interval ending at ``sample_t_s``), shape (m,): the
+    current by the trapezoid rule per step (what the records carry), the voltage by the RK4
+    quadrature of its stage values; ``interval_mean_current_rk4_a`` is the current's RK4
+    quadrature (the voltage's exact counterpart: the two satisfy the coil's balance to the
+    integrator's precision, the trapezoid means to about 1e-5 A while the spool moves).
     """
 
     t_s: np.ndarray
@@ -192,105 +173,45 @@ class OperationTrace:
     phase: np.ndarray
     sample_t_s: np.ndarray
     interval_mean_current_a: np.ndarray
+    interval_mean_coil_voltage_v: np.ndarray
+    interval_mean_current_rk4_a: np.ndarray
+    main_pwm_high: np.ndarray
     boost_ends_s: list[float] = field(default_factory=list)
     wall_time_s: float = 0.0
     steps: int = 0
 
 
-class _Driver:
-    """The generator's drive electronics: phase, comparator state, capacitor."""
+@dataclass
+class _Step:
+    """Result of one RK4 step: the state and the RK4 quadratures of the applied voltage
+    [V s] and of the terminal current [A s] over the step."""
 
-    def __init__(self, circuit: DriveCircuit, eddy_ohm: float) -> None:
-        self.c = circuit
-        self.eddy_ohm = eddy_ohm
-        self.phase = _BLOCKED
-        self.switch_on = False
-        self.boost_start = 0.0
-        self.peak = 0.0
-        self.valley = math.inf
-        self.armed = False
-        # capacitor: value at t_ref, charging (True) or discharging into the coil (False)
-        self.cap_ref_v = circuit.capacitor_voltage_v
-        self.cap_ref_t = 0.0
-        self.cap_charging = True
-
-    def capacitor_v(self, t: float) -> float:
-        c = self.c
-        dt = t - self.cap_ref_t
-        if self.cap_charging:
-            return c.capacitor_voltage_v + (self.cap_ref_v - c.capacitor_voltage_v) * math.exp(
-                -dt / c.capacitor_charge_time_s)
-        return self.cap_ref_v * math.exp(-dt / c.capacitor_discharge_time_s)
-
-    def _cap_switch(self, t: float, charging: bool) -> None:
-        self.cap_ref_v = self.capacitor_v(t)
-        self.cap_ref_t = t
-        self.cap_charging = charging
-
-    def voltage(self, t: float, y: list[float]) -> float:
-        """Voltage the driver puts on the coil terminals [V]."""
-        if self.phase == _BOOST:
-            return self.c.supply_voltage_v
-        if self.phase == _HOLD:
-            return self.c.supply_voltage_v if self.switch_on else 0.0
-        if self.phase == _RELEASE:
-            return -self.capacitor_v(t)
-        # Blocked: the open circuit's terminal voltage, the one that keeps the terminal
-        # current at zero (the eddy path still carries the magnetising current).
-        return -self.eddy_ohm * y[0] if math.isfinite(self.eddy_ohm) else 0.0
-
-    def rise(self, t: float) -> None:
-        if self.phase == _RELEASE:
-            self._cap_switch(t, True)
-        self.phase = _BOOST
-        self.boost_start = t
-        self.peak, self.valley, self.armed = 0.0, math.inf, False
-
-    def fall(self, t: float) -> None:
-        if self.phase in (_BOOST, _HOLD):
-            self.phase = _RELEASE
-            self._cap_switch(t, False)
-
-    def block(self, t: float) -> None:
-        if self.phase == _RELEASE:
-            self._cap_switch(t, True)
-        self.phase = _BLOCKED
-
-    def after_step(self, t: float, i: float) -> bool:
-        """End-of-stroke detection during the boost; True when the boost ends now."""
-        if self.phase != _BOOST:
-            return False
-        if not self.armed:
-            self.peak = max(self.peak, i)
-            self.armed = i < self.peak - self.c.dip_threshold_a
-            self.valley = i
-        else:
-            self.valley = min(self.valley, i)
-        detected = self.armed and i > self.valley + self.c.valley_rise_a
-        if detected or t - self.boost_start >= self.c.max_boost_s - 1e-12:
-            self.phase = _HOLD
-            self.switch_on = i < self.c.hold_current_a - 0.5 * self.c.hysteresis_band_a
-            return True
-        return False
-
-    def tick(self, i: float) -> None:
-        """The hold comparator, sampled on the comparator clock."""
-        if self.phase != _HOLD:
-            return
-        half = 0.5 * self.c.hysteresis_band_a
-        if i < self.c.hold_current_a - half:
-            self.switch_on = True
-        elif i > self.c.hold_current_a + half:
-            self.switch_on = False
+    y: list[float]
+    v_int: float
+    i_int: float
 
 
-def _rk4(model: _Truth, drv: _Driver, t: float, y: list[float], h: float, mode: int,
-         sign: float = 0.0) -> list[float]:
+def _stage_current(model: _Truth, t: float, y: list[float], u: float) -> float:
+    """Terminal current of state ``y`` under the voltage ``u`` [A]."""
+    if not model.eddy:
+        return y[0]
+    if model.leak:
+        return y[1]
+    return model.electrical(t, y, u, 0.0)[0]
+
+
+def _rk4(model: _Truth, drv: Drive, t: float, y: list[float], h: float, mode: int,
+         sign: float = 0.0) -> _Step:
     """One classical Runge-Kutta step of the truth model's ``rhs`` under the driver."""
     fc_m = model.v.friction_n / model.v.spool_mass_kg if mode == _FREE and sign else 0.0
+    volts: list[float] = []
+    amps: list[float] = []
 
     def f(tt: float, yy: list[float]) -> list[float]:
-        d = model.rhs(tt, yy, drv.voltage(tt, yy), mode).tolist()
+        u = drv.voltage(tt, yy)
+        volts.append(u)
+        amps.append(_stage_current(model, tt, yy, u))
+        d = model.rhs(tt, yy, u, mode).tolist()
         if fc_m:
             # Kinetic friction acts against the motion of the whole piece (as between the
             # truth model's stop events); a stage velocity of the other sign must not flip it.
@@ -305,19 +226,29 @@ def _rk4(model: _Truth, drv: _Driver, t: float, y: list[float], h: float, mode: 
     k3 = f(t + 0.5 * h, y3)
     y4 = [a + h * b for a, b in zip(y, k3)]
     k4 = f(t + h, y4)
-    return [a + h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
-            for a, b1, b2, b3, b4 in zip(y, k1, k2, k3, k4)]
+    return _Step([a + h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+                  for a, b1, b2, b3, b4 in zip(y, k1, k2, k3, k4)],
+                 h / 6.0 * (volts[0] + 2.0 * volts[1] + 2.0 * volts[2] + volts[3]),
+                 h / 6.0 * (amps[0] + 2.0 * amps[1] + 2.0 * amps[2] + amps[3]))
+
+
+# Event functions of the integrator, each crossing from >= 0 to < 0 when it fires.
+_EV_RELEASE, _EV_OPEN, _EV_CLOSED, _EV_STICK, _EV_ZERO, _EV_THRESHOLD = range(6)
 
 
 class _Integrator:
     """Mechanical mode bookkeeping around the RK4 step (the truth model's semantics)."""
 
-    def __init__(self, valve: TruthValve, supply_pa: float, drv: _Driver) -> None:
+    def __init__(self, valve: TruthValve, supply_pa: float, drv: Drive) -> None:
         self.v = valve
         self.model = _Truth(valve, supply_pa)
         self.drv = drv
         self.y = [0.0, 0.0, 0.0, 0.0, 0.0]
         self.mode, self.held_at = _HELD, 'closed'
+        #: RK4 quadratures of the applied voltage [V s] and the current [A s] since the
+        #: last reset
+        self.v_int = 0.0
+        self.i_int = 0.0
 
     def current(self, t: float, y: list[float]) -> float:
         vel = 0.0 if self.mode == _HELD else y[3]
@@ -329,56 +260,65 @@ class _Integrator:
         g: list[float] = []
         if self.mode == _HELD:
             f = m.drive_force(y[0], y[2])
-            fc = v.friction_n
-            rel = {'closed': f - fc, 'open': -f - fc}.get(self.held_at, abs(f) - fc)
+            fs = v.breakaway_n
+            rel = {'closed': f - fs, 'open': -f - fs}.get(self.held_at, abs(f) - fs)
             g += [-rel, 1.0, 1.0, 1.0]
         else:
             stick = 1.0
-            if v.friction_n > 0.0:
+            if v.breakaway_n > 0.0:
                 stick = y[3] * self._sign
             g += [1.0, v.stroke_m - y[2], y[2], stick]
-        if self.drv.phase == _RELEASE:
-            g.append(self.current(t, y))
-        else:
-            g.append(1.0)
+        g.append(self.current(t, y) if self.drv.watch_zero() else 1.0)
+        threshold = self.drv.threshold_a()
+        g.append(1.0 if threshold is None else threshold - self.current(t, y))
         return g
 
-    def _step(self, t: float, y: list[float], h: float) -> list[float]:
+    def _step(self, t: float, y: list[float], h: float) -> _Step:
         sign = self._sign if self.mode == _FREE else 0.0
         return _rk4(self.model, self.drv, t, y, h, self.mode, sign)
+
+    def _settle(self, t: float) -> list[float]:
+        """Conditions already met at ``t`` (a crossing that happened on a switch)."""
+        g0 = self._events(t, self.y)
+        if self.drv.watch_zero() and g0[_EV_ZERO] <= 0.0:
+            self._zero(t)
+            g0 = self._events(t, self.y)
+        if g0[_EV_THRESHOLD] < 0.0:
+            self.drv.threshold_reached(t, self.current(t, self.y))
+            g0 = self._events(t, self.y)
+        if self.mode == _HELD and g0[_EV_RELEASE] < 0.0:
+            # Already free to move (the spool landed on a stop while the net force pulls
+            # it away, e.g. the boost began before it had closed): leave at once.
+            self._transition(t, _EV_RELEASE)
+            self._sign = math.copysign(1.0, self.y[3])
+            g0 = self._events(t, self.y)
+        return g0
 
     def advance(self, t: float, h: float, depth: int = 0) -> float:
         """Integrate over [t, t + h] with events; returns the terminal current at t + h."""
         if self.mode == _FREE:
             self._sign = math.copysign(1.0, self.y[3]) if self.y[3] != 0.0 else 1.0
-        g0 = self._events(t, self.y)
-        if self.drv.phase == _RELEASE and g0[4] <= 0.0:
-            self._block(t)
-            g0 = self._events(t, self.y)
-        if self.mode == _HELD and g0[0] < 0.0:
-            # Already free to move (the spool landed on a stop while the net force pulls
-            # it away, e.g. the boost began before it had closed): leave at once.
-            self._transition(t, 0)
-            self._sign = math.copysign(1.0, self.y[3])
-            g0 = self._events(t, self.y)
-        y1 = self._step(t, self.y, h)
-        g1 = self._events(t + h, y1)
-        fired = [(g0[k] / (g0[k] - g1[k]), k) for k in range(5)
+        g0 = self._settle(t)
+        s1 = self._step(t, self.y, h)
+        g1 = self._events(t + h, s1.y)
+        fired = [(g0[k] / (g0[k] - g1[k]), k) for k in range(len(g0))
                  if g1[k] < 0.0 <= g0[k]]
         if not fired or depth > 20 or h < 1e-10:
-            self.y = y1
-            return self.current(t + h, y1)
+            self.y = s1.y
+            self.v_int += s1.v_int
+            self.i_int += s1.i_int
+            return self.current(t + h, s1.y)
         _, k = min(fired)
         # Illinois regula falsi on the first event's function; the piece ends just past
         # the crossing (on the side where the event has fired).
-        a, ga, b, gb, yb = 0.0, g0[k], 1.0, g1[k], y1
+        a, ga, b, gb, sb = 0.0, g0[k], 1.0, g1[k], s1
         side = 0
         for _ in range(6):
             c = a + (b - a) * ga / (ga - gb)
-            yc = self._step(t, self.y, h * c)
-            gc = self._events(t + h * c, yc)[k]
+            sc = self._step(t, self.y, h * c)
+            gc = self._events(t + h * c, sc.y)[k]
             if gc < 0.0:
-                b, gb, yb = c, gc, yc
+                b, gb, sb = c, gc, sc
                 if side == -1:
                     ga *= 0.5
                 side = -1
@@ -390,13 +330,16 @@ class _Integrator:
             if (b - a) * h < 1e-9:
                 break
         h1 = h * b
-        self.y = yb
+        self.y = sb.y
+        self.v_int += sb.v_int
+        self.i_int += sb.i_int
         self._transition(t + h1, k)
         return self.advance(t + h1, h - h1, depth + 1) if h - h1 > 1e-12 else \
             self.current(t + h, self.y)
 
-    def _block(self, t: float) -> None:
-        self.drv.block(t)
+    def _zero(self, t: float) -> None:
+        """The driver stops the current at zero: the terminal opens."""
+        self.drv.zero_reached(t)
         y = self.y
         if not math.isfinite(self.v.eddy_resistance_ohm):
             y[0] = 0.0
@@ -404,35 +347,42 @@ class _Integrator:
 
     def _transition(self, t: float, k: int) -> None:
         v, y, m = self.v, self.y, self.model
-        if k == 0:
+        if k == _EV_RELEASE:
             # released from a stop (or a stuck point): move the way the force pushes
             direction = {'closed': 1.0, 'open': -1.0}.get(
                 self.held_at, math.copysign(1.0, m.drive_force(y[0], y[2])))
             self.mode = _FREE
             y[3] = 1e-9 * direction
-        elif k in (1, 2):
-            at_open = k == 1
+        elif k in (_EV_OPEN, _EV_CLOSED):
+            at_open = k == _EV_OPEN
             y[2] = v.stroke_m if at_open else 0.0
             if v.restitution > 0.0 and abs(y[3]) * v.restitution > _V_STICK * 100:
                 y[3] = -v.restitution * y[3]
             else:
                 y[3] = 0.0
                 self.mode, self.held_at = _HELD, 'open' if at_open else 'closed'
-        elif k == 3:
+        elif k == _EV_STICK:
             y[3] = 0.0
             f = m.drive_force(y[0], y[2])
-            if abs(f) <= v.friction_n:
+            if abs(f) <= v.breakaway_n:
                 self.mode, self.held_at = _HELD, 'mid'
             else:
                 y[3] = 1e-9 * math.copysign(1.0, f)
+        elif k == _EV_ZERO:
+            self._zero(t)
         else:
-            self._block(t)
+            self.drv.threshold_reached(t, self.current(t, y))
+
+
+def electronics_of(circuit: DriveCircuit | DriveElectronics) -> DriveElectronics:
+    """The driver in the family's form (a :class:`DriveCircuit` converted)."""
+    return circuit.electronics() if isinstance(circuit, DriveCircuit) else circuit
 
 
 def simulate_operation(valve: TruthValve, schedule: PwmSchedule, duration_s: float, *,
-                       circuit: DriveCircuit = DriveCircuit(), supply_pa: float = 4e5,
-                       sample_rate_hz: float = 1000.0, step_s: float = 25e-6
-                       ) -> OperationTrace:
+                       circuit: DriveCircuit | DriveElectronics = DriveCircuit(),
+                       supply_pa: float = 4e5, sample_rate_hz: float = 1000.0,
+                       step_s: float = 25e-6) -> OperationTrace:
     """Run the truth valve through the generator's drive electronics.
 
     Parameters
@@ -443,26 +393,25 @@ def simulate_operation(valve: TruthValve, schedule: PwmSchedule, duration_s: flo
         Main PWM periods.
     duration_s : float
         Length of the record [s]; telemetry samples at ``n / sample_rate_hz``, n >= 1.
-    circuit : DriveCircuit
-        Drive electronics constants.
+    circuit : DriveCircuit or DriveElectronics
+        The drive electronics (their forms and constants).
     supply_pa : float
         Supply pressure, gauge [Pa].
     sample_rate_hz : float
         Telemetry rate [Hz]; its period must be a whole number of steps.
     step_s : float
-        Integration step [s]; the comparator period must be a whole number of steps.
+        Integration step [s]; the driver's clock periods must be whole numbers of steps.
 
     Returns
     -------
     OperationTrace
     """
     start = time.perf_counter()
+    electronics = electronics_of(circuit)
     per_sample = int(round(1.0 / (sample_rate_hz * step_s)))
-    per_tick = int(round(1.0 / (circuit.comparator_clock_hz * step_s)))
-    if abs(per_sample * step_s * sample_rate_hz - 1.0) > 1e-9 or \
-            abs(per_tick * step_s * circuit.comparator_clock_hz - 1.0) > 1e-9:
-        raise ValueError('the sample and comparator periods must be whole numbers of steps')
-    drv = _Driver(circuit, valve.eddy_resistance_ohm)
+    if abs(per_sample * step_s * sample_rate_hz - 1.0) > 1e-9:
+        raise ValueError('the sample period must be a whole number of steps')
+    drv = Drive(electronics, valve.eddy_resistance_ohm, step_s)
     sim = _Integrator(valve, supply_pa, drv)
     n_steps = int(round(duration_s / step_s))
     edges = schedule.edges(n_steps * step_s)
@@ -471,46 +420,63 @@ def simulate_operation(valve: TruthValve, schedule: PwmSchedule, duration_s: flo
     i_out = np.empty(n_steps + 1)
     x_out = np.empty(n_steps + 1)
     v_out = np.empty(n_steps + 1)
+    high = np.zeros(n_steps + 1, dtype=bool)
     ph_out: list[str] = [drv.phase]
     t_out[0], i_out[0], x_out[0], v_out[0] = 0.0, 0.0, 0.0, 0.0
     means = np.empty(n_steps // per_sample)
-    boost_ends: list[float] = []
+    v_means = np.empty(n_steps // per_sample)
+    i_quad = np.empty(n_steps // per_sample)
     acc = 0.0
     i_prev = 0.0
     t = 0.0
+    pwm_high = False
     for n in range(1, n_steps + 1):
         t_grid = n * step_s
-        # edges inside the step split it (the current stays continuous across them)
-        while e_idx < len(edges) and edges[e_idx][0] < t_grid - 1e-12:
-            te, kind = edges[e_idx]
+        # main PWM edges and the driver's own switching instants inside the step split it
+        # (the current stays continuous across them)
+        while True:
+            te_main = edges[e_idx][0] if e_idx < len(edges) else math.inf
+            te = min(te_main, drv.pending_s)
+            if not te < t_grid - 1e-12:
+                break
             if te > t:
                 i_e = sim.advance(t, te - t)
                 acc += 0.5 * (i_prev + i_e) * (te - t)
                 i_prev, t = i_e, te
-            (drv.rise if kind == 'rise' else drv.fall)(t)
+            if te_main <= drv.pending_s:
+                kind = edges[e_idx][1]
+                (drv.rise if kind == 'rise' else drv.fall)(t)
+                pwm_high = kind == 'rise'
+                e_idx += 1
+            else:
+                drv.switch(t, sim.current(t, sim.y))
             # the terminal current may jump with the voltage (eddy path)
             i_prev = sim.current(t, sim.y)
-            e_idx += 1
         i1 = sim.advance(t, t_grid - t)
         acc += 0.5 * (i_prev + i1) * (t_grid - t)
         t = t_grid
-        if drv.after_step(t, i1):
-            boost_ends.append(t)
-        if n % per_tick == 0:
-            drv.tick(i1)
+        if drv.pending_s <= t_grid + 1e-12:
+            drv.switch(t, i1)
+        drv.on_grid(n, t, i1)
         # value after the switching decisions, for the next step's trapezoid
         i_prev = sim.current(t, sim.y)
         t_out[n], i_out[n], x_out[n] = t, i1, sim.y[2]
         v_out[n] = drv.voltage(t, sim.y)
+        high[n] = pwm_high
         ph_out.append(drv.phase)
         if n % per_sample == 0:
             means[n // per_sample - 1] = acc * sample_rate_hz
+            v_means[n // per_sample - 1] = sim.v_int * sample_rate_hz
+            i_quad[n // per_sample - 1] = sim.i_int * sample_rate_hz
             acc = 0.0
+            sim.v_int = sim.i_int = 0.0
     sample_t = np.arange(1, means.size + 1) / sample_rate_hz
     return OperationTrace(
         t_s=t_out, current_a=i_out, position_m=np.clip(x_out, 0.0, valve.stroke_m),
         coil_voltage_v=v_out, phase=np.array(ph_out), sample_t_s=sample_t,
-        interval_mean_current_a=means, boost_ends_s=boost_ends,
+        interval_mean_current_a=means, interval_mean_coil_voltage_v=v_means,
+        interval_mean_current_rk4_a=i_quad,
+        main_pwm_high=high, boost_ends_s=drv.boost_ends,
         wall_time_s=time.perf_counter() - start, steps=n_steps)
 
 
@@ -525,9 +491,10 @@ def write_operation_record(out_dir: str | Path, name: str = 'operation', *, seed
                            effect: str = 'none', noise_a: float = 0.0,
                            duration_s: float = 3.0, spread: float = 0.0,
                            valve: TruthValve | None = None,
-                           circuit: DriveCircuit = DriveCircuit(),
+                           circuit: DriveCircuit | DriveElectronics = DriveCircuit(),
                            schedule: PwmSchedule | None = None, supply_pa: float = 4e5,
-                           step_s: float = 25e-6) -> dict[str, object]:
+                           step_s: float = 25e-6, coil_voltage_mean: bool = False,
+                           lsb_a: float = 0.0, adc_bits: int = 8) -> dict[str, object]:
     """Simulate an operational record and write ``out_dir/name.csv`` and its truth JSON.
 
     Parameters
@@ -539,7 +506,7 @@ def write_operation_record(out_dir: str | Path, name: str = 'operation', *, seed
     seed : int
         Seeds the valve draw (with ``spread``), the schedule and the noise.
     effect : str
-        ``none`` or one of the listed effects, at the size of :func:`.generate.effect_changes`.
+        One of :data:`OPERATION_EFFECTS`, at the size of :func:`.generate.effect_changes`.
     noise_a : float
         Standard deviation of Gaussian noise on the interval means [A].
     duration_s : float
@@ -550,13 +517,18 @@ def write_operation_record(out_dir: str | Path, name: str = 'operation', *, seed
         The valve instance itself (then ``seed``, ``spread`` and ``effect`` do not draw it).
     circuit, schedule, supply_pa, step_s
         See :func:`simulate_operation`; the default schedule is :func:`default_schedule`.
+    coil_voltage_mean : bool
+        Add the column ``coil_voltage_mean``: the exact interval means of the voltage the
+        driver applied to the coil terminals [V].
+    lsb_a, adc_bits : float, int
+        Quantise the current to ``lsb_a`` [A] steps over ``[0, (2^adc_bits - 1) lsb_a]``
+        after the noise (0: no quantisation).
 
     Returns
     -------
     dict
         The truth JSON content: file, effect, valve, circuit, noise, timing and checks.
     """
-    from valve_model_pkg.dataformat import write_table
     if effect not in OPERATION_EFFECTS:
         raise ValueError(f'effect {effect!r} not offered for operation records; choose from '
                          f'{", ".join(OPERATION_EFFECTS)}')
@@ -565,29 +537,35 @@ def write_operation_record(out_dir: str | Path, name: str = 'operation', *, seed
         valve = _valve(seed, effect, spread)
     if schedule is None:
         schedule = default_schedule(duration_s, rng)
+    electronics = electronics_of(circuit)
     tr = simulate_operation(valve, schedule, duration_s, circuit=circuit, supply_pa=supply_pa,
                             step_s=step_s)
-    current = tr.interval_mean_current_a + (rng.normal(0.0, noise_a, tr.sample_t_s.size)
-                                            if noise_a > 0.0 else 0.0)
+    current = bench_current(tr.interval_mean_current_a, rng, noise_a, lsb_a, adc_bits)
     duty, freq = schedule.in_force(tr.sample_t_s)
+    columns = {'t': tr.sample_t_s, 'duty': duty, 'pwm_frequency_hz': freq, 'current': current,
+               'supply_pressure': np.full(tr.sample_t_s.size, supply_pa),
+               'output_pressure': np.zeros(tr.sample_t_s.size)}
+    if coil_voltage_mean:
+        columns['coil_voltage_mean'] = tr.interval_mean_coil_voltage_v
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     path = write_table(out / f'{name}.csv', {
         'experiment': 'operation',
         'valve': f'generated valve ({effect}, seed {seed})',
-        'supply_voltage_v': circuit.supply_voltage_v,
+        'supply_voltage_v': electronics.supply_voltage_v,
         'sample_rate_hz': 1000,
         'current_averaging': 'interval_mean',
         'supply_pressure_pa': supply_pa,
         'output_pressure_pa': 0,
         'generator': 'tests.datagen.operation (truth valve, own drive electronics)',
-    }, {'t': tr.sample_t_s, 'duty': duty, 'pwm_frequency_hz': freq, 'current': current,
-        'supply_pressure': np.full(tr.sample_t_s.size, supply_pa),
-        'output_pressure': np.zeros(tr.sample_t_s.size)})
+    }, columns)
     truth = {
-        'file': str(path), 'effect': effect, 'seed': seed, 'spread': spread,
-        'valve': valve.as_dict(), 'circuit': asdict(circuit),
-        'noise_std_a': noise_a, 'duration_s': duration_s, 'supply_pressure_pa': supply_pa,
+        'file': str(path), 'effect': effect, 'declared_effect': effect_name(effect),
+        'seed': seed, 'spread': spread, 'valve': valve.as_dict(),
+        'circuit': asdict(circuit) if isinstance(circuit, DriveCircuit) else
+        electronics.describe(),
+        'electronics': electronics.describe(), 'electronics_summary': electronics.summary(),
+        'noise_std_a': noise_a, 'lsb_a': lsb_a, 'coil_voltage_mean': coil_voltage_mean,
+        'duration_s': duration_s, 'supply_pressure_pa': supply_pa,
         'step_s': step_s, 'generation_wall_time_s': tr.wall_time_s,
         'boosts_ended': len(tr.boost_ends_s),
         'rising_edges': sum(1 for e in schedule.edges(duration_s) if e[1] == 'rise'),

@@ -15,8 +15,10 @@ magnetic_saturation flux linkage ``psi = L(x) i_s u / sqrt(1 + u^2)``, ``u = i_m
                     force from the co-energy ``L'(x) i_s^2 (sqrt(1 + u^2) - 1)``
 eddy_current        eddy-current path as a resistance ``R_e`` across the magnetising branch
                     (the coil current is the magnetising current plus ``e / R_e``)
-coulomb_friction    dry friction ``F_c`` against the motion, sticking while the net force is
-                    below it (static = kinetic)
+coulomb_friction    dry friction ``F_c`` against the motion; a spool at rest (at a stop or
+                    stuck) moves only when the net force exceeds the breakaway force
+                    ``max(F_c, F_s)`` (stiction ``F_s``; static = kinetic by default), and a
+                    spool whose velocity reaches zero sticks while the net force is below it
 coil_heating        ``R = R_0 (1 + alpha (T - T_0))``, ``C_th dT/dt = R i^2 - (T - T_0)/R_th``
 leakage_inductance  a constant series inductance ``L_s`` that makes no force
 end_stop_bounce     Newtonian impact with restitution ``e`` at both end stops
@@ -68,6 +70,8 @@ class TruthValve:
     saturation_current_a: float = math.inf
     eddy_resistance_ohm: float = math.inf
     friction_n: float = 0.0
+    #: static friction (stiction) [N]; below ``friction_n`` it changes nothing
+    stiction_n: float = 0.0
     thermal_capacity_j_k: float = math.inf
     thermal_resistance_k_w: float = 20.0
     leakage_inductance_h: float = 0.0
@@ -79,6 +83,11 @@ class TruthValve:
     # a second effect outside the list (a diode-like drop with a knee current)
     diode_drop_v: float = 0.0
     diode_knee_a: float = 0.02
+
+    @property
+    def breakaway_n(self) -> float:
+        """Net force a spool at rest must exceed to move [N]."""
+        return max(self.friction_n, self.stiction_n)
 
     def inductance(self, x: float) -> float:
         """Position-dependent inductance of eq. (4) [H]."""
@@ -218,7 +227,7 @@ def _events(model: _Truth, mode: int, held_at: str, moving_sign: float):
     """Event functions ending the current integration piece."""
     v = model.v
     if mode == _HELD:
-        fc = v.friction_n
+        fc = v.breakaway_n
 
         def release(t, y, *_):
             f = model.drive_force(y[0], y[2])
@@ -241,7 +250,7 @@ def _events(model: _Truth, mode: int, held_at: str, moving_sign: float):
     hit_closed.terminal = True
     hit_closed.direction = -1
     evs = [hit_open, hit_closed]
-    if v.friction_n > 0.0:
+    if v.breakaway_n > 0.0:
         def stop(t, y, *_):
             return y[3]
         stop.terminal = True
@@ -334,7 +343,7 @@ def simulate_truth(valve: TruthValve, segments: list[tuple[float, float]], t_end
                 # Velocity crossed zero under friction: stick if the force cannot break free.
                 y[3] = 0.0
                 f = model.drive_force(y[0], y[2])
-                if abs(f) <= valve.friction_n:
+                if abs(f) <= valve.breakaway_n:
                     mode, held_at = _HELD, 'mid'
             if t - t_prev < 1e-12:
                 # Guard against event chatter at the same instant.

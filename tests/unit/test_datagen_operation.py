@@ -34,8 +34,8 @@ def half_duty() -> object:
     return simulate_operation(TruthValve(), _SCHEDULE_50HZ, 0.2)
 
 
-@pytest.mark.parametrize('effect', ['none', 'coulomb_friction', 'eddy_current',
-                                    'leakage_inductance', 'end_stop_bounce'])
+@pytest.mark.parametrize('effect', ['none', 'coulomb_friction', 'coulomb_friction_stiction',
+                                    'eddy_current', 'leakage_inductance', 'end_stop_bounce'])
 def test_boost_follows_the_truth_models_own_solver(effect: str) -> None:
     # Until the end of the first boost the coil sees a plain 24 V step from rest: the RK4
     # with its event splitting must reproduce the truth model's LSODA solution.
@@ -160,16 +160,19 @@ def test_record_is_written_in_the_operation_format(tmp_path: Path) -> None:
     assert operation_dataset(tmp_path, seed=3, noise_a=3e-3, duration_s=0.3) is truth
 
 
-def test_simulation_imports_nothing_of_the_suite() -> None:
-    src = (Path(__file__).resolve().parents[1] / 'datagen' / 'operation.py').read_text()
-    imports = [ln.strip() for ln in src.splitlines()
-               if ln.strip().startswith(('import ', 'from ')) and 'valve_model_pkg' in ln]
-    assert imports == ['from valve_model_pkg.dataformat import write_table']
+def test_simulation_imports_nothing_of_the_suite(tmp_path: Path) -> None:
+    for name in ('operation.py', 'electronics.py', 'bench.py', 'csvfile.py', 'truth.py'):
+        src = (Path(__file__).resolve().parents[1] / 'datagen' / name).read_text()
+        imports = [ln.strip() for ln in src.splitlines()
+                   if ln.strip().startswith(('import ', 'from ')) and 'valve_model_pkg' in ln]
+        assert imports == [], name
     code = ('import sys; sys.path.insert(0, "tests"); '
-            'from datagen.operation import simulate_operation, default_schedule; '
-            'import numpy as np; from datagen.truth import TruthValve; '
-            'simulate_operation(TruthValve(), default_schedule(0.05, '
-            'np.random.default_rng(1)), 0.05); '
+            'from datagen.operation import write_operation_record; '
+            'from datagen.bench import write_pwm_record, write_step_records; '
+            f'write_operation_record({str(tmp_path)!r}, duration_s=0.05, '
+            'coil_voltage_mean=True); '
+            f'write_pwm_record({str(tmp_path)!r}, duration_s=0.05); '
+            f'write_step_records({str(tmp_path)!r}); '
             'print(sorted(m for m in sys.modules if m.startswith("valve_model_pkg")))')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          cwd=Path(__file__).resolve().parents[2], check=True)
