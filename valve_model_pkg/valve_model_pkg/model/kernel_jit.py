@@ -972,6 +972,11 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
     m_known = -1
     g_known = 0.0
     f_c = p[P_FC]
+    # whether a level event can be armed in this call: by a form of the electronics, or by
+    # a clamp still running from the electronics before a switch (else none is looked at)
+    levels = e[_el.E_PEAK_END] == _el.PEAK_THRESHOLD or e[_el.E_DECAY] != _el.DECAY_FREEWHEEL \
+        or (e[_el.E_RELEASE] >= _el.RELEASE_ZENER and e[_el.E_CAPACITOR] != 0.0) \
+        or d[D_PHASE] > PH_FREEWHEEL
     while True:
         t = d[D_T]
         # --- no-progress guard: a pass that does not advance time counts as a stall
@@ -997,7 +1002,7 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
             d[D_N_FORCED] += 1.0
         mode = int(d[D_MODE])
         phase = int(d[D_PHASE])
-        level = _level_kind(phase, d, e)
+        level = _level_kind(phase, d, e) if levels else _LEVEL_NONE
         if level != _LEVEL_NONE and not forced:
             v_now = v_known if t == t_known else _voltage(t, phase, d, e)
             if _level_margin(level, y[Y_I], y[Y_DT], v_now, p, e) >= 0.0:
@@ -1069,7 +1074,7 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
         d[D_T] = t_new
         t_known = t + h  # the time of the last stage
         v_known = v_g
-        if t_new == t_level:
+        if level != _LEVEL_NONE and t_new == t_level:
             if level == _LEVEL_ZERO:
                 y[Y_I] = 0.0  # (within 1 pA or 1 ps of the crossing)
             _level_reached(level, t_new, y, p, d, e)
