@@ -270,3 +270,18 @@ def test_bad_settings_are_refused_naming_the_field_and_value(field: str, value: 
     from valve_model_pkg.errors import ParameterError
     with pytest.raises(ParameterError, match=message):
         ElectronicsConfig(**{field: value})
+
+
+def test_a_clamp_running_when_the_electronics_switch_still_ends_at_zero_current() -> None:
+    from valve_model_pkg.model import ValveStepper
+    stepper = ValveStepper(P, ElectronicsConfig(release='zener'), duty=0.4)
+    stepper.advance_to(0.0081)  # the falling edge at 8 ms: the clamp runs
+    assert stepper.sample().coil_voltage_v == -30.0
+    stepper.set_electronics(ElectronicsConfig.off())  # the bench mode, at duty 0
+    stepper.set_command(0.0, 50.0)
+    currents = []
+    for k in range(1, 120):
+        stepper.advance_to(0.0081 + k * 1e-4)
+        currents.append(stepper.sample().coil_current_a)
+    assert min(currents) == 0.0
+    assert stepper.sample().coil_voltage_v == 0.0
