@@ -6,10 +6,14 @@ Classical fixed-step Runge-Kutta 4 on the hybrid system, with every discontinuit
 exactly instead of being smeared by a step:
 
 * **Scheduled edges** (main PWM rising/falling edges and period starts, chopper switch-off,
-  controller ticks, output sample times) are known in advance, so every step is shortened
-  to land exactly on the next one; the interval up to it is split into equal steps no
-  longer than ``h_free`` (spool moving) or ``h_stop`` (spool held). Between edges the
-  right-hand side is smooth, so RK4 keeps its 4th order.
+  controller and comparator ticks, the peak timer, output sample times) are known in
+  advance, so every step is shortened to land exactly on the next one; the interval up to
+  it is split into equal steps no longer than ``h_free`` (spool moving) or ``h_stop``
+  (spool held). Between edges the right-hand side is smooth, so RK4 keeps its 4th order.
+* **Level events**: the current reaching a level at an instant no schedule knows (the
+  ``threshold`` peak end; the zero that ends a Zener, diode or blocked fast-decay phase)
+  is located by regula falsi (Illinois) on redone steps; the step ends there and the
+  drive switches (``_locate_level``). Only electronics with such a form look for them.
 * **End-stop impacts** (x reaches 0 or x_max) are located inside the step on the cubic
   Hermite interpolant of x (x and x_dot at both ends are known), the step is redone up to
   the impact, x is set onto the stop and the velocity to 0 (plastic, the paper) or to
