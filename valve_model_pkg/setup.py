@@ -12,6 +12,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml') + glob('config/*.json')),
+        ('share/' + package_name + '/config/electronics', glob('config/electronics/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     # config/ is installed to share/ (above), where model.parameters looks for it; the

@@ -113,6 +113,25 @@ def test_a_bad_parameter_file_is_refused_at_start(start_node, tmp_path):
     assert str(bad) in sim.output or 'missing' in sim.output
 
 
+def test_the_electronics_file_sets_the_drive_and_a_bad_one_is_refused(
+        start_node, ros, tmp_path):
+    bad = tmp_path / 'driver.yaml'
+    bad.write_text('hold: pi\nrelease: varistor\n')
+    sim = start_node('valve_simulator', '--ros-args', '-p', f'electronics_file:={bad}')
+    sim.proc.wait(timeout=60)
+    assert sim.proc.returncode == 2
+    assert f'{bad}:2: release must be one of' in sim.output
+
+    good = tmp_path / 'zener.yaml'
+    good.write_text('electronics:\n  release: zener\n  zener_voltage_v: 36.0\n')
+    sim = start_node('valve_simulator', '--ros-args', '-p', f'electronics_file:={good}',
+                     '-p', 'capacitor:=true')
+    probe = ros.add(StateProbe('test_probe'))
+    ros.wait_for(lambda: probe.count > 10, 30.0, 'valve/state')
+    assert f'electronics: {good}, current control True, release zener' in sim.output
+    assert sim.stop() == 0
+
+
 @pytest.mark.parametrize('env, sim_time, expected', [
     ({}, False, 'events'),                          # the default of the 1 kHz simulators
     ({'VALVE_EXECUTOR': 'single'}, False, 'single'),  # the fallback, asked for

@@ -117,6 +117,12 @@ def _bank_rows(electronics: ElectronicsConfig, params: ValveParameters) -> np.nd
 ELECTRONICS = {
     'current_control': ElectronicsConfig(),
     'bare_coil_capacitor': ElectronicsConfig(current_control=False, negative_voltage=True),
+    # the other forms of the family: level events (threshold, Zener), comparator ticks
+    'threshold_hysteresis_zener': ElectronicsConfig(
+        peak_end='threshold', peak_current_a=0.8, hold='hysteresis', hold_decay='fast',
+        release='zener'),
+    'dip_rise_pwm_capacitor_peak': ElectronicsConfig(
+        peak_end='dip_rise', hold='pwm', hold_decay='diode', release='capacitor_peak'),
 }
 
 
@@ -136,6 +142,8 @@ CASES = {
     'paper_bare_coil_capacitor': ('bare_coil_capacitor', False),
     'effects_current_control': ('current_control', True),
     'effects_bare_coil_capacitor': ('bare_coil_capacitor', True),
+    'effects_threshold_hysteresis_zener': ('threshold_hysteresis_zener', True),
+    'paper_dip_rise_pwm_capacitor_peak': ('dip_rise_pwm_capacitor_peak', False),
 }
 
 

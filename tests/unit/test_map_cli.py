@@ -36,7 +36,24 @@ def test_show_reads_an_existing_map(tmp_path: Path, capsys) -> None:
     assert (tmp_path / 'fig8_pressures.png').exists()
 
 
+def test_the_map_of_another_drive(tmp_path: Path, capsys) -> None:
+    """A slower release (a free-wheel diode) keeps the valve open longer: more opening."""
+    out = tmp_path / 'diode.json'
+    driver = tmp_path / 'driver.yaml'
+    driver.write_text('release: diode\n')
+    grid = ['--duty-step', '0.25', '--pressures-bar', '4', '--frequencies', '50',
+            '--no-figures', '-q']
+    assert valve_map(['-o', str(out), '--electronics', str(driver)] + grid) == 0
+    assert valve_map(['-o', str(tmp_path / 'paper.json')] + grid) == 0
+    diode, paper = DutyMap.load(out), DutyMap.load(tmp_path / 'paper.json')
+    assert diode.electronics['release'] == 'diode'
+    assert diode.generator['electronics_file'] == str(driver)
+    assert diode.position_fraction[0, 0, 2] > paper.position_fraction[0, 0, 2] + 0.02
+    capsys.readouterr()
+
+
 @pytest.mark.parametrize('argv, message', [
+    (['--electronics', '/nonexistent/driver.yaml'], 'driver.yaml'),
     (['--params', '/nonexistent/valve.yaml'], 'valve.yaml'),
     (['--duty-step', '0.03'], 'whole number'),
     (['--show', '/nonexistent/map.json'], 'no such map file'),

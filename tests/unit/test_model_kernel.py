@@ -262,8 +262,8 @@ def test_electronics_off_is_the_bare_coil() -> None:
     assert np.all(res.coil_voltage_v[~high] == 0.0)
 
 
-def test_fixed_boost_time_without_dip_detection() -> None:
-    cfg = ElectronicsConfig(dip_detection=False, max_boost_time_s=5e-3)
+def test_a_timer_peak_phase_applies_the_supply_for_its_time() -> None:
+    cfg = ElectronicsConfig(peak_end='timer', max_boost_time_s=5e-3)
     res = simulate_pwm(P, cfg, 0.4, 50.0, 0.02, sample_rate_hz=100e3)
     boost = (res.t_s < 5e-3 - 1e-9)
     assert np.all(res.coil_voltage_v[boost] == 24.0)

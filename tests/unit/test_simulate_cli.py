@@ -119,6 +119,35 @@ def test_no_capacitor_option(tmp_path: Path) -> None:
     assert data[:, header.index('coil_voltage')].min() == 0.0
 
 
+def test_electronics_file_sets_the_drive(tmp_path: Path) -> None:
+    """A reduced-voltage hold: the mean hold current is V_supply * duty / R."""
+    out = tmp_path / 'pwm.csv'
+    driver = PKG_ROOT / 'config' / 'electronics' / 'reduced_pwm_hold.yaml'
+    assert main(['--experiment', 'pwm', '--duty', '1', '--duration', '0.1',
+                 '--electronics', str(driver), '--out', str(out), '--no-plot', '-q']) == 0
+    meta, header, data = read_csv(out)
+    assert meta['electronics'] == str(driver)
+    t, i = data[:, 0], data[:, header.index('current')]
+    last = t > 0.09  # 10 ms: 200 whole chopper periods
+    assert i[last].mean() == pytest.approx(24.0 * 0.3 / 13.0, rel=0.01)
+    # a step through the same drive: the timer's 5 ms of supply, then the chopper
+    assert main(['--electronics', str(driver), '--out', str(out), '--no-plot', '-q']) == 0
+    _, header, data = read_csv(out)
+    volts = data[:, header.index('voltage')]
+    assert np.all(volts[data[:, 0] < 5e-3 - 1e-9] == 24.0)
+    assert np.any(volts[data[:, 0] > 5e-3] == 0.0)
+
+
+def test_a_bad_electronics_file_exits_2_naming_file_line_and_key(tmp_path: Path,
+                                                                 capsys) -> None:
+    bad = tmp_path / 'driver.yaml'
+    bad.write_text('electronics:\n  hold: pi\n  release: varistor\n')
+    assert main(['--electronics', str(bad), '--out', str(tmp_path / 'x.csv')]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}:3: release must be one of" in err and "'varistor'" in err
+    assert 'Traceback' not in err
+
+
 @pytest.mark.parametrize('argv, message', [
     (['--duty', '1.5', '--experiment', 'pwm'], 'duty must be in [0, 1], got 1.5'),
     (['--duration', '-1'], '--duration must be positive'),

@@ -83,6 +83,10 @@ def build_parser() -> argparse.ArgumentParser:
     model.add_argument('--current-noise-a', type=float, default=0.0,
                        help='standard deviation of the current ADC noise on the reported '
                             'coil current and its interval mean [A] (default 0; seeded)')
+    model.add_argument('--electronics', default='', metavar='FILE',
+                       help='drive electronics of the hardware (description YAML, '
+                            "valve_model_pkg docs/model.md; default: the paper's driver); "
+                            'the two flags below switch its parts off')
     model.add_argument('--no-current-control', action='store_true',
                        help='hardware built without the boost/holding-current chopper (its '
                             'normal mode is bare PWM voltage); the bench mode is asked for '
@@ -197,13 +201,14 @@ def make_stepper(args: argparse.Namespace):
     factory = getattr(importlib.import_module(module_name), attr)
     if args.stepper != 'valve_model_pkg.model:ValveStepper':
         return factory(None, None, supply_voltage_v=args.supply_voltage_v)
-    from valve_model_pkg.model import ElectronicsConfig, load_parameters
+    from valve_model_pkg.model import ElectronicsConfig, load_electronics, load_parameters
 
     params = load_parameters(args.params_file or None)
     params = apply_effects(params, args.effect, args.effect_param)
-    electronics = dataclasses.replace(ElectronicsConfig(),
-                                      current_control=not args.no_current_control,
-                                      negative_voltage=not args.no_capacitor)
+    base = load_electronics(args.electronics) if args.electronics else ElectronicsConfig()
+    electronics = dataclasses.replace(
+        base, current_control=base.current_control and not args.no_current_control,
+        negative_voltage=base.negative_voltage and not args.no_capacitor)
     active = params.active_effects() if hasattr(params, 'active_effects') else ()
     logger.info('valve model: %s; effects: %s', args.params_file or 'default parameters',
                 ', '.join(active) or 'none (the nominal model)')

@@ -9,6 +9,7 @@ Examples::
 
     valve_map                                   # paper grid -> ./valve_map.json + PNGs
     valve_map -o out/map.json --params my_valve.yaml
+    valve_map --electronics my_driver.yaml      # the valve behind another drive
     valve_map --duty-step 0.005 --pressures-bar 0 1 2 3 4 5 6 --frequencies 20 50 100
     valve_map --show valve_model_pkg/config/valve_map.json   # summary + figures only
 
@@ -50,10 +51,13 @@ def _parser() -> argparse.ArgumentParser:
                    help='output port pressure, bar gauge (default: %(default)s)')
     p.add_argument('--supply-voltage', type=float, default=24.0,
                    help='drive supply voltage, V (default: %(default)s)')
+    p.add_argument('--electronics', default='', metavar='FILE',
+                   help="drive electronics description (YAML, docs/model.md; default: the "
+                        "paper's driver)")
     p.add_argument('--no-current-control', action='store_true',
-                   help='switch the boost + PI holding-current chopper off')
+                   help='switch the peak and hold phases (current control) off')
     p.add_argument('--no-negative-voltage', action='store_true',
-                   help='switch the capacitor release voltage off')
+                   help='switch the release voltage (capacitor pulse) off')
     p.add_argument('--tolerance', type=float, default=1e-4,
                    help='steady-state tolerance, fraction of x_max (default: %(default)s)')
     p.add_argument('--max-periods', type=int, default=400,
@@ -210,11 +214,12 @@ def _generate(args: argparse.Namespace):  # noqa: ANN202 - DutyMap
 
     from valve_model_pkg.maps.generation import MapGrid, generate_map
     from valve_model_pkg.maps.steady_state import SteadyStateCriterion
-    from valve_model_pkg.model import ElectronicsConfig, load_parameters
+    from valve_model_pkg.model import ElectronicsConfig, load_electronics, load_parameters
     params = load_parameters(args.params or None, allow_implausible=args.allow_implausible)
-    electronics = dataclasses.replace(ElectronicsConfig(),
-                                      current_control=not args.no_current_control,
-                                      negative_voltage=not args.no_negative_voltage)
+    base = load_electronics(args.electronics) if args.electronics else ElectronicsConfig()
+    electronics = dataclasses.replace(
+        base, current_control=base.current_control and not args.no_current_control,
+        negative_voltage=base.negative_voltage and not args.no_negative_voltage)
     grid = MapGrid.regular(args.duty_step, [p * 1e5 for p in args.pressures_bar],
                            args.frequencies, args.output_pressure_bar * 1e5)
     criterion = SteadyStateCriterion(tolerance=args.tolerance,
@@ -227,6 +232,7 @@ def _generate(args: argparse.Namespace):  # noqa: ANN202 - DutyMap
                                threads=args.workers,
                                generator={'program': 'valve_map',
                                           'params_file': args.params or 'config/valve.yaml',
+                                          'electronics_file': args.electronics or 'default',
                                           'command': args.command})
     try:
         path = dmap.save(args.out)

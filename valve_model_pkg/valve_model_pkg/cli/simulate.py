@@ -14,6 +14,7 @@ to it. Examples::
     valve_simulate --experiment step --voltage 15 -o fig5.csv
     valve_simulate --experiment pwm --duty 0.4 --pwm-frequency 50 --duration 0.1 \\
         -o fig6.csv
+    valve_simulate --experiment pwm --electronics config/electronics/reduced_pwm_hold.yaml
 
 Progress and results go to stderr. Exit status: 0 written, 2 refused input (a one-line
 message naming the option, file or value), 1 a failure inside (e.g. writing the file).
@@ -32,8 +33,8 @@ import numpy as np
 from .. import dataformat
 from ..model import (
     DEFAULT_SUPPLY_PRESSURE_PA, ElectronicsConfig, ParameterError, SimulationResult,
-    ValveParameters, default_parameters_path, last_period_mean, load_parameters,
-    orifice_mass_flow, simulate_pwm, simulate_step, step_metrics,
+    ValveParameters, default_parameters_path, last_period_mean, load_electronics,
+    load_parameters, orifice_mass_flow, simulate_pwm, simulate_step, step_metrics,
 )
 
 __all__ = ['main', 'build_parser', 'write_csv', 'write_png', 'main_pwm_voltage']
@@ -64,7 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
         description='Simulate the PWM solenoid valve model (Taghizadeh et al. 2009) and '
                     'write CSV (shared measured-data format) plus a PNG plot.')
     ap.add_argument('--experiment', choices=('step', 'pwm'), default='step',
-                    help='step: voltage step on the bare coil (Fig. 4/5); pwm: main PWM '
+                    help='step: voltage step on the bare coil (Fig. 4/5; through the drive '
+                         'given with --electronics); pwm: main PWM '
                          'through the drive electronics (Fig. 6). Default: step.')
     ap.add_argument('--voltage', type=_float, default=24.0,
                     help='step voltage, or the driver supply voltage for pwm, V '
@@ -90,10 +92,14 @@ def build_parser() -> argparse.ArgumentParser:
                     help='accept parameter values outside their plausible ranges with a '
                          'warning (values beyond the numerically safe range are refused '
                          'anyway)')
+    ap.add_argument('--electronics', type=Path, default=None, metavar='FILE',
+                    help='drive electronics description (YAML, docs/model.md; default: '
+                         "the paper's driver); a step then runs through them instead of "
+                         'on the bare coil')
     ap.add_argument('--no-current-control', action='store_true',
-                    help='pwm: switch off the boost/chopper/PI current control')
+                    help='pwm: switch off the peak and hold phases (current control)')
     ap.add_argument('--no-capacitor', action='store_true',
-                    help='pwm: switch off the negative-voltage capacitor')
+                    help='pwm: switch off the release voltage (capacitor pulse)')
     ap.add_argument('--sample-rate', type=_float, default=100e3,
                     help='output sampling rate, Hz (default 100000)')
     ap.add_argument('-o', '--out', type=Path, default=None,
@@ -181,6 +187,17 @@ def write_png(path: Path, result: SimulationResult, title: str) -> None:
     plt.close(fig)
 
 
+def _electronics(args: argparse.Namespace) -> ElectronicsConfig:
+    """The drive electronics: the --electronics file (or the default), with the switches."""
+    electronics = ElectronicsConfig() if args.electronics is None \
+        else load_electronics(args.electronics)
+    if args.experiment == 'pwm' and (args.no_current_control or args.no_capacitor):
+        electronics = electronics.replace(
+            current_control=electronics.current_control and not args.no_current_control,
+            negative_voltage=electronics.negative_voltage and not args.no_capacitor)
+    return electronics
+
+
 def _run(args: argparse.Namespace) -> int:
     if args.supply_bar is not None:
         supply_pa = args.supply_bar * 1e5
@@ -199,7 +216,9 @@ def _run(args: argparse.Namespace) -> int:
         raise _UsageError(f'--duration x --sample-rate gives {n_rows:.3g} rows; '
                           'at most 5e7 are written')
     if args.experiment == 'step' and (args.no_current_control or args.no_capacitor):
-        _LOG.info('step experiments drive the bare coil; electronics options are ignored')
+        _LOG.info('step experiments drive the bare coil (or the --electronics given); '
+                  '--no-current-control and --no-capacitor are ignored')
+    electronics = _electronics(args)
     params_path = args.params if args.params is not None else default_parameters_path()
     params: ValveParameters = load_parameters(params_path,
                                               allow_implausible=args.allow_implausible)
@@ -212,10 +231,9 @@ def _run(args: argparse.Namespace) -> int:
         _LOG.info('step %.3g V, supply %.4g Pa, %.4g s', args.voltage, supply_pa, duration)
         result = simulate_step(params, args.voltage, duration, supply_pa,
                                args.output_pressure, sample_rate_hz=args.sample_rate,
-                               step_time_s=args.step_time)
+                               step_time_s=args.step_time,
+                               electronics=electronics if args.electronics else None)
     else:
-        electronics = ElectronicsConfig(current_control=not args.no_current_control,
-                                        negative_voltage=not args.no_capacitor)
         _LOG.info('pwm duty %.3g at %.4g Hz, supply %.3g V, %.4g Pa, %.4g s', args.duty,
                   args.pwm_frequency, args.voltage, supply_pa, duration)
         result = simulate_pwm(params, electronics, args.duty, args.pwm_frequency, duration,
@@ -234,6 +252,8 @@ def _run(args: argparse.Namespace) -> int:
         'supply_temperature_k': f'{params.supply_temperature_k:.10g}',
         'sample_rate_hz': f'{args.sample_rate:.10g}',
     }
+    if args.electronics is not None:
+        meta['electronics'] = str(args.electronics)
     if args.experiment == 'step':
         m = step_metrics(result)
         meta.update({'step_voltage_v': f'{args.voltage:.10g}',
@@ -248,16 +268,16 @@ def _run(args: argparse.Namespace) -> int:
         meta.update({'pwm_frequency_hz': f'{args.pwm_frequency:.10g}',
                      'duty': f'{args.duty:.10g}',
                      'supply_voltage_v': f'{args.voltage:.10g}',
-                     'current_control': str(not args.no_current_control).lower(),
-                     'capacitor': str(not args.no_capacitor).lower()})
+                     'current_control': str(electronics.current_control).lower(),
+                     'capacitor': str(electronics.negative_voltage).lower()})
         if len(result.period_avg_position_m):
             _LOG.info('average position over the last period %.4g mm (%.1f %% of stroke)',
                       result.period_avg_position_m[-1] * 1e3,
                       100 * result.period_avg_position_m[-1] / params.stroke_m)
         title = (f'PWM {args.duty:g} at {args.pwm_frequency:g} Hz, supply '
                  f'{supply_pa / 1e5:g} bar, current control '
-                 f'{"off" if args.no_current_control else "on"}, capacitor '
-                 f'{"off" if args.no_capacitor else "on"}')
+                 f'{"on" if electronics.current_control else "off"}, release '
+                 f'{electronics.release if electronics.negative_voltage else "off"}')
     write_csv(out, result, meta)
     _LOG.info('wrote %s (%d rows)', out, len(result.t_s))
     if not args.no_plot:

@@ -4,7 +4,8 @@ Public API (see docs/architecture.md, "Model core API"):
 
 - :class:`ValveParameters`, :func:`load_parameters`, :func:`default_parameters_path`,
   :data:`EFFECTS` (optional physical effects with neutral values and bounds)
-- :class:`ElectronicsConfig` (boost, PI current chopper, negative-voltage capacitor)
+- :class:`ElectronicsConfig`, :func:`load_electronics`: the drive electronics, a family of
+  peak-and-hold drivers (peak end, hold, release), and their YAML description file
 - :class:`ValveStepper`, :class:`ValveSample` (streaming, real time);
   :class:`ValveBank` (N valves advanced together in one compiled call)
 - :func:`simulate_trace_batch`, :class:`InputTrace`: the one simulation entry, many
@@ -37,7 +38,7 @@ _HOME = {
     'PeriodAverager': 'averaging', 'last_period_mean': 'averaging',
     'moving_average': 'averaging', 'period_averages': 'averaging',
     'ValveBank': 'bank',
-    'ElectronicsConfig': 'electronics',
+    'ElectronicsConfig': 'electronics', 'load_electronics': 'electronics',
     'inductance': 'magnetics', 'magnetic_force': 'magnetics',
     'DEFAULT_H_FREE_S': 'kernel', 'DEFAULT_H_STOP_S': 'kernel',
     'orifice_mass_flow': 'orifice', 'orifice_mass_flow_scalar': 'orifice',
@@ -100,6 +101,7 @@ __all__ = [
     'default_parameters_path',
     'inductance',
     'last_period_mean',
+    'load_electronics',
     'load_parameters',
     'magnetic_force',
     'moving_average',

@@ -53,7 +53,8 @@ EXPORTS = {
     'pwm_rows': 'void(f8[:, ::1], f8[::1], f8[::1], f8[::1], f8[::1], f8[::1], f8[::1], f8, '
                 'f8, f8[:, ::1], i8, i8)',
     'trace_rows': 'void(f8[:, ::1], f8[::1], f8[::1], f8[::1], f8[::1], f8[::1], f8[::1], '
-                  'f8[::1], f8[::1], f8, f8, f8[:, :, ::1], f8[:, ::1], i8, i8)',
+                  'f8[::1], f8[::1], f8[::1], f8[::1], f8, f8, f8[:, :, ::1], f8[:, ::1], '
+                  'i8, i8)',
     'drive_state': 'f8[::1](f8, f8, f8, f8, f8, f8, f8, f8)',
     'command': 'void(f8, f8[::1], f8[::1], f8, f8)',
     'advance': 'void(f8[::1], f8[::1], f8[::1], f8[::1], f8, f8, f8, f8[:, ::1], f8[::1])',
@@ -83,10 +84,10 @@ def _wrappers() -> dict:
     def pwm_rows(raw, e, supply_v, duty, period, p_sup, p_out, h_free, h_stop, avg, r0, r1):
         k._pwm_rows(raw, e, supply_v, duty, period, p_sup, p_out, h_free, h_stop, avg, r0, r1)
 
-    def trace_rows(raw, e, seg_t, seg_vs, seg_duty, seg_period, p_sup, p_out, t_samp, h_free,
-                   h_stop, out, stats, r0, r1):
-        k._trace_rows(raw, e, seg_t, seg_vs, seg_duty, seg_period, p_sup, p_out, t_samp,
-                      h_free, h_stop, out, stats, r0, r1)
+    def trace_rows(raw, e, seg_t, seg_vs, seg_duty, seg_period, seg_psup, seg_pout, p_sup,
+                   p_out, t_samp, h_free, h_stop, out, stats, r0, r1):
+        k._trace_rows(raw, e, seg_t, seg_vs, seg_duty, seg_period, seg_psup, seg_pout, p_sup,
+                      p_out, t_samp, h_free, h_stop, out, stats, r0, r1)
 
     def drive_state(vs, duty, period, t0, p_sup, p_out, sample_dt, first_sample):
         return k._drive_state(vs, duty, period, t0, p_sup, p_out, sample_dt, first_sample)

@@ -81,7 +81,9 @@ N_Y = 5
 # Drive phases (what the driver applies to the coil).
 PH_OFF = 0        # main PWM low: capacitor pulse or 0 V
 PH_SUPPLY = 1     # supply voltage (bare coil high phase, boost, chopper on)
-PH_FREEWHEEL = 2  # chopper off: 0 V
+PH_FREEWHEEL = 2  # chopper off, or the current has reached zero: 0 V
+PH_CLAMP = 3      # -d[D_VNEG] (Zener, free-wheel diode) until the current reaches zero
+PH_FAST = 4       # fast decay: -d[D_VS] until the current reaches zero (if blocked)
 
 # Discrete state.
 D_T = 0
@@ -130,7 +132,9 @@ D_QV = 39
 # Slow ladder current i_b of the eddy_ladder emulator form, A (0 when off). Integrated by
 # RK4 with y as the 8th component of the step tuple, kept here like D_QI.
 D_IB = 40
-N_D = 41
+D_VNEG = 41      # magnitude of the clamp voltage of PH_CLAMP, V
+D_IMIN = 42      # running minimum of the sampled current after the dip ('dip_rise'), A
+N_D = 43
 
 # Output channels of recorded samples.
 O_V = 0
@@ -360,20 +364,27 @@ def pwm_batch(raw: np.ndarray, e: np.ndarray, supply_v: np.ndarray, duty: np.nda
 def trace_batch(raw: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.ndarray,
                 seg_duty: np.ndarray, seg_period: np.ndarray, p_sup: np.ndarray,
                 p_out: np.ndarray, t_samp: np.ndarray, h_free: float, h_stop: float,
-                out: np.ndarray, stats: np.ndarray, parallel: bool = True) -> None:
+                out: np.ndarray, stats: np.ndarray, parallel: bool = True,
+                seg_psup: np.ndarray | None = None,
+                seg_pout: np.ndarray | None = None) -> None:
     """Runs under piecewise-constant inputs, one ``out[r]`` row per sample time (in place).
 
-    Input ``k`` (supply voltage V, pending duty, pending period s) applies from
-    ``seg_t[k]`` (the first from t = 0); ``out`` has shape (n_runs, n_samples, N_OUT),
-    ``stats`` (n_runs, 2) receives the step count and the forced-step count. With
-    ``parallel`` False the runs go one after the other on the calling thread (without the
-    GIL, so that several threads of the caller can each run a batch).
+    Input ``k`` (supply voltage V, pending duty, pending period s and, if ``seg_psup``,
+    ``seg_pout`` are given, the gauge pressures Pa) applies from ``seg_t[k]`` (the first
+    from t = 0); without them run r has the pressures ``p_sup[r]``, ``p_out[r]``
+    throughout. ``out`` has shape (n_runs, n_samples, N_OUT), ``stats`` (n_runs, 2)
+    receives the step count and the forced-step count. With ``parallel`` False the runs
+    go one after the other on the calling thread (without the GIL, so that several
+    threads of the caller can each run a batch).
     """
     raw = _vec(raw)
+    none = np.zeros(0)
     _run_rows(_backend().trace_rows, raw.shape[0],
               (raw, _vec(e), _vec(seg_t), _vec(seg_vs), _vec(seg_duty), _vec(seg_period),
-               _vec(p_sup), _vec(p_out), _vec(t_samp), float(h_free), float(h_stop),
-               _inout(out, 'out'), _inout(stats, 'stats')), parallel)
+               none if seg_psup is None else _vec(seg_psup),
+               none if seg_pout is None else _vec(seg_pout), _vec(p_sup), _vec(p_out),
+               _vec(t_samp), float(h_free), float(h_stop), _inout(out, 'out'),
+               _inout(stats, 'stats')), parallel)
 
 
 # --------------------------------------------------------------------------------------

@@ -6,10 +6,14 @@ Classical fixed-step Runge-Kutta 4 on the hybrid system, with every discontinuit
 exactly instead of being smeared by a step:
 
 * **Scheduled edges** (main PWM rising/falling edges and period starts, chopper switch-off,
-  controller ticks, output sample times) are known in advance, so every step is shortened
-  to land exactly on the next one; the interval up to it is split into equal steps no
-  longer than ``h_free`` (spool moving) or ``h_stop`` (spool held). Between edges the
-  right-hand side is smooth, so RK4 keeps its 4th order.
+  controller and comparator ticks, the peak timer, output sample times) are known in
+  advance, so every step is shortened to land exactly on the next one; the interval up to
+  it is split into equal steps no longer than ``h_free`` (spool moving) or ``h_stop``
+  (spool held). Between edges the right-hand side is smooth, so RK4 keeps its 4th order.
+* **Level events**: the current reaching a level at an instant no schedule knows (the
+  ``threshold`` peak end; the zero that ends a Zener, diode or blocked fast-decay phase)
+  is located by regula falsi (Illinois) on redone steps; the step ends there and the
+  drive switches (``_locate_level``). Only electronics with such a form look for them.
 * **End-stop impacts** (x reaches 0 or x_max) are located inside the step on the cubic
   Hermite interpolant of x (x and x_dot at both ends are known), the step is redone up to
   the impact, x is set onto the stop and the velocity to 0 (plastic, the paper) or to
@@ -88,16 +92,16 @@ from .electrical import (
 )
 from .kernel import (
     D_AVG_IDX, D_BOOST, D_BOOST_END, D_CHOP_DUTY, D_CHOP_OFF, D_DIPPED, D_DUTY, D_IB,
-    D_IMAX, D_IPREV, D_MAIN_ON, D_MODE, D_N_FORCED, D_N_STEPS, D_NEXT_BOUNDARY, D_NEXT_FALL,
-    D_NEXT_SAMPLE, D_NEXT_TICK, D_PEND_DUTY, D_PEND_PERIOD, D_PER_RUNNING, D_PER_START,
-    D_PERIOD, D_PHASE, D_PI_INT, D_POUT, D_PREV_PERIOD, D_PSUP, D_Q_START, D_QI, D_QV,
-    D_SAMPLE_DT, D_SAMPLE_IDX, D_SAMPLE_T0, D_T, D_T_OFF, D_T_ON, D_VC_OFF, D_VC_ON, D_VS,
-    D_XAVG, IV_DONE, IV_I, IV_QI0, IV_QV0, IV_T0, IV_V, N_D, N_OUT, N_P, N_Y, O_DT, O_I,
-    O_MODE, O_QI, O_QV, O_QX, O_V, O_X, O_XDOT, P_A1, P_A2, P_A3, P_A4, P_B, P_B2, P_BETA,
-    P_DELTA, P_E, P_EMU, P_FC, P_GE, P_K, P_KL, P_L0, P_LADR, P_LADRB, P_LAMS, P_LLEAK, P_M,
-    P_R, P_RTH, P_TAUTH, P_XMAX, PH_FREEWHEEL, PH_OFF, PH_SUPPLY, S_DT, S_DUTY, S_FLOW,
-    S_FREQ, S_I, S_I_MEAN, S_POUT, S_PSUP, S_T, S_V, S_V_MEAN, S_X, S_XAVG, S_XDOT, Y_DT,
-    Y_I, Y_Q, Y_V, Y_X,
+    D_IMAX, D_IMIN, D_IPREV, D_MAIN_ON, D_MODE, D_N_FORCED, D_N_STEPS, D_NEXT_BOUNDARY,
+    D_NEXT_FALL, D_NEXT_SAMPLE, D_NEXT_TICK, D_PEND_DUTY, D_PEND_PERIOD, D_PER_RUNNING,
+    D_PER_START, D_PERIOD, D_PHASE, D_PI_INT, D_POUT, D_PREV_PERIOD, D_PSUP, D_Q_START,
+    D_QI, D_QV, D_SAMPLE_DT, D_SAMPLE_IDX, D_SAMPLE_T0, D_T, D_T_OFF, D_T_ON, D_VC_OFF,
+    D_VC_ON, D_VNEG, D_VS, D_XAVG, IV_DONE, IV_I, IV_QI0, IV_QV0, IV_T0, IV_V, N_D, N_OUT,
+    N_P, N_Y, O_DT, O_I, O_MODE, O_QI, O_QV, O_QX, O_V, O_X, O_XDOT, P_A1, P_A2, P_A3, P_A4,
+    P_B, P_B2, P_BETA, P_DELTA, P_E, P_EMU, P_FC, P_GE, P_K, P_KL, P_L0, P_LADR, P_LADRB,
+    P_LAMS, P_LLEAK, P_M, P_R, P_RTH, P_TAUTH, P_XMAX, PH_CLAMP, PH_FAST, PH_FREEWHEEL,
+    PH_OFF, PH_SUPPLY, S_DT, S_DUTY, S_FLOW, S_FREQ, S_I, S_I_MEAN, S_POUT, S_PSUP, S_T,
+    S_V, S_V_MEAN, S_X, S_XAVG, S_XDOT, Y_DT, Y_I, Y_Q, Y_V, Y_X,
 )
 from .magnetics import MU_0, _force, _inductance, _inductance_slope, _law_force
 from .mechanics import (
@@ -196,6 +200,9 @@ def _voltage(t: float, phase: int, d: np.ndarray, e: np.ndarray) -> float:
         return d[D_VS]
     if phase == PH_FREEWHEEL:
         return 0.0
+    if phase > PH_FREEWHEEL:
+        # a clamp (Zener, free-wheel diode) or fast decay, until the current reaches zero
+        return -d[D_VNEG] if phase == PH_CLAMP else -d[D_VS]
     vc = d[D_VC_OFF]
     if vc == 0.0:
         return 0.0
@@ -447,7 +454,12 @@ def _rising_edge(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
         d[D_IMAX] = i_t
         d[D_IPREV] = i_t
         d[D_DIPPED] = 0.0
-        d[D_NEXT_TICK] = t  # controller ticks aligned with the rising edge
+        form = e[_el.E_PEAK_END]
+        if form == _el.PEAK_DIP or form == _el.PEAK_DIP_RISE:
+            d[D_NEXT_TICK] = t  # controller ticks aligned with the rising edge
+        else:
+            # the timer (or the threshold form's timeout) is the boost's one tick
+            d[D_NEXT_TICK] = t + e[_el.E_BOOST_MAX_S]
     else:
         d[D_BOOST] = 0.0
         d[D_NEXT_TICK] = _INF
@@ -455,51 +467,117 @@ def _rising_edge(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
 
 @njit(cache=True, _nrt=False)
 def _falling_edge(t: float, d: np.ndarray, e: np.ndarray) -> None:
+    """End of the main PWM high phase: the release (``ElectronicsConfig.release``)."""
     d[D_MAIN_ON] = 0.0
-    if e[_el.E_CAPACITOR] != 0.0:
+    d[D_PHASE] = PH_OFF
+    if e[_el.E_CAPACITOR] == 0.0:
+        d[D_VC_OFF] = 0.0
+    elif e[_el.E_RELEASE] == _el.RELEASE_CAPACITOR:
         vcap = e[_el.E_CAP_V]
         d[D_VC_OFF] = vcap + (d[D_VC_ON] - vcap) * math.exp(
             -(t - d[D_T_ON]) / e[_el.E_CAP_CHARGE_S])
+    elif e[_el.E_RELEASE] == _el.RELEASE_CAPACITOR_PEAK:
+        # charged during the peak phase only (the whole high phase without one)
+        t_charged = t
+        if d[D_BOOST] == 0.0 and d[D_BOOST_END] >= d[D_T_ON]:
+            t_charged = d[D_BOOST_END]
+        vcap = e[_el.E_CAP_V]
+        d[D_VC_OFF] = vcap + (d[D_VC_ON] - vcap) * math.exp(
+            -(t_charged - d[D_T_ON]) / e[_el.E_CAP_CHARGE_S])
     else:
+        # Zener clamp or free-wheel diode, until the current reaches zero (a level event)
         d[D_VC_OFF] = 0.0
+        d[D_VNEG] = e[_el.E_ZENER_V] if e[_el.E_RELEASE] == _el.RELEASE_ZENER \
+            else e[_el.E_DIODE_V]
+        d[D_PHASE] = PH_CLAMP
     d[D_T_OFF] = t
-    d[D_PHASE] = PH_OFF
     d[D_NEXT_TICK] = _INF
     d[D_CHOP_OFF] = _INF
     d[D_BOOST] = 0.0
 
 
 @njit(cache=True, _nrt=False)
-def _controller_tick(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
-                     e: np.ndarray) -> None:
-    """Sampled current controller: boost end detection, then the PI chopper duty."""
+def _chopper_off(d: np.ndarray, e: np.ndarray) -> None:
+    """The hold's chopper switches off: the coil sees ``ElectronicsConfig.hold_decay``."""
+    decay = e[_el.E_DECAY]
+    if decay == _el.DECAY_FREEWHEEL:
+        d[D_PHASE] = PH_FREEWHEEL
+    elif decay == _el.DECAY_DIODE:
+        d[D_VNEG] = e[_el.E_DIODE_V]
+        d[D_PHASE] = PH_CLAMP
+    else:
+        d[D_PHASE] = PH_FAST
+
+
+@njit(cache=True, _nrt=False)
+def _boost_ends(t: float, i_t: float, d: np.ndarray, e: np.ndarray) -> bool:
+    """A controller sample during the boost: True if the peak phase ends now.
+
+    The dip forms sample the current once per chopper period; for the timer and the
+    threshold form a boost tick is the timer (the threshold itself is a level event).
+    """
+    form = e[_el.E_PEAK_END]
+    if form != _el.PEAK_DIP and form != _el.PEAK_DIP_RISE:
+        return True
+    end = t - d[D_T_ON] >= e[_el.E_BOOST_MAX_S] - _EPS_T
+    if form == _el.PEAK_DIP:
+        if i_t > d[D_IMAX]:
+            d[D_IMAX] = i_t
+        elif d[D_IMAX] - i_t >= e[_el.E_DIP_A]:
+            d[D_DIPPED] = 1.0
+        if d[D_DIPPED] != 0.0 and i_t > d[D_IPREV]:
+            end = True  # current rises again after the dip: end of stroke
+        d[D_IPREV] = i_t
+        return end
+    if d[D_DIPPED] == 0.0:
+        if i_t > d[D_IMAX]:
+            d[D_IMAX] = i_t
+        elif d[D_IMAX] - i_t >= e[_el.E_DIP_A]:
+            d[D_DIPPED] = 1.0
+            d[D_IMIN] = i_t
+    elif i_t < d[D_IMIN]:
+        d[D_IMIN] = i_t
+    elif i_t - d[D_IMIN] >= e[_el.E_RISE_A]:
+        end = True  # risen a threshold above the minimum after the dip
+    return end
+
+
+@njit(cache=True, _nrt=False)
+def _end_boost(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
+               e: np.ndarray) -> None:
+    """The peak phase ends at t; the PI integrator starts at the feed-forward duty."""
+    d[D_BOOST] = 0.0
+    d[D_BOOST_END] = t
+    ff = e[_el.E_HOLD_A] * _resistance(p[P_R], y[Y_DT]) / d[D_VS] if d[D_VS] > 0 else 1.0
+    d[D_PI_INT] = min(1.0, max(0.0, ff))
+
+
+@njit(cache=True, _nrt=False)
+def _hold_tick(t: float, i_t: float, d: np.ndarray, e: np.ndarray) -> None:
+    """A tick of the hold (``ElectronicsConfig.hold``): set the chopper from the current."""
+    form = e[_el.E_HOLD]
+    if form == _el.HOLD_HYSTERESIS:
+        half = 0.5 * e[_el.E_BAND_A]
+        if i_t < e[_el.E_HOLD_A] - half:
+            d[D_PHASE] = PH_SUPPLY
+        elif i_t > e[_el.E_HOLD_A] + half and d[D_PHASE] == PH_SUPPLY:
+            _chopper_off(d, e)
+        d[D_CHOP_DUTY] = 1.0 if d[D_PHASE] == PH_SUPPLY else 0.0
+        d[D_CHOP_OFF] = _INF
+        d[D_NEXT_TICK] = t + 1.0 / e[_el.E_COMPARATOR_HZ]
+        return
     period = 1.0 / e[_el.E_CHOPPER_HZ]
-    i_t = _terminal_current(t, y, int(d[D_PHASE]), p, d, e)
-    if d[D_BOOST] != 0.0:
-        end = t - d[D_T_ON] >= e[_el.E_BOOST_MAX_S] - _EPS_T
-        if e[_el.E_DIP_DETECTION] != 0.0:
-            if i_t > d[D_IMAX]:
-                d[D_IMAX] = i_t
-            elif d[D_IMAX] - i_t >= e[_el.E_DIP_A]:
-                d[D_DIPPED] = 1.0
-            if d[D_DIPPED] != 0.0 and i_t > d[D_IPREV]:
-                end = True  # current rises again after the dip: end of stroke
-            d[D_IPREV] = i_t
-        if not end:
-            d[D_NEXT_TICK] = t + period
-            return
-        d[D_BOOST] = 0.0
-        d[D_BOOST_END] = t
-        ff = e[_el.E_HOLD_A] * _resistance(p[P_R], y[Y_DT]) / d[D_VS] if d[D_VS] > 0 else 1.0
-        d[D_PI_INT] = min(1.0, max(0.0, ff))
-    err = e[_el.E_HOLD_A] - i_t
-    integ = d[D_PI_INT] + e[_el.E_KI] * err * period
-    integ = min(1.0, max(0.0, integ))  # clamping anti-windup
-    d[D_PI_INT] = integ
-    u = min(1.0, max(0.0, e[_el.E_KP] * err + integ))
+    if form == _el.HOLD_PWM:
+        u = e[_el.E_HOLD_DUTY]
+    else:
+        err = e[_el.E_HOLD_A] - i_t
+        integ = d[D_PI_INT] + e[_el.E_KI] * err * period
+        integ = min(1.0, max(0.0, integ))  # clamping anti-windup
+        d[D_PI_INT] = integ
+        u = min(1.0, max(0.0, e[_el.E_KP] * err + integ))
     d[D_CHOP_DUTY] = u
     if u <= 0.0:
-        d[D_PHASE] = PH_FREEWHEEL
+        _chopper_off(d, e)
         d[D_CHOP_OFF] = _INF
     elif u >= 1.0:
         d[D_PHASE] = PH_SUPPLY
@@ -508,6 +586,19 @@ def _controller_tick(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
         d[D_PHASE] = PH_SUPPLY
         d[D_CHOP_OFF] = t + u * period
     d[D_NEXT_TICK] = t + period
+
+
+@njit(cache=True, _nrt=False)
+def _controller_tick(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
+                     e: np.ndarray) -> None:
+    """Sampled current controller: the end of the peak phase, then the hold."""
+    i_t = _terminal_current(t, y, int(d[D_PHASE]), p, d, e)
+    if d[D_BOOST] != 0.0:
+        if not _boost_ends(t, i_t, d, e):
+            d[D_NEXT_TICK] = t + 1.0 / e[_el.E_CHOPPER_HZ]
+            return
+        _end_boost(t, y, p, d, e)
+    _hold_tick(t, i_t, d, e)
 
 
 @njit(cache=True, _nrt=False)
@@ -604,7 +695,7 @@ def _process_events(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray, e: np
         _falling_edge(t, d, e)
     if d[D_CHOP_OFF] <= lim:
         d[D_CHOP_OFF] = _INF
-        d[D_PHASE] = PH_FREEWHEEL
+        _chopper_off(d, e)
     if d[D_NEXT_TICK] <= lim:
         _controller_tick(t, y, p, d, e)
     if d[D_NEXT_SAMPLE] <= lim:
@@ -751,6 +842,94 @@ def _release(t: float, h: float, t_new: float, y: tuple, z: tuple, mode: int, ph
     return t_new, z
 
 
+# --------------------------------------------------------------------------------------
+# Level events: the current reaching a level inside a step (the step is redone up to it)
+# --------------------------------------------------------------------------------------
+_LEVEL_NONE = 0
+_LEVEL_PEAK = 1   # 'threshold' peak end: the terminal current rises to peak_current_a
+_LEVEL_ZERO = 2   # a clamp or blocked fast decay: the magnetising current falls to zero
+
+
+@njit(cache=True, _nrt=False)
+def _level_kind(phase: int, d: np.ndarray, e: np.ndarray) -> int:
+    """The level event armed in ``phase`` (``_LEVEL_*``)."""
+    if phase > PH_FREEWHEEL:
+        if phase == PH_CLAMP or e[_el.E_BLOCK_REVERSE] != 0.0:
+            return _LEVEL_ZERO
+        return _LEVEL_NONE
+    if phase == PH_SUPPLY and d[D_BOOST] != 0.0 \
+            and e[_el.E_PEAK_END] == _el.PEAK_THRESHOLD:
+        return _LEVEL_PEAK
+    return _LEVEL_NONE
+
+
+@njit(cache=True, _nrt=False)
+def _level_margin(kind: int, i_m: float, d_temp: float, volt: float, p: np.ndarray,
+                  e: np.ndarray) -> float:
+    """How far the current is past the armed level, A (>= 0: reached)."""
+    if kind == _LEVEL_ZERO:
+        return -i_m
+    i_t = i_m
+    if p[P_GE] != 0.0:
+        r = _resistance(p[P_R], d_temp)
+        i_t = i_m + p[P_GE] * (volt - r * i_m) / (1.0 + r * p[P_GE])
+    return i_t - e[_el.E_PEAK_A]
+
+
+@njit(cache=True, _nrt=False)
+def _locate_level(t: float, h: float, t_new: float, y: tuple, z: tuple, v_a: float,
+                  v_g: float, g_lo: float, g_hi: float, kind: int, mode: int, phase: int,
+                  f_prs: float, ind: float, slope: float, p: np.ndarray, d: np.ndarray,
+                  e: np.ndarray) -> tuple:
+    """Illinois search for the instant the level is reached inside the step [t, t + h].
+
+    ``g_lo`` < 0 and ``g_hi`` >= 0 are the margins at the step's start and end. Returns
+    (t_new, z, voltage at t_new, step length): the step redone up to the first instant
+    found with a margin >= 0 (within 1 ps or 1 pA of the crossing).
+    """
+    lo = 0.0
+    hi = h
+    side = 0
+    for _ in range(60):
+        if hi - lo < 1e-12:
+            break
+        hs = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
+        if not lo < hs < hi:
+            hs = 0.5 * (lo + hi)
+        w, v_w = _rk4_from(t, hs, y, mode, phase, f_prs, ind, slope, v_a, p, d, e)
+        d[D_N_STEPS] += 1.0
+        g = _level_margin(kind, w[0], w[3], v_w, p, e)
+        if g >= 0.0:
+            hi = hs
+            g_hi = g
+            z = w
+            v_g = v_w
+            t_new = t + hs
+            if side == 1:
+                g_lo *= 0.5  # Illinois modification
+            side = 1
+            if g < 1e-12:
+                break
+        else:
+            lo = hs
+            g_lo = g
+            if side == -1:
+                g_hi *= 0.5
+            side = -1
+    return t_new, z, v_g, hi
+
+
+@njit(cache=True, _nrt=False)
+def _level_reached(kind: int, t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
+                   e: np.ndarray) -> None:
+    """Apply a reached level: the clamp ends (0 V) or the peak phase ends (the hold)."""
+    if kind == _LEVEL_ZERO:
+        d[D_PHASE] = PH_FREEWHEEL
+        return
+    _end_boost(t, y, p, d, e)
+    _hold_tick(t, _terminal_current(t, y, PH_SUPPLY, p, d, e), d, e)
+
+
 @njit(cache=True, _nrt=False)
 def _next_event(d: np.ndarray) -> float:
     return min(d[D_NEXT_BOUNDARY], d[D_NEXT_FALL], d[D_NEXT_TICK], d[D_CHOP_OFF],
@@ -797,6 +976,11 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
     m_known = -1
     g_known = 0.0
     f_c = p[P_FC]
+    # whether a level event can be armed in this call: by a form of the electronics, or by
+    # a clamp still running from the electronics before a switch (else none is looked at)
+    levels = e[_el.E_PEAK_END] == _el.PEAK_THRESHOLD or e[_el.E_DECAY] != _el.DECAY_FREEWHEEL \
+        or (e[_el.E_RELEASE] >= _el.RELEASE_ZENER and e[_el.E_CAPACITOR] != 0.0) \
+        or d[D_PHASE] > PH_FREEWHEEL
     while True:
         t = d[D_T]
         # --- no-progress guard: a pass that does not advance time counts as a stall
@@ -822,6 +1006,13 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
             d[D_N_FORCED] += 1.0
         mode = int(d[D_MODE])
         phase = int(d[D_PHASE])
+        level = _level_kind(phase, d, e) if levels else _LEVEL_NONE
+        if level != _LEVEL_NONE and not forced:
+            v_now = v_known if t == t_known else _voltage(t, phase, d, e)
+            if _level_margin(level, y[Y_I], y[Y_DT], v_now, p, e) >= 0.0:
+                _level_reached(level, t, y, p, d, e)  # already there (e.g. at an edge)
+                t_known = math.nan
+                continue
         x = y[Y_X]
         if x != geo_x:
             ind = _inductance(x, k_l, l_0, b_2)
@@ -842,6 +1033,16 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
         v_a = v_known if t == t_known else _voltage(t, phase, d, e)
         z, v_g = _rk4_from(t, h, y_0, mode, phase, f_prs, ind, slope, v_a, p, d, e)
         d[D_N_STEPS] += 1.0
+        t_level = _INF
+        if level != _LEVEL_NONE:
+            g_end = _level_margin(level, z[0], z[3], v_g, p, e)
+            if g_end >= 0.0:
+                # redo the step up to the level; an impact or release before it comes first
+                t_new, z, v_g, h = _locate_level(
+                    t, h, t_new, y_0, z, v_a, v_g,
+                    _level_margin(level, y_0[0], y_0[3], v_a, p, e), g_end, level, mode,
+                    phase, f_prs, ind, slope, p, d, e)
+                t_level = t_new
         if mode == MODE_FREE:
             t_new, z = _free_step_events(t, h, t_new, y_0, z, phase, f_prs, p, d, e,
                                          _HOLD_ON_RECROSS)
@@ -877,6 +1078,11 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
         d[D_T] = t_new
         t_known = t + h  # the time of the last stage
         v_known = v_g
+        if level != _LEVEL_NONE and t_new == t_level:
+            if level == _LEVEL_ZERO:
+                y[Y_I] = 0.0  # (within 1 pA or 1 ps of the crossing)
+            _level_reached(level, t_new, y, p, d, e)
+            t_known = math.nan
         if t_new > t and d[D_NEXT_SAMPLE] <= t_new + _EPS_T \
                 and _next_drive_event(d) > t_new + _EPS_T:
             # an output sample alone is due at the step's end: recorded here, as the
@@ -973,12 +1179,20 @@ _TRACE_LEAD_S = 3e-12
 
 @njit(cache=True)
 def _trace_run(raw_r: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.ndarray,
-               seg_duty: np.ndarray, seg_period: np.ndarray, p_sup: float, p_out: float,
-               t_samp: np.ndarray, h_free: float, h_stop: float, out_r: np.ndarray,
-               stats_r: np.ndarray) -> None:
-    """One run: apply the input changes and record a row of ``out_r`` per sample time."""
+               seg_duty: np.ndarray, seg_period: np.ndarray, seg_psup: np.ndarray,
+               seg_pout: np.ndarray, p_sup: float, p_out: float, t_samp: np.ndarray,
+               h_free: float, h_stop: float, out_r: np.ndarray, stats_r: np.ndarray) -> None:
+    """One run: apply the input changes and record a row of ``out_r`` per sample time.
+
+    The gauge pressures are ``seg_psup[k]``, ``seg_pout[k]`` from ``seg_t[k]`` on when
+    given (one per input), else ``p_sup``, ``p_out`` throughout.
+    """
     p = _derive(raw_r)
     y = np.zeros(N_Y)
+    varying = seg_psup.shape[0] > 0
+    if varying:
+        p_sup = seg_psup[0]
+        p_out = seg_pout[0]
     d = _drive_state(seg_vs[0], seg_duty[0], seg_period[0], 0.0, p_sup, p_out, _INF, 0.0)
     no_samples = np.zeros((0, N_OUT))
     no_avg = np.zeros(0)
@@ -989,6 +1203,9 @@ def _trace_run(raw_r: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.n
         while s < n_seg and seg_t[s] - _TRACE_LEAD_S < t_k:
             _advance(p, e, y, d, seg_t[s] - _TRACE_LEAD_S, h_free, h_stop, no_samples, no_avg)
             d[D_VS] = seg_vs[s]
+            if varying:  # (each _advance takes the pressure force at its start)
+                d[D_PSUP] = seg_psup[s]
+                d[D_POUT] = seg_pout[s]
             _command(seg_t[s], d, e, seg_duty[s], seg_period[s])
             s += 1
         _advance(p, e, y, d, t_k, h_free, h_stop, no_samples, no_avg)
@@ -999,13 +1216,14 @@ def _trace_run(raw_r: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.n
 
 @njit(cache=True, nogil=True)
 def _trace_rows(raw: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.ndarray,
-                seg_duty: np.ndarray, seg_period: np.ndarray, p_sup: np.ndarray,
-                p_out: np.ndarray, t_samp: np.ndarray, h_free: float, h_stop: float,
-                out: np.ndarray, stats: np.ndarray, r0: int, r1: int) -> None:
+                seg_duty: np.ndarray, seg_period: np.ndarray, seg_psup: np.ndarray,
+                seg_pout: np.ndarray, p_sup: np.ndarray, p_out: np.ndarray,
+                t_samp: np.ndarray, h_free: float, h_stop: float, out: np.ndarray,
+                stats: np.ndarray, r0: int, r1: int) -> None:
     """Trace runs: rows r0..r1-1 of ``out`` and ``stats`` (kernel.trace_batch)."""
     for r in range(r0, r1):
-        _trace_run(raw[r], e, seg_t, seg_vs, seg_duty, seg_period, p_sup[r], p_out[r],
-                   t_samp, h_free, h_stop, out[r], stats[r])
+        _trace_run(raw[r], e, seg_t, seg_vs, seg_duty, seg_period, seg_psup, seg_pout,
+                   p_sup[r], p_out[r], t_samp, h_free, h_stop, out[r], stats[r])
 
 
 # --------------------------------------------------------------------------------------

@@ -73,7 +73,7 @@ class SimulationResult:
         The parameter sets: one (single run), one per run, or the matrix
         (n_runs, len(PARAMETER_FIELDS)) of ``to_vector`` rows a batch was given.
     supply_pressure_pa, output_pressure_pa : float or numpy.ndarray, shape ([n_runs])
-        Gauge pressures, Pa.
+        Gauge pressures, Pa (at t = 0 if the trace carries their course).
     """
 
     t_s: np.ndarray
@@ -161,10 +161,15 @@ class SimulationResult:
 
     @property
     def mass_flow_kg_s(self) -> np.ndarray:
-        """Mass flow from :attr:`position_avg_m`, eq. (12), kg/s; shape as the samples."""
+        """Mass flow from :attr:`position_avg_m`, eq. (12), kg/s; shape as the samples.
+
+        With the pressures in force at each sample (the trace's course, if it has one).
+        """
         if not self.is_batch:
-            return orifice_mass_flow(self.position_avg_m, self.supply_pressure_pa,
-                                     self.output_pressure_pa, self.params)
+            supply, output = self.supply_pressure_pa, self.output_pressure_pa
+            if self.trace.has_pressures:  # the pressures in force at each sample
+                supply, output = self.trace.pressures_at(self.t_s)
+            return orifice_mass_flow(self.position_avg_m, supply, output, self.params)
         return np.array([self.run(r).mass_flow_kg_s for r in range(self.n_runs)])
 
     @property

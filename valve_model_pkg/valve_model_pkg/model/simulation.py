@@ -179,6 +179,8 @@ def _check_traces(trace: InputTrace | Sequence[InputTrace], n: int) -> list[Inpu
     if len({tr.kind for tr in traces}) != 1:
         raise ParameterError('the traces of one batch must be of one kind, got '
                              f'{sorted({tr.kind for tr in traces})}')
+    if len({tr.has_pressures for tr in traces}) != 1:
+        raise ParameterError('the traces of one batch must all carry pressures or none')
     return traces
 
 
@@ -225,7 +227,8 @@ def _run_traces(runs: _Runs, parallel: bool) -> _KernelRuns:
         _k.trace_batch(runs.matrix[sel], e, tr.t_s, tr.supply_voltage_v, tr.duty,
                        tr.period_s, runs.supply_pressure_pa[sel],
                        runs.output_pressure_pa[sel], runs.t_s, runs.h_free_s,
-                       runs.h_stop_s, o, s, parallel=parallel and len(idx) >= PARALLEL_MIN_BATCH)
+                       runs.h_stop_s, o, s, parallel=parallel and len(idx) >= PARALLEL_MIN_BATCH,
+                       seg_psup=tr.supply_pressure_pa, seg_pout=tr.output_pressure_pa)
         if not whole:
             out[sel], stats[sel] = o, s
     return _KernelRuns(out, stats, None, None)
@@ -321,8 +324,8 @@ def simulate_trace_batch(params_list: ValveParameters | Sequence[ValveParameters
                          sample_times_s: np.ndarray | Sequence[float] | None = None, *,
                          electronics: ElectronicsConfig | None = None,
                          sampling: str = 'instant', n_periods: int | None = None,
-                         supply_pressure_pa: float | np.ndarray = DEFAULT_SUPPLY_PRESSURE_PA,
-                         output_pressure_pa: float | np.ndarray = 0.0,
+                         supply_pressure_pa: float | np.ndarray | None = None,
+                         output_pressure_pa: float | np.ndarray | None = None,
                          h_free_s: float = _k.DEFAULT_H_FREE_S,
                          h_stop_s: float = _k.DEFAULT_H_STOP_S, validate: bool = True,
                          parallel: bool = True) -> SimulationResult:
@@ -357,8 +360,11 @@ def simulate_trace_batch(params_list: ValveParameters | Sequence[ValveParameters
         ``n_periods`` of them (a constant ``pwm_commands`` value per run; the runs then go
         one after another). With sample times the runs end at the last sample; without,
         each lasts exactly ``n_periods`` periods (the static maps' runs).
-    supply_pressure_pa, output_pressure_pa : float or numpy.ndarray
-        Gauge pressures of eq. (10), Pa; scalars or per-run arrays of shape (n_runs,).
+    supply_pressure_pa, output_pressure_pa : float or numpy.ndarray, optional
+        Constant gauge pressures of eq. (10), Pa; scalars or per-run arrays of shape
+        (n_runs,). Default :data:`DEFAULT_SUPPLY_PRESSURE_PA` and 0. Not with traces that
+        carry their own pressure course (``InputTrace`` ``supply_pressure_pa``), whose
+        values act from their times on (the result's pressures are those at t = 0).
     h_free_s, h_stop_s : float
         Maximum RK4 step with the spool moving / resting on a stop, s.
     validate : bool
@@ -392,6 +398,8 @@ def simulate_trace_batch(params_list: ValveParameters | Sequence[ValveParameters
         raise ParameterError(f'sampling must be one of {SAMPLING_MODES}, got {sampling!r}')
     n_req = _n_runs(params_list, trace, supply_pressure_pa, output_pressure_pa)
     traces = _check_traces(trace, n_req)
+    supply_pressure_pa, output_pressure_pa = _constant_pressures(
+        traces, supply_pressure_pa, output_pressure_pa)
     runs = _check_request(params_list, traces, n_req, sample_times_s, electronics,
                           supply_pressure_pa, output_pressure_pa, h_free_s, h_stop_s,
                           validate)
@@ -423,6 +431,21 @@ def simulate_trace_batch(params_list: ValveParameters | Sequence[ValveParameters
         electronics=runs.electronics, params=params,
         supply_pressure_pa=runs.supply_pressure_pa,
         output_pressure_pa=runs.output_pressure_pa)
+
+
+def _constant_pressures(traces: list[InputTrace], supply_pressure_pa: float | np.ndarray
+                        | None, output_pressure_pa: float | np.ndarray | None
+                        ) -> tuple[float | np.ndarray, float | np.ndarray]:
+    """The runs' pressures at t = 0: the given constants, or the traces' first values."""
+    if not traces[0].has_pressures:
+        return (DEFAULT_SUPPLY_PRESSURE_PA if supply_pressure_pa is None
+                else supply_pressure_pa, 0.0 if output_pressure_pa is None
+                else output_pressure_pa)
+    if supply_pressure_pa is not None or output_pressure_pa is not None:
+        raise ParameterError('the traces carry the pressures: give no supply_pressure_pa '
+                             'or output_pressure_pa')
+    return (np.array([tr.supply_pressure_pa[0] for tr in traces]),
+            np.array([tr.output_pressure_pa[0] for tr in traces]))
 
 
 def _check_request(params_list: ValveParameters | Sequence[ValveParameters] | np.ndarray,

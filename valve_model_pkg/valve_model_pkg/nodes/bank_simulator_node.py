@@ -26,7 +26,6 @@ valve is counted for that valve only.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
 
@@ -39,7 +38,7 @@ from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
 from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS, forward_logging, state_message
-from valve_model_pkg.model import ElectronicsConfig, default_parameters_path, load_parameters
+from valve_model_pkg.model import default_parameters_path, load_parameters
 from valve_model_pkg.model.aot import backend as kernel_backend
 from valve_model_pkg.model.bank import ValveBank, sample_of
 from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, PRESSURE_QOS,
@@ -49,6 +48,7 @@ from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, 
                                           StartupRefused, declare_bool, declare_float,
                                           gauge_from_absolute, run_node)
 from valve_model_pkg.nodes.sim_status import valve_summary, valve_values
+from valve_model_pkg.nodes.simulator_node import declare_electronics
 from valve_model_pkg.nodes.tick_loop import TickLoop
 from valve_model_pkg.nodes.inputs import (InputGuard, SequenceTracker, pressure_reason,
                                           stamp_reason)
@@ -109,12 +109,7 @@ class ValveBankSimulatorNode(Node):
             'received', -ATMOSPHERIC_PRESSURE_PA, 1.0e6)
         supply_voltage = declare_float(self, 'supply_voltage_v', 24.0,
                                        'Drive supply voltage [V]', 0.0, 60.0)
-        current_control = declare_bool(
-            self, 'current_control', True,
-            'Internal current-control chopper with PI holding 0.5 A after opening (Sec. 4)')
-        capacitor = declare_bool(
-            self, 'capacitor', True,
-            'Negative release voltage from the capacitor charged during opening (Sec. 4)')
+        electronics, electronics_text = declare_electronics(self)
         self._max_advance_s = declare_float(
             self, 'max_advance_per_tick_s', 0.05,
             'Most model time integrated in one tick [s]; bounds the work per callback',
@@ -132,8 +127,6 @@ class ValveBankSimulatorNode(Node):
         for path in paths:  # each distinct file once; a bad file is refused naming it
             if path not in loaded:
                 loaded[path] = load_parameters(path, allow_implausible=allow_implausible)
-        electronics = dataclasses.replace(ElectronicsConfig(), current_control=current_control,
-                                          negative_voltage=capacitor)
         params = [loaded[p] for p in paths]
         # Load (or compile) the kernel before the clock starts (see valve_simulator).
         warm_up = ValveBank(params, electronics, supply_voltage, duty=0.5)
@@ -166,8 +159,8 @@ class ValveBankSimulatorNode(Node):
         self.create_timer(diag_period, self._publish_summary)
         self.get_logger().info(
             f'simulating {len(names)} valves ({", ".join(names)}) at {self._rate_hz:g} Hz; '
-            f'duty {duty:g} at {pwm_hz:g} Hz, supply {supply_pa:g} Pa gauge, current '
-            f'control {current_control}, capacitor {capacitor}')
+            f'duty {duty:g} at {pwm_hz:g} Hz, supply {supply_pa:g} Pa gauge, electronics: '
+            f'{electronics_text}')
         # which compiled kernel runs: the ahead-of-time module (no numba in the process)
         # or the numba jit (model/aot.py, docs/model.md)
         self.get_logger().info(f'valve kernel: {kernel_backend().origin}')

@@ -34,7 +34,7 @@ from sensor_msgs.msg import FluidPressure
 from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_model_pkg.model import ElectronicsConfig, ValveStepper, default_parameters_path, \
-    load_parameters
+    load_electronics, load_parameters
 from valve_model_pkg.model.aot import backend as kernel_backend
 from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS, forward_logging, state_message
 # The accepted PWM frequencies: one pair for simulator, CAN driver and DBC.
@@ -49,6 +49,34 @@ from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, 
                                           TOPIC_SUPPLY_PRESSURE, declare_bool, declare_float,
                                           declare_string, DiagnosticLevel, gauge_from_absolute,
                                           run_node)
+
+
+def declare_electronics(node: Node) -> tuple[ElectronicsConfig, str]:
+    """Declare the drive electronics parameters; return the electronics and a summary.
+
+    ``electronics_file`` (a description YAML, empty: the paper's driver) sets the drive;
+    ``current_control`` and ``capacitor`` false switch its peak-and-hold phases and its
+    release off. A bad file raises ``ParameterError`` naming the file, line, key and value
+    (the node then exits 2).
+    """
+    path = declare_string(
+        node, 'electronics_file', '',
+        'Drive electronics description (YAML, docs/model.md "Drive electronics"); empty = '
+        "the paper's driver (Sec. 4)")
+    current_control = declare_bool(
+        node, 'current_control', True,
+        'Peak and hold phases of the drive (the paper: boost, then a PI chopper holding '
+        '0.5 A); false = the full supply for the whole high phase')
+    capacitor = declare_bool(
+        node, 'capacitor', True,
+        'Release voltage at the falling edge (the paper: the capacitor pulse); false = 0 V')
+    base = load_electronics(path) if path else ElectronicsConfig()
+    electronics = dataclasses.replace(
+        base, current_control=base.current_control and current_control,
+        negative_voltage=base.negative_voltage and capacitor)
+    text = (f'{path or "the paper driver"}, current control {electronics.current_control}, '
+            f'release {electronics.release if electronics.negative_voltage else "off"}')
+    return electronics, text
 
 
 class ValveSimulatorNode(Node):
@@ -76,12 +104,7 @@ class ValveSimulatorNode(Node):
             -ATMOSPHERIC_PRESSURE_PA, 1.0e6)
         supply_voltage = declare_float(self, 'supply_voltage_v', 24.0,
                                        'Drive supply voltage [V]', 0.0, 60.0)
-        current_control = declare_bool(
-            self, 'current_control', True,
-            'Internal current-control chopper with PI holding 0.5 A after opening (Sec. 4)')
-        capacitor = declare_bool(
-            self, 'capacitor', True,
-            'Negative release voltage from the capacitor charged during opening (Sec. 4)')
+        electronics, electronics_text = declare_electronics(self)
         self._frame_id = declare_string(self, 'valve_name', 'valve',
                                         'Name of the valve, used as header.frame_id')
         self._max_advance_s = declare_float(
@@ -100,8 +123,6 @@ class ValveSimulatorNode(Node):
         forward_logging(self, 'valve_model_pkg.model.parameters')
         # refuses a bad file naming the file, key and value
         self._params = load_parameters(path, allow_implausible=allow_implausible)
-        electronics = dataclasses.replace(ElectronicsConfig(), current_control=current_control,
-                                          negative_voltage=capacitor)
         # Load (or compile) the model's kernel before the clock starts: the first call can
         # take seconds, which would otherwise show as a gap in the published stream.
         warm_up = ValveStepper(self._params, electronics, supply_voltage_v=supply_voltage)
@@ -135,8 +156,7 @@ class ValveSimulatorNode(Node):
         self.create_timer(diag_period, self._publish_summary)
         self.get_logger().info(
             f'simulating {path} at {self._rate_hz:g} Hz; duty {duty:g} at {pwm_hz:g} Hz, '
-            f'supply {supply_pa:g} Pa gauge, current control {current_control}, '
-            f'capacitor {capacitor}')
+            f'supply {supply_pa:g} Pa gauge, electronics: {electronics_text}')
         # which compiled kernel runs: the ahead-of-time module (no numba in the process)
         # or the numba jit (model/aot.py, docs/model.md)
         self.get_logger().info(f'valve kernel: {kernel_backend().origin}')
