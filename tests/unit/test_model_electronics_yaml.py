@@ -104,16 +104,3 @@ def test_from_dict_refuses_unknown_keys_and_to_dict_reads_back() -> None:
     assert e.to_dict() == dataclasses.asdict(e)
     with pytest.raises(ParameterError, match="unknown electronics setting 'dip_detection'"):
         ElectronicsConfig.from_dict({'dip_detection': True})
-
-
-def test_the_can_emulator_takes_the_description(tmp_path: Path) -> None:
-    from valve_driver_pkg.emulator.emulator_main import build_parser, make_stepper
-    driver = EXAMPLES / 'hysteresis_freewheel_diode.yaml'
-    stepper = make_stepper(build_parser().parse_args(['--electronics', str(driver)]))
-    assert stepper.electronics == load_electronics(driver)
-    bench = make_stepper(build_parser().parse_args(['--electronics', str(driver),
-                                                    '--no-capacitor']))
-    assert bench.electronics == load_electronics(driver).replace(negative_voltage=False)
-    bad = _write(tmp_path, 'hold: bang_bang\n')
-    with pytest.raises(ParameterError, match=f'{bad}:1: hold must be one of'):
-        make_stepper(build_parser().parse_args(['--electronics', str(bad)]))
