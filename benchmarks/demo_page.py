@@ -104,9 +104,10 @@ def steps_table(steps: list[dict]) -> list[str]:
 def run_section(run: dict) -> list[str]:
     """One variant: the command, when and under what load, the run's figures, its steps."""
     lines = [f'### `{run["command"]}`', '']
-    when = (f'{run["measured_at"][:16].replace("T", " ")} UTC, load {_load_text(run.get("load_average"))}'
-            f' at the start and {_load_text(run.get("load_average_end"))} at the end (1/5-min '
-            f'load average), {_num(run.get("wall_s"), ".0f")} s wall time')
+    when = (f'{run["measured_at"][:16].replace("T", " ")} UTC, load '
+            f'{_load_text(run.get("load_average"))} at the start and '
+            f'{_load_text(run.get("load_average_end"))} at the end (1/5-min load average), '
+            f'{_num(run.get("wall_s"), ".0f")} s wall time')
     lines += [f'Run {when}.', '']
     report = run.get('report')
     if report is None:
