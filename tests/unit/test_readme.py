@@ -9,7 +9,6 @@ them is typed by hand.
 """
 from __future__ import annotations
 
-import ast
 import importlib.util
 import json
 import re
@@ -19,28 +18,14 @@ from pathlib import Path
 
 import pytest
 
-from suite_paths import REPO_ROOT
+from suite_paths import PYTHON_PACKAGES, REPO_ROOT, console_scripts
 
 README = REPO_ROOT / 'README.md'
-PACKAGES = ('valve_model_pkg', 'valve_driver_pkg', 'valve_bringup')
 #: Commands a code block may run that are not the suite's console scripts.
 TOOLS = {'make', 'python', 'source', 'ros2', 'rosdep', 'colcon', 'docker', 'cd'}
 #: Top-level entries of the repository that a path in the README may start with.
 TOP_LEVEL = {p.name for p in REPO_ROOT.iterdir()
              if not p.name.startswith('.') and p.name not in ('demo_output', 'out')}
-
-
-def console_scripts() -> set[str]:
-    """Every console script of the three packages (entry_points in their setup.py)."""
-    names = set()
-    for package in PACKAGES:
-        tree = ast.parse((REPO_ROOT / package / 'setup.py').read_text(encoding='utf-8'))
-        for node in ast.walk(tree):
-            if isinstance(node, ast.Dict):
-                for key, value in zip(node.keys, node.values):
-                    if isinstance(key, ast.Constant) and key.value == 'console_scripts':
-                        names |= {e.value.split('=')[0].strip() for e in value.elts}
-    return names
 
 
 def make_targets() -> set[str]:
@@ -130,7 +115,7 @@ def test_every_repository_path_in_backticks_exists() -> None:
 
 def test_every_command_the_readme_runs_exists() -> None:
     text = README.read_text(encoding='utf-8')
-    scripts, targets = console_scripts(), make_targets()
+    scripts, targets = set(console_scripts()), make_targets()
     unknown = []
     for line in code_blocks(text):
         words = command_words(line)
@@ -154,7 +139,7 @@ def test_every_command_the_readme_runs_exists() -> None:
             unknown.append(span)
         for word in words:
             if re.fullmatch(r'valve_[a-z_]+', word) and word not in scripts \
-                    and word not in ('valve_msgs', *PACKAGES):
+                    and word not in ('valve_msgs', *PYTHON_PACKAGES):
                 unknown.append(word)
     assert not unknown, f'the README runs commands that do not exist: {unknown}'
 
@@ -163,7 +148,7 @@ def test_every_console_script_appears_in_the_readme() -> None:
     named = set(inline_code(README.read_text(encoding='utf-8')))
     named |= {w for line in code_blocks(README.read_text(encoding='utf-8'))
               for w in command_words(line)[:1]}
-    missing = sorted(console_scripts() - named)
+    missing = sorted(set(console_scripts()) - named)
     assert not missing, f'console scripts the README does not name: {missing}'
 
 

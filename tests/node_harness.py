@@ -1,0 +1,223 @@
+"""What the tests that start real processes share: processes, rclpy, waits, diagnostics.
+
+tests/conftest.py turns these into the fixtures ``start_node`` and ``ros``; tests import
+the helpers from here (a module of its own: ``conftest`` names are ambiguous). rclpy is
+imported only when a harness is built, so the ROS-free unit tests never load it.
+
+Every wait polls a condition against a deadline and fails naming what it waited for; none
+sleeps a fixed time.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+#: Pause between two polls of a condition that no executor needs to serve [s].
+POLL_INTERVAL_S = 0.05
+
+
+def wait_for(predicate: Callable[[], bool], timeout_s: float, spin: Callable[[], None],
+             what: str) -> None:
+    """Call ``spin`` until ``predicate()`` holds; fail naming ``what`` after ``timeout_s``."""
+    end = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > end:
+            raise AssertionError(f'timed out after {timeout_s:g} s waiting for {what}')
+        spin()
+
+
+def poll_until(predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
+    """Poll ``predicate`` (no ROS executor to serve) until it holds, at most ``timeout_s``."""
+    wait_for(predicate, timeout_s, lambda: time.sleep(POLL_INTERVAL_S), what)
+
+
+class NodeProcess:
+    """A node (or any command) started as its own process, its output captured to a file."""
+
+    def __init__(self, argv: list[str], log_path: Path, env: dict[str, str],
+                 name: str | None = None) -> None:
+        self.argv = argv
+        self.name = name or Path(argv[0]).name
+        self.log_path = log_path
+        self._log = open(log_path, 'w')
+        self.proc = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT,
+                                     stdin=subprocess.DEVNULL, env=env,
+                                     start_new_session=True)
+
+    @property
+    def output(self) -> str:
+        """Everything the process printed so far (also after :meth:`stop`)."""
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text(errors='replace')
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def signal(self, sig: int) -> None:
+        """Send ``sig`` to the process group, as a terminal's Ctrl-C does."""
+        os.killpg(self.proc.pid, sig)
+
+    def stop(self, timeout_s: float = 10.0) -> int:
+        """SIGINT, then SIGKILL if it does not end; returns the exit code."""
+        if self.proc.poll() is None:
+            self.signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                self.signal(signal.SIGKILL)
+                self.proc.wait()
+        if not self._log.closed:
+            self._log.close()
+        return self.proc.returncode
+
+
+class NodeStarter:
+    """Starts processes on the test's ROS domain; :meth:`stop_all` ends them, newest first."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.log_dir = log_dir
+        self.started: list[NodeProcess] = []
+
+    def __call__(self, *argv: str, env: dict[str, str] | None = None,
+                 name: str | None = None) -> NodeProcess:
+        """Start ``argv``; ``env`` adds to (or replaces values of) the test's environment."""
+        full_env = dict(os.environ)
+        full_env['PYTHONUNBUFFERED'] = '1'
+        full_env.update(env or {})
+        label = name or Path(argv[0]).name
+        proc = NodeProcess(list(argv), self.log_dir / f'{label}-{len(self.started)}.log',
+                           full_env, name=label)
+        self.started.append(proc)
+        return proc
+
+    def stop_all(self) -> None:
+        for proc in reversed(self.started):
+            proc.stop()
+
+
+class RosHarness:
+    """rclpy in the test process: add nodes, spin them, wait for conditions."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        self._rclpy = rclpy
+        rclpy.init()
+        self.executor = SingleThreadedExecutor()
+        self.nodes: list = []
+
+    def add(self, node):  # noqa: ANN001, ANN201 - any rclpy Node
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def node(self, name: str):  # noqa: ANN201 - an rclpy Node
+        """A plain rclpy node of the test, spun by this harness."""
+        return self.add(self._rclpy.create_node(name))
+
+    def spin(self, timeout_s: float = 0.05) -> None:
+        self.executor.spin_once(timeout_sec=timeout_s)
+
+    def spin_for(self, seconds: float) -> None:
+        """Serve callbacks for ``seconds``: to let messages arrive, never as a wait."""
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.spin(min(0.05, max(0.0, end - time.monotonic())))
+
+    def wait_for(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
+        wait_for(predicate, timeout_s, self.spin, what)
+
+    def wait_matched(self, publishers: list[Any], what: str, count: int = 1,
+                     timeout_s: float = 60.0) -> None:
+        """Until every publisher has ``count`` matched subscriptions (DDS-level)."""
+        self.wait_for(lambda: all(p.get_subscription_count() >= count for p in publishers),
+                      timeout_s, f'{what} to subscribe')
+
+    def set_parameters(self, node_name: str, values: dict[str, Any],
+                       timeout_s: float = 30.0) -> list:
+        """Set parameters of a running node; its ``SetParametersResult`` per parameter."""
+        from rclpy.parameter import Parameter
+        from rclpy.parameter_client import AsyncParameterClient
+        client = AsyncParameterClient(self.node(f'param_client_{len(self.nodes)}'), node_name)
+        self.wait_for(client.services_are_ready, timeout_s,
+                      f'the parameter services of {node_name}')
+        future = client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
+        self.wait_for(future.done, timeout_s, f'{node_name} to answer {values}')
+        return list(future.result().results)
+
+    def wait_spinning(self, node_name: str, timeout_s: float = 60.0) -> None:
+        """Until ``node_name`` answers a parameter request: its executor is spinning."""
+        from rclpy.parameter_client import AsyncParameterClient
+        client = AsyncParameterClient(self.node(f'spin_probe_{len(self.nodes)}'), node_name)
+        self.wait_for(client.services_are_ready, timeout_s,
+                      f'the parameter services of {node_name}')
+        future = client.list_parameters()
+        self.wait_for(future.done, timeout_s, f'{node_name} to answer a parameter request')
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        for node in self.nodes:
+            node.destroy_node()
+        self._rclpy.try_shutdown()
+
+
+class Diagnostics:
+    """The latest key/values of the /diagnostics status whose name contains ``name_part``."""
+
+    def __init__(self, node: Any, name_part: str) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        from valve_model_pkg.interface import TOPIC_DIAGNOSTICS
+        self.name_part = name_part
+        self.values: dict[str, str] = {}
+        self.count = 0
+        node.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, self.on_message, 50)
+
+    def on_message(self, msg: Any) -> None:
+        for status in msg.status:
+            if self.name_part in status.name:
+                self.values = {kv.key: kv.value for kv in status.values}
+                self.count += 1
+
+    def int(self, key: str, absent: int = -1) -> int:
+        """An integer value, ``absent`` while the key has not been reported."""
+        return int(self.values.get(key, absent))
+
+    def rejected(self, input_name: str, kinds: tuple[str, ...] | None = None) -> int:
+        """Sum of ``rejected_<input>_<kind>`` (all kinds, or those in ``kinds``)."""
+        prefix = f'rejected_{input_name}_'
+        return sum(int(v) for k, v in self.values.items() if k.startswith(prefix)
+                   and (kinds is None or k[len(prefix):] in kinds))
+
+
+class DutyCommander:
+    """Publishes numbered ``valve/duty_command`` messages from a node of the test."""
+
+    def __init__(self, node: Any, topic: str | None = None) -> None:
+        from valve_msgs.msg import DutyCommand
+
+        from valve_model_pkg.interface import TOPIC_DUTY_COMMAND
+        from valve_model_pkg.interface.ros import COMMAND_QOS
+        self._type = DutyCommand
+        self.node = node
+        self.publisher = node.create_publisher(DutyCommand, topic or TOPIC_DUTY_COMMAND,
+                                               COMMAND_QOS)
+        self.sent: list[float] = []
+
+    def matched(self) -> int:
+        """Subscriptions this publisher is matched with (DDS-level)."""
+        return self.publisher.get_subscription_count()
+
+    def send(self, duty: float, pwm_frequency_hz: float = 50.0) -> None:
+        msg = self._type(duty=float(duty), pwm_frequency=float(pwm_frequency_hz),
+                         sequence=len(self.sent))
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.header.frame_id = self.node.get_fully_qualified_name()
+        self.publisher.publish(msg)
+        self.sent.append(float(duty))
