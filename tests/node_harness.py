@@ -139,26 +139,51 @@ class RosHarness:
         self.wait_for(lambda: all(p.get_subscription_count() >= count for p in publishers),
                       timeout_s, f'{what} to subscribe')
 
-    def set_parameters(self, node_name: str, values: dict[str, Any],
-                       timeout_s: float = 30.0) -> list:
-        """Set parameters of a running node; its ``SetParametersResult`` per parameter."""
-        from rclpy.parameter import Parameter
+    def call(self, request: Callable[[], Any], what: str, timeout_s: float = 30.0,
+             attempt_s: float = 5.0) -> Any:
+        """Send ``request()`` (a service call's future) until one is answered; its result.
+
+        A service may drop its answer to a client it has just discovered: the server's
+        response writer waits only briefly for the client's response reader to match, and
+        on a loaded machine the match can take longer (ROS 2 service discovery). A request
+        that gets no answer within ``attempt_s`` is sent again; services that the tests
+        call this way are idempotent.
+        """
+        end = time.monotonic() + timeout_s
+        while True:
+            future = request()
+            attempt_end = min(end, time.monotonic() + attempt_s)
+            while not future.done() and time.monotonic() < attempt_end:
+                self.spin()
+            if future.done():
+                return future.result()
+            future.cancel()
+            if time.monotonic() >= end:
+                raise AssertionError(f'timed out after {timeout_s:g} s waiting for {what}')
+
+    def parameter_client(self, node_name: str, timeout_s: float = 30.0):  # noqa: ANN201
+        """An ``AsyncParameterClient`` of ``node_name`` whose services are discovered."""
         from rclpy.parameter_client import AsyncParameterClient
         client = AsyncParameterClient(self.node(f'param_client_{len(self.nodes)}'), node_name)
         self.wait_for(client.services_are_ready, timeout_s,
                       f'the parameter services of {node_name}')
-        future = client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
-        self.wait_for(future.done, timeout_s, f'{node_name} to answer {values}')
-        return list(future.result().results)
+        return client
+
+    def set_parameters(self, node_name: str, values: dict[str, Any],
+                       timeout_s: float = 30.0) -> list:
+        """Set parameters of a running node; its ``SetParametersResult`` per parameter."""
+        from rclpy.parameter import Parameter
+        client = self.parameter_client(node_name, timeout_s)
+        result = self.call(
+            lambda: client.set_parameters([Parameter(k, value=v) for k, v in values.items()]),
+            f'{node_name} to answer {values}', timeout_s)
+        return list(result.results)
 
     def wait_spinning(self, node_name: str, timeout_s: float = 60.0) -> None:
         """Until ``node_name`` answers a parameter request: its executor is spinning."""
-        from rclpy.parameter_client import AsyncParameterClient
-        client = AsyncParameterClient(self.node(f'spin_probe_{len(self.nodes)}'), node_name)
-        self.wait_for(client.services_are_ready, timeout_s,
-                      f'the parameter services of {node_name}')
-        future = client.list_parameters()
-        self.wait_for(future.done, timeout_s, f'{node_name} to answer a parameter request')
+        client = self.parameter_client(node_name, timeout_s)
+        self.call(client.list_parameters, f'{node_name} to answer a parameter request',
+                  timeout_s)
 
     def close(self) -> None:
         self.executor.shutdown()
