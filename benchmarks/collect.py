@@ -100,6 +100,8 @@ def row(record: dict) -> Row:
     else:
         shown = f'{fmt_number(value)} {unit}'.strip()
     ref_name = record.get('reference_name')
+    if ref_name == 'target' and record.get('reference_value') is None:
+        ref_name = None     # a target without a number: nothing to compare with
     if ref_name:
         ref_value = record.get('reference_value')
         ref_text = NOT_MEASURED if ref_value is None else f'{fmt_number(ref_value)} {unit}'
