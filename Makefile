@@ -24,7 +24,7 @@ PYTEST_ARGS ?= -n 2 --dist loadgroup --no-loadscope-reorder
 help:
 	@echo "make demo     set up (if needed) and run the suite's demo (BACKEND=sim|can, LIVE=1)"
 	@echo "make test     set up (if needed) and run all tests"
-	@echo "make bench    run the benchmarks, write benchmarks/results.json and the README table"
+	@echo "make bench    run the benchmarks, write benchmarks/results.json and docs/benchmarks.md"
 	@echo "make setup    only the set-up: venv, pinned ROS 2 wheels, wheel path fix, colcon build"
 	@echo "make clean    remove the workspace build; make distclean also removes .venv"
 

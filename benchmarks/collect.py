@@ -1,90 +1,203 @@
-"""Merge benchmarks/results/*.json into benchmarks/results.json and the README's table.
+"""Merge benchmarks/results/*.json into benchmarks/results.json and write docs/benchmarks.md.
 
-Each bench_*.py writes ``benchmarks/results/<name>.json``: a list of records with the keys
-``name, value, unit, reference_name, reference_value, ratio, target, passed, notes``.
+Each bench_*.py writes ``benchmarks/results/<suite>.json``: a list of records with the keys
+``name, value, unit, reference_name, reference_value, ratio, target, passed, notes`` and
+``measured_at`` (UTC, ISO 8601) and ``load_average`` (1 and 5 min), stamped by the bench
+script (``common.write_results``) or, for one that does not stamp, by ``run_all.py`` when
+the script ends. docs/benchmarks.md is generated from results.json alone: every figure
+with the date it was measured and the machine load then, no empty cell, nothing typed by
+hand.
+
+Usage: python benchmarks/collect.py   (``make bench`` runs it after the benchmarks)
 """
 from __future__ import annotations
 
+import ast
 import json
 import os
 import platform
+import re
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-START, END = '<!-- bench:start -->', '<!-- bench:end -->'
+RESULTS_DIR = HERE / 'results'
+SUMMARY = HERE / 'results.json'
+PAGE = ROOT / 'docs' / 'benchmarks.md'
+
+#: What a cell says when the run has no figure for it.
+NOT_MEASURED = 'not measured in this run'
+NOT_STAMPED = 'date and load not recorded'
+NO_REFERENCE = 'no reference'
 
 
-def _fmt(value: object) -> str:
-    if isinstance(value, float):
-        return f'{value:.4g}'
-    return '' if value is None else str(value)
+def collect(results_dir: Path = RESULTS_DIR) -> dict:
+    """Every record of every ``results/<suite>.json``, with the machine that collected them.
 
-
-def _when(r: dict) -> str:
-    """``2026-11-23 23:10, 0.4/0.6``: when the record was measured and the load then."""
-    at = r.get('measured_at')
-    if not at:
-        return ''
-    load = r.get('load_average') or []
-    return at[:16].replace('T', ' ') + (', ' + '/'.join(f'{v:.1f}' for v in load)
-                                        if load else '')
-
-
-def collect() -> dict:
+    A file that is not valid JSON is named on stderr and left out.
+    """
     records = []
-    for path in sorted((HERE / 'results').glob('*.json')):
+    for path in sorted(results_dir.glob('*.json')):
         try:
-            entries = json.loads(path.read_text())
+            entries = json.loads(path.read_text(encoding='utf-8'))
         except json.JSONDecodeError as err:
-            print(f'collect: skipping {path}: {err}', file=sys.stderr)
+            print(f'collect: {path}: not valid JSON ({err}); left out', file=sys.stderr)
             continue
         for entry in entries:
             entry.setdefault('suite', path.stem)
             records.append(entry)
     return {
-        'generated': time.strftime('%Y-%m-%dT%H:%M:%S%z'),
+        'generated': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
         'machine': {'python': platform.python_version(), 'platform': platform.platform(),
                     'cpus': os.cpu_count()},
         'results': records,
     }
 
 
-def table(summary: dict) -> str:
-    lines = ['| suite | benchmark | value | reference | ratio | target | met '
-             '| measured (UTC), load |',
-             '|---|---|---|---|---|---|---|---|']
-    for r in summary['results']:
-        ref = ''
-        if r.get('reference_name'):
-            ref = (f"{_fmt(r.get('reference_value'))} {r.get('unit', '')} "
-                   f"({r.get('reference_name', '')})")
-        met = {True: 'yes', False: '**no**'}.get(r.get('passed'), '')
-        when = _when(r)
-        lines.append(f"| {r['suite']} | {r['name']} | {_fmt(r.get('value'))} {r.get('unit', '')} "
-                     f"| {ref} | {_fmt(r.get('ratio'))} | {r.get('target', '')} | {met} "
-                     f"| {when} |")
-    m = summary['machine']
+def fmt_number(value: object) -> str:
+    """A figure as the page prints it: 4 significant digits for floats."""
+    if isinstance(value, float):
+        return f'{value:.4g}'
+    return str(value)
+
+
+def when(record: dict) -> str:
+    """``2026-11-23 23:10 UTC, load 0.4/0.6``: when the record was measured, the load then."""
+    at = record.get('measured_at')
+    if not at:
+        return NOT_STAMPED
+    load = record.get('load_average') or []
+    text = at[:16].replace('T', ' ') + ' UTC'
+    if load:
+        text += ', load ' + '/'.join(f'{v:.1f}' for v in load)
+    else:
+        text += ', load not recorded'
+    return text
+
+
+@dataclass(frozen=True)
+class Row:
+    """One record as the page's table shows it; every cell has text."""
+
+    name: str
+    value: str
+    reference: str
+    ratio: str
+    target: str
+    met: str
+
+
+def row(record: dict) -> Row:
+    """The cells of one record (no empty cell: a missing figure is said in words)."""
+    unit = record.get('unit') or ''
+    value = record.get('value')
+    target = str(record.get('target') or 'none stated')
+    if value is None:
+        shown = (f'no figure ({target})' if target.startswith('flag:') else NOT_MEASURED)
+    else:
+        shown = f'{fmt_number(value)} {unit}'.strip()
+    ref_name = record.get('reference_name')
+    if ref_name == 'target' and record.get('reference_value') is None:
+        ref_name = None     # a target without a number: nothing to compare with
+    if ref_name:
+        ref_value = record.get('reference_value')
+        ref_text = NOT_MEASURED if ref_value is None else f'{fmt_number(ref_value)} {unit}'
+        reference = f'{ref_text.strip()} ({ref_name})'
+    else:
+        reference = NO_REFERENCE
+    ratio = record.get('ratio')
+    ratio_text = fmt_number(ratio) if ratio is not None else (
+        NOT_MEASURED if ref_name else NO_REFERENCE)
+    met = {True: 'yes', False: '**no**'}.get(record.get('passed'), 'not judged')
+    return Row(record['name'], shown, reference, ratio_text, target, met)
+
+
+def _cell(text: str) -> str:
+    return text.replace('|', '\\|').replace('\n', ' ')
+
+
+def suite_description(suite: str, bench_dir: Path = HERE) -> str:
+    """The first line of ``bench_<suite>.py``'s docstring, without tracker references."""
+    script = bench_dir / f'bench_{suite}.py'
+    if not script.exists():
+        return f'(no benchmarks/bench_{suite}.py: results from an older run)'
+    doc = ast.get_docstring(ast.parse(script.read_text(encoding='utf-8'))) or ''
+    first = doc.strip().splitlines()[0] if doc.strip() else f'bench_{suite}.py'
+    first = re.sub(r'\s*\((?:[^()]*\b)?issue\b[^()]*\)', '', first, flags=re.IGNORECASE)
+    return first.rstrip(' .:') + '.'
+
+
+def suite_section(suite: str, records: list[dict]) -> list[str]:
+    """``## suite``: what it measures, when, and its table (with a date column if mixed)."""
+    stamps = {when(r) for r in records}
+    lines = [f'## {suite}', '', f'`benchmarks/bench_{suite}.py`: {suite_description(suite)}',
+             '']
+    one_stamp = len(stamps) == 1
+    if one_stamp:
+        stamp = stamps.pop()
+        lines += [f'Measured {stamp} (1/5-min load average).' if stamp != NOT_STAMPED
+                  else f'{NOT_STAMPED.capitalize()} for this run of the suite.', '']
+    head = ['benchmark', 'value', 'reference', 'ratio', 'target', 'met']
+    if not one_stamp:
+        head.append('measured, load')
+    lines += ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+    for record in records:
+        r = row(record)
+        cells = [r.name, r.value, r.reference, r.ratio, r.target, r.met]
+        if not one_stamp:
+            cells.append(when(record))
+        lines.append('| ' + ' | '.join(_cell(c) for c in cells) + ' |')
     lines.append('')
-    lines.append(f"Collected {summary['generated']} on {m['cpus']} CPUs, Python {m['python']} "
-                 f"({m['platform']}) by `make bench` (each suite stamped when it ran, with "
-                 f"the 1/5-min load average of the machine then; suites run by an older "
-                 f"version carry no stamp); raw figures in `benchmarks/results.json`.")
-    return '\n'.join(lines)
+    notes = [(record['name'], record.get('notes')) for record in records if record.get('notes')]
+    if notes:
+        lines += ['Notes:', '']
+        lines += [f'- `{_cell(name)}`: {_cell(str(text))}' for name, text in notes]
+        lines.append('')
+    return lines
+
+
+def page(summary: dict) -> str:
+    """docs/benchmarks.md: an introduction and one section per suite."""
+    m = summary['machine']
+    suites: dict[str, list[dict]] = {}
+    for record in summary['results']:
+        suites.setdefault(record['suite'], []).append(record)
+    lines = [
+        '# Benchmarks',
+        '',
+        '<!-- Generated by benchmarks/collect.py from benchmarks/results.json; do not edit. '
+        'Run `make bench` (all) or `python benchmarks/run_all.py SUITE ...` (some). -->',
+        '',
+        '`make bench` runs every `benchmarks/bench_*.py` in its own process, each against a '
+        'reference measured in the same run where there is one, then the demos '
+        '([demo.md](demo.md)), and writes `benchmarks/results.json` and this page. '
+        '`python benchmarks/run_all.py model map` runs some suites only; the others keep '
+        'their last figures, each with the date it was measured and the machine\'s '
+        '1/5-minute load average then. The machine is shared: read a figure with its load.',
+        '',
+        '"met" says whether the figure met the target in that run; "not judged" marks an '
+        'informative figure. A figure a run did not produce says so in words.',
+        '',
+        f'Collected {summary["generated"][:16].replace("T", " ")} UTC on {m["cpus"]} CPUs, '
+        f'Python {m["python"]} ({m["platform"]}).',
+        '',
+        'Suites: ' + ', '.join(f'[{s}](#{s})' for s in suites) + '.',
+        '',
+    ]
+    for suite, records in suites.items():
+        lines += suite_section(suite, records)
+    return '\n'.join(lines).rstrip('\n') + '\n'
 
 
 def main() -> int:
     summary = collect()
-    (HERE / 'results.json').write_text(json.dumps(summary, indent=2) + '\n')
-    readme = ROOT / 'README.md'
-    text = readme.read_text() if readme.exists() else ''
-    if START in text and END in text:
-        head, rest = text.split(START, 1)
-        _, tail = rest.split(END, 1)
-        readme.write_text(f'{head}{START}\n{table(summary)}\n{END}{tail}')
-    print(table(summary))
+    SUMMARY.write_text(json.dumps(summary, indent=2) + '\n', encoding='utf-8')
+    PAGE.write_text(page(summary), encoding='utf-8')
+    print(f'collect: {len(summary["results"])} figures -> {SUMMARY.relative_to(ROOT)}, '
+          f'{PAGE.relative_to(ROOT)}')
     return 0
 
 

@@ -3,7 +3,7 @@
 Each ``bench_*.py`` writes ``benchmarks/results/<suite>.json``: a list of records with the
 keys ``name, value, unit, reference_name, reference_value, ratio, target, passed, notes``
 plus ``measured_at`` (UTC, ISO 8601) and ``load_average`` (1 and 5 min when the file was
-written) so that ``collect.py`` and the README table say when, and under what load, each
+written) so that docs/benchmarks.md (``collect.py``) says when, and under what load, each
 suite was measured (suites are often run at different times).
 """
 from __future__ import annotations

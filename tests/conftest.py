@@ -8,31 +8,56 @@ import os
 import sys
 import tempfile
 import uuid
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 
+from node_harness import NodeStarter, RosHarness
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 # Each pytest process talks DDS on a domain of its own and only on this machine, so parallel
-# runs and a user's running suite never see each other: derived from the pid, or under
-# pytest-xdist (`make test` runs 2 workers) from the run's id plus the worker's number, so
-# the workers of one run never share a domain (a test keeps its worker's domain).
-# The same Fast DDS profile as ros2_ws/env.bash (loopback only, no multicast; LOCALHOST
-# would make rmw_fastrtps add a transport bound beyond loopback): docs/safety.md, "Network".
+# runs and a user's running suite never see each other. The same Fast DDS profile as
+# ros2_ws/env.bash (loopback only, no multicast; LOCALHOST would make rmw_fastrtps add a
+# transport bound beyond loopback): docs/safety.md, "Network".
 os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(REPO_ROOT / 'ros2_ws' / 'fastdds_localhost.xml')
 os.environ['FASTDDS_DEFAULT_PROFILES_FILE'] = os.environ['FASTRTPS_DEFAULT_PROFILES_FILE']
 os.environ['SKIP_DEFAULT_XML_FILE'] = '1'
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SYSTEM_DEFAULT'
-# Domains 0..101 keep the DDS ports below Linux's ephemeral range.
 _WORKER = os.environ.get('PYTEST_XDIST_WORKER')    # 'gw0', 'gw1', ... under xdist
 _RUN_ID = os.environ.get('PYTEST_XDIST_TESTRUNUID', '')
-if _WORKER and _RUN_ID:
-    _base = int(hashlib.sha256(_RUN_ID.encode()).hexdigest(), 16)
-    os.environ['ROS_DOMAIN_ID'] = str(1 + (_base + int(_WORKER.lstrip('gw'))) % 100)
-else:
-    os.environ['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)
+#: Domains the tests may take: 1..100 keeps the DDS ports below Linux's ephemeral range;
+#: 42 is env.bash's default, the domain of a suite a user started by hand.
+TEST_DOMAINS = [d for d in range(1, 101) if d != 42]
+_DOMAIN_LOCK_DIR = Path(tempfile.gettempdir()) / 'valve-ros-domains'
+
+
+def _claim_domain(start: int) -> tuple[int, object]:
+    """The first free domain from ``start`` on (cyclic), held by a lock for this process.
+
+    Every pytest process of every run on the machine (xdist workers included) holds an
+    exclusive flock on ``<tmp>/valve-ros-domains/<domain>.lock`` while it lives, so no two
+    of them share a domain; the lock goes with the process, however it ends.
+    """
+    _DOMAIN_LOCK_DIR.mkdir(exist_ok=True)
+    for k in range(len(TEST_DOMAINS)):
+        domain = TEST_DOMAINS[(start + k) % len(TEST_DOMAINS)]
+        handle = open(_DOMAIN_LOCK_DIR / f'{domain}.lock', 'a+')
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.close()
+            continue
+        return domain, handle
+    raise RuntimeError(f'all {len(TEST_DOMAINS)} test ROS domains are in use on this machine')
+
+
+_seed = (int(hashlib.sha256(_RUN_ID.encode()).hexdigest(), 16) + int(_WORKER.lstrip('gw'))
+         if _WORKER and _RUN_ID else os.getpid())
+_DOMAIN, _DOMAIN_LOCK = _claim_domain(_seed)
+os.environ['ROS_DOMAIN_ID'] = str(_DOMAIN)
 
 # The ROS-free cores are importable straight from the source tree, even without the
 # colcon overlay (it is a symlink install, so both are the same files).
@@ -44,18 +69,48 @@ for pkg in ('valve_model_pkg', 'valve_driver_pkg', 'valve_bringup'):
 
 @pytest.hookimpl(tryfirst=True)   # the work units before anything else reads the items
 def pytest_collection_modifyitems(config, items):  # noqa: ANN001 - pytest hook
-    """Node and end-to-end tests may run once more after a failure (pytest-rerunfailures).
-
-    They start real processes on a shared 2-core machine; a few of them still judge rates
-    and windows of wall time (a known limit, see the README's notes), so a loaded machine
-    can fail a run that a second run passes. A real fault fails every run. Unit tests are
-    not rerun.
-    """
-    for item in items:
-        if item.get_closest_marker('node') or item.get_closest_marker('e2e'):
-            item.add_marker(pytest.mark.flaky(reruns=1, reruns_delay=2))
+    """Under pytest-xdist, order the tests and write their work units (below)."""
     if _WORKER:
         _distribute(items)
+
+
+# --- processes and rclpy, shared by tests/node, tests/robustness and tests/e2e ----------
+
+@pytest.fixture
+def start_node(tmp_path: Path) -> Iterator[NodeStarter]:
+    """Start node processes on the test's ROS domain; all are stopped after the test.
+
+    ``start_node(*argv, env=None, name=None)`` returns a ``node_harness.NodeProcess``.
+    """
+    starter = NodeStarter(tmp_path)
+    yield starter
+    starter.stop_all()
+
+
+@pytest.fixture(scope='module')
+def start_module_node(tmp_path_factory: pytest.TempPathFactory) -> Iterator[NodeStarter]:
+    """Start node processes shared by a module's tests; all are stopped after the module."""
+    starter = NodeStarter(tmp_path_factory.mktemp('nodes'))
+    yield starter
+    starter.stop_all()
+
+
+@pytest.fixture
+def ros() -> Iterator[RosHarness]:
+    """rclpy initialised in the test process (on the test's own ROS_DOMAIN_ID)."""
+    pytest.importorskip('rclpy')
+    harness = RosHarness()
+    yield harness
+    harness.close()
+
+
+@pytest.fixture(scope='module')
+def ros_module() -> Iterator[RosHarness]:
+    """rclpy for a module whose tests share their node processes (and their discovery)."""
+    pytest.importorskip('rclpy')
+    harness = RosHarness()
+    yield harness
+    harness.close()
 
 
 # --- pytest-xdist (`make test`: -n 2 --dist loadgroup --no-loadscope-reorder) -----------

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from polling import poll_until
+from suite_waits import wait_until
 from suite_paths import REPO_ROOT
 
 #: How long the demo's processes may take to end after `make demo` returned [s].
@@ -48,7 +48,7 @@ def make_demo() -> Callable[..., str]:
         text = out.stdout + out.stderr
         assert out.returncode == 0, text[-4000:]
         assert 'Traceback' not in text, 'a process ended with a traceback: ' + text[-4000:]
-        poll_until(lambda: not processes_with(token), PROCESSES_END_S,
+        wait_until(lambda: not processes_with(token), PROCESSES_END_S,
                    'the demo\'s processes to end')
         return text
     return run

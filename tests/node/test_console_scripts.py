@@ -6,31 +6,16 @@ opens no bus, the recorder leaves no bag behind).
 """
 from __future__ import annotations
 
-import ast
 import os
 import shutil
 import subprocess
 
 import pytest
 
-from suite_paths import REPO_ROOT
+from suite_paths import console_scripts
 
-PACKAGES = ('valve_model_pkg', 'valve_driver_pkg', 'valve_bringup')
 NODES = {'valve_simulator', 'flow_to_duty', 'pneumatic_cylinder', 'position_controller',
          'valve_recorder', 'valve_can_driver', 'valve_lockstep_sim', 'valve_bank_simulator'}
-
-
-def console_scripts() -> list[str]:
-    """Every console script of every package, from the entry_points in its setup.py."""
-    names = []
-    for package in PACKAGES:
-        tree = ast.parse((REPO_ROOT / package / 'setup.py').read_text(encoding='utf-8'))
-        for node in ast.walk(tree):
-            if isinstance(node, ast.Dict):
-                for key, value in zip(node.keys, node.values):
-                    if isinstance(key, ast.Constant) and key.value == 'console_scripts':
-                        names += [e.value.split('=')[0].strip() for e in value.elts]
-    return names
 
 
 def test_the_list_is_complete() -> None:

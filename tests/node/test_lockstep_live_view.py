@@ -8,11 +8,12 @@ import os
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
-from polling import poll_until
+from suite_waits import wait_until
 
 pytest.importorskip('foxglove')
 
@@ -57,8 +58,8 @@ def test_live_view_answers_a_websocket_handshake_while_the_demo_runs(tmp_path: P
             return False
         return ' 101 ' in status['line']
     try:
-        poll_until(answered_or_ended, 120.0, 'the live view\'s WebSocket handshake',
-                   interval_s=HANDSHAKE_INTERVAL_S)
+        wait_until(answered_or_ended, 120.0, 'the live view\'s WebSocket handshake',
+                   step=lambda: time.sleep(HANDSHAKE_INTERVAL_S))
         assert ' 101 ' in status['line'], (status, (tmp_path / 'demo.log').read_text()[-3000:])
         assert demo.wait(timeout=300) == 0, (tmp_path / 'demo.log').read_text()[-3000:]
     finally:

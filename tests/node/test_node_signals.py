@@ -1,21 +1,17 @@
 """Every node ends on SIGINT (Ctrl-C) and on SIGTERM with exit 0 and no traceback.
 
-Each node is started as its own process, the test waits until it is up (in the ROS graph;
-the emulator: its hub accepts connections), sends the signal to its process group as a
-terminal's Ctrl-C does, and checks the exit status and the output.
+Each node is started as its own process, the test waits until it runs (its executor
+answers a parameter request; the emulator: it says it is ready), sends the signal to its
+process group as a terminal's Ctrl-C does, and checks the exit status and the output.
 """
 from __future__ import annotations
 
-import os
 import signal
-import socket
-import time
 
 import pytest
 
-rclpy = pytest.importorskip('rclpy')
-
-from valve_bringup.backend import can_backend_commands, free_loopback_port  # noqa: E402
+from node_harness import poll_until
+from valve_bringup.backend import can_backend_commands, free_loopback_port
 
 pytestmark = pytest.mark.node
 
@@ -25,12 +21,9 @@ NODES = ('valve_simulator', 'flow_to_duty', 'pneumatic_cylinder', 'position_cont
          'valve_lockstep_sim', 'valve_bank_simulator')
 
 
-def _hub_up(port: int) -> bool:
-    try:
-        with socket.create_connection(('127.0.0.1', port), timeout=0.2):
-            return True
-    except OSError:
-        return False
+def _ready(emulator) -> bool:  # noqa: ANN001 - a NodeProcess
+    """The emulator says it is ready once its signal handlers are in place and it runs."""
+    return 'valve_controller_emulator ready' in emulator.output or not emulator.alive()
 
 
 @pytest.mark.parametrize('sig', SIGNALS, ids=lambda s: signal.Signals(s).name)
@@ -41,7 +34,7 @@ def test_node_ends_cleanly_on_signal(name, sig, start_node, ros, tmp_path) -> No
     if name in ('valve_can_driver', 'valve_controller_emulator'):
         # The driver runs configured and active (bus threads running), against an emulator.
         emulator = start_node(*commands['valve_controller_emulator'])
-        ros.wait_for(lambda: _hub_up(port) or not emulator.alive(), 30.0, 'the emulator hub')
+        poll_until(lambda: _ready(emulator), 60.0, 'the emulator to be ready')
     if name == 'valve_controller_emulator':
         proc = emulator
     elif name == 'valve_can_driver':
@@ -50,19 +43,12 @@ def test_node_ends_cleanly_on_signal(name, sig, start_node, ros, tmp_path) -> No
         proc = start_node('valve_recorder', '-o', str(tmp_path / 'bag'))
     else:
         proc = start_node(name)
-    if name != 'valve_controller_emulator':
-        # Up = built: in the graph with its own publishers, beyond the two every node has
-        # from its first moment (rosout, parameter_events).
-        probe = ros.add(rclpy.create_node('signal_probe'))
-
-        def up() -> bool:
-            if name not in probe.get_node_names():
-                return False
-            return len(probe.get_publisher_names_and_types_by_node(name, '/')) > 2
-        ros.wait_for(lambda: up() or not proc.alive(), 60.0, f'{name} up in the ROS graph')
     assert proc.alive(), proc.output
-    time.sleep(1.0)  # up and running, not just constructed
-    os.killpg(proc.proc.pid, sig)
+    if name != 'valve_controller_emulator':
+        # Up and running, not just constructed: its executor answers a parameter request.
+        ros.wait_spinning(name, timeout_s=60.0)
+    assert proc.alive(), proc.output
+    proc.signal(sig)
     code = proc.proc.wait(timeout=30)
     out = proc.output
     assert code == 0, f'{name} exit {code} on {signal.Signals(sig).name}:\n{out[-3000:]}'

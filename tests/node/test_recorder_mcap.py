@@ -7,6 +7,8 @@ import yaml
 from valve_model_pkg.nodes.probe import StateProbe
 from valve_model_pkg.recording import load_bag
 
+from node_harness import Diagnostics, DutyCommander
+
 # lark (used by mcap-ros2-support to parse .msg) imports deprecated sre modules
 pytestmark = [pytest.mark.node,
               pytest.mark.filterwarnings('ignore::DeprecationWarning:lark.utils')]
@@ -22,16 +24,18 @@ def test_recorded_bag_decodes_message_by_message(start_node, ros, tmp_path) -> N
     bag = tmp_path / 'bag'
     start_node('valve_simulator', '--ros-args', '-p', 'publish_rate_hz:=1000.0')
     rec = start_node('valve_recorder', '-o', str(bag), STATE, DUTY, '--ros-args',
-                     '-p', 'flush_period_s:=0.5')
+                     '-p', 'flush_period_s:=0.5', '-p', 'diagnostics_period_s:=0.2')
     probe = ros.add(StateProbe('test_probe'))
+    commands = DutyCommander(probe)
+    recorded = Diagnostics(probe, 'valve_recorder: bag writer')
     ros.wait_for(lambda: probe.count > 10, 30.0, 'valve/state from the simulator')
-    ros.wait_for(lambda: probe._cmd_pub.get_subscription_count() >= 2, 30.0,
-                 'the duty command subscriptions of simulator and recorder')
-    ros.spin_for(0.5)
+    ros.wait_matched([commands.publisher], 'simulator and recorder', count=2, timeout_s=30.0)
     sent = [0.2, 0.4, 0.6]
     for duty in sent:
-        probe.command(duty, 50.0)
+        commands.send(duty)
         ros.spin_for(0.3)
+    ros.wait_for(lambda: recorded.int(f'count {DUTY}', 0) >= len(sent), 30.0,
+                 f'the recorder counting {len(sent)} duty commands ({recorded.values})')
     assert rec.stop() == 0, rec.output[-3000:]
 
     info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']

@@ -1,18 +1,13 @@
 """valve_recorder as its own process: no loss at 1 kHz, SIGINT/SIGTERM close, SIGKILL recovery."""
 from __future__ import annotations
 
-import os
 import signal
-import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 import yaml
-from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.parameter import Parameter
-from rclpy.parameter_client import AsyncParameterClient
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import MessageDefinitionFormat, QosReliability
 
@@ -20,31 +15,13 @@ from valve_model_pkg.nodes import common
 from valve_model_pkg.nodes.probe import StateProbe
 from valve_model_pkg.recording import SUITE_TOPICS, load_bag, sequence_gaps
 
+from node_harness import Diagnostics, DutyCommander, NodeProcess, poll_until
+
 pytestmark = pytest.mark.node
 
 STATE = '/valve/state'
 DUTY = '/valve/duty_command'
 RECORDER_STATUS = 'valve_recorder: bag writer'
-
-
-class RecorderDiagnostics:
-    """The latest key/values of the recorder's diagnostics, seen from the test process."""
-
-    def __init__(self, node) -> None:  # noqa: ANN001 - an rclpy node
-        self.values: dict[str, str] = {}
-        node.create_subscription(DiagnosticArray, common.TOPIC_DIAGNOSTICS, self._on, 50)
-
-    def _on(self, msg: DiagnosticArray) -> None:
-        for status in msg.status:
-            if status.name == RECORDER_STATUS:
-                self.values = {kv.key: kv.value for kv in status.values}
-
-    def count(self, key: str) -> int:
-        return int(self.values.get(key, '0'))
-
-
-def _log(proc) -> str:  # noqa: ANN001 - a NodeProcess, also after stop()
-    return proc.log_path.read_text(errors='replace')
 
 
 def _start_recorder(start_node, bag: Path, *params: str):
@@ -54,22 +31,43 @@ def _start_recorder(start_node, bag: Path, *params: str):
     return start_node('valve_recorder', '-o', str(bag), '--ros-args', *args)
 
 
-def _start_and_match(start_node, ros, bag: Path, *params: str):
-    """valve_simulator at 1 kHz and the recorder, both matched with the test's probe."""
+@dataclass(frozen=True)
+class Recording:
+    """A simulator at 1 kHz and a recorder, seen from the test process."""
+
+    sim: NodeProcess
+    rec: NodeProcess
+    probe: StateProbe
+    commands: DutyCommander
+    diag: Diagnostics
+
+
+def _start_and_match(start_node, ros, bag: Path, *params: str) -> Recording:
+    """valve_simulator at 1 kHz and the recorder, both matched with the test's publisher."""
     sim = start_node('valve_simulator', '--ros-args', '-p', 'publish_rate_hz:=1000.0')
     rec = _start_recorder(start_node, bag, *params)
     probe = ros.add(StateProbe('test_probe'))
-    diag = RecorderDiagnostics(probe)
+    commands = DutyCommander(probe)
+    diag = Diagnostics(probe, RECORDER_STATUS)
     ros.wait_for(lambda: probe.count > 10, 30.0, 'valve/state from the simulator')
-    ros.wait_for(lambda: diag.count(f'count {STATE}') > 10, 30.0,
+    ros.wait_for(lambda: diag.int(f'count {STATE}', 0) > 10, 30.0,
                  f'the recorder receiving valve/state\n{rec.output[-2000:]}')
     # the command publisher matched with the simulator and the recorder (DDS-level count)
-    ros.wait_for(lambda: probe._cmd_pub.get_subscription_count() >= 2, 30.0,
-                 'the duty command subscriptions of simulator and recorder')
-    return sim, rec, probe, diag
+    ros.wait_matched([commands.publisher], 'simulator and recorder', count=2, timeout_s=30.0)
+    return Recording(sim, rec, probe, commands, diag)
 
 
-def _state_and_duties(bag: Path) -> tuple[np.ndarray, np.ndarray, list[float], dict]:
+@dataclass(frozen=True)
+class BagContents:
+    """valve/state sequence numbers and stamps [ns], duty commands, connections by topic."""
+
+    seq: np.ndarray
+    stamps: np.ndarray
+    duties: list[float]
+    conns: dict
+
+
+def _state_and_duties(bag: Path) -> BagContents:
     with AnyReader([bag]) as reader:  # types from the definitions embedded in the bag only
         conns = {c.topic: c for c in reader.connections}
         seq, stamps, duties = [], [], []
@@ -81,7 +79,7 @@ def _state_and_duties(bag: Path) -> tuple[np.ndarray, np.ndarray, list[float], d
                 stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
             else:
                 duties.append(msg.duty)
-    return np.array(seq), np.array(stamps, dtype=np.int64), duties, conns
+    return BagContents(np.array(seq), np.array(stamps, dtype=np.int64), duties, conns)
 
 
 def test_suite_topic_table_matches_the_nodes_contract() -> None:
@@ -101,21 +99,23 @@ def test_suite_topic_table_matches_the_nodes_contract() -> None:
 @pytest.mark.serial   # keeps up with 1 kHz in wall time, no message lost
 def test_records_1khz_state_and_every_command_without_loss(start_node, ros, tmp_path):
     bag = tmp_path / 'bag'
-    sim, rec, probe, _ = _start_and_match(start_node, ros, bag)
-    sent = []
+    run = _start_and_match(start_node, ros, bag)
+    rec = run.rec
     for i in range(30):  # 3 s of 10 Hz duty commands while the state runs at 1 kHz
-        duty = round(0.1 + 0.02 * i, 3)
-        probe.command(duty, 50.0)
-        sent.append(duty)
+        run.commands.send(round(0.1 + 0.02 * i, 3))
         ros.spin_for(0.1)
-    ros.spin_for(0.5)
-    assert rec.stop() == 0, _log(rec)[-3000:]
-    assert sim.alive()
+    sent = run.commands.sent
+    # every command reached the recorder before it is stopped (its own count)
+    ros.wait_for(lambda: run.diag.int(f'count {DUTY}', 0) >= len(sent), 30.0,
+                 f'the recorder counting {len(sent)} duty commands ({run.diag.values})')
+    assert rec.stop() == 0, rec.output[-3000:]
+    assert run.sim.alive()
 
     assert (bag / 'metadata.yaml').is_file()
-    seq, stamps, duties, conns = _state_and_duties(bag)
+    got = _state_and_duties(bag)
+    seq, stamps, duties, conns = got.seq, got.stamps, got.duties, got.conns
     # every state message from the first recorded to the last, none lost
-    assert len(seq) > 2500, _log(rec)[-2000:]
+    assert len(seq) > 2500, rec.output[-2000:]
     assert np.all(np.diff(seq) == 1), f'sequence gaps: {sequence_gaps(seq)}'
     assert len(seq) == seq[-1] - seq[0] + 1
     steps = np.diff(stamps)
@@ -133,21 +133,21 @@ def test_records_1khz_state_and_every_command_without_loss(start_node, ros, tmp_
     # the numpy loader sees the same
     data = load_bag(bag, topics=[STATE])
     np.testing.assert_array_equal(data[STATE]['sequence'], seq)
-    assert 'closed' in _log(rec) and '0 messages lost before the recorder' in _log(rec)
+    assert 'closed' in rec.output and '0 messages lost before the recorder' in rec.output
 
 
 def test_a_killed_recorder_leaves_a_bag_recoverable_to_its_last_flush(
         start_node, ros, tmp_path):
     bag = tmp_path / 'bag'
-    _, rec, probe, diag = _start_and_match(start_node, ros, bag)
-    sent = []
+    run = _start_and_match(start_node, ros, bag)
+    rec = run.rec
     for i in range(15):
-        sent.append(round(0.05 * (i + 1), 3))
-        probe.command(sent[-1], 50.0)
+        run.commands.send(round(0.05 * (i + 1), 3))
         ros.spin_for(0.2)
-    flushed_before_kill = diag.count('flushed')
-    last_seen = probe.window().last
-    os.killpg(rec.proc.pid, signal.SIGKILL)
+    sent = run.commands.sent
+    flushed_before_kill = run.diag.int('flushed', 0)
+    last_seen = run.probe.window().last
+    rec.signal(signal.SIGKILL)
     rec.proc.wait(timeout=10)
     assert flushed_before_kill > 1000
     assert not (bag / 'metadata.yaml').exists()
@@ -155,7 +155,8 @@ def test_a_killed_recorder_leaves_a_bag_recoverable_to_its_last_flush(
     recover = start_node('valve_recorder', '--recover', str(bag), '-o', str(tmp_path / 'fixed'))
     assert recover.proc.wait(timeout=60) == 0, recover.output
     assert 'recovered' in recover.output
-    seq, stamps, duties, conns = _state_and_duties(tmp_path / 'fixed')
+    got = _state_and_duties(tmp_path / 'fixed')
+    seq, stamps, duties, conns = got.seq, got.stamps, got.duties, got.conns
     total = sum(c.msgcount for c in conns.values())
     assert total >= flushed_before_kill  # everything reported flushed is there
     assert np.all(np.diff(seq) == 1), f'sequence gaps: {sequence_gaps(seq)}'
@@ -173,27 +174,23 @@ def test_sigterm_closes_the_bag_and_bad_arguments_fail(start_node, ros, tmp_path
     # no output: a bag named after the time inside output_dir (created)
     rec = start_node('valve_recorder', '--ros-args', '-p', f'output_dir:={tmp_path / "bags"}',
                      '-p', 'diagnostics_period_s:=0.2')
-    deadline = time.monotonic() + 30.0
-    while 'recording' not in rec.output and time.monotonic() < deadline:
-        time.sleep(0.1)
+    poll_until(lambda: 'recording' in rec.output or not rec.alive(), 30.0,
+               'the recorder to say it is recording')
     assert rec.alive(), rec.output
+    diag = Diagnostics(ros.node('diagnostics_reader'), RECORDER_STATUS)
     # parameters are read at start; a change at run time is refused, saying so
-    client_node = ros.add(rclpy.create_node('test_param_client'))
-    client = AsyncParameterClient(client_node, 'valve_recorder')
-    ros.wait_for(client.services_are_ready, 30.0, 'the recorder\'s parameter services')
-    future = client.set_parameters([Parameter('flush_period_s', value=0.1)])
-    ros.wait_for(future.done, 10.0, 'the parameter change answer')
-    (result,) = future.result().results
+    (result,) = ros.set_parameters('valve_recorder', {'flush_period_s': 0.1})
     assert not result.successful and 'restart' in result.reason
-    ros.spin_for(0.5)  # its own diagnostics get recorded
-    os.killpg(rec.proc.pid, signal.SIGTERM)
+    ros.wait_for(lambda: diag.int('count /diagnostics', 0) >= 1, 30.0,
+                 'the recorder receiving its own diagnostics')
+    rec.signal(signal.SIGTERM)
     assert rec.proc.wait(timeout=20) == 0, rec.output
     (bag,) = (tmp_path / 'bags').glob('valve_*')
     assert (bag / 'metadata.yaml').is_file()
     assert '/diagnostics' in load_bag(bag)
 
     again = _start_recorder(start_node, bag)  # the bag exists: refused, never overwritten
-    assert again.proc.wait(timeout=60) == 2  # refused input (exit code rule, issue 10)
+    assert again.proc.wait(timeout=60) == 2  # refused input (the exit code rule)
     assert 'exists' in again.output
     bad = start_node('valve_recorder', '-o', str(tmp_path / 'b2'), 'x:nope_msgs/msg/Nope')
     assert bad.proc.wait(timeout=60) == 2

@@ -1,4 +1,4 @@
-"""Shared by the node robustness tests: hypothesis strategies, diagnostics reading, bursts.
+"""Shared by the node robustness tests: hypothesis strategies of messages, and waits.
 
 The validity rules the tests check the nodes against are written in each test, from
 docs/safety.md ("Node inputs"), not imported from the nodes.
@@ -54,42 +54,7 @@ def set_header(msg: Any, frame_id: str, stamp: tuple[int, int]) -> Any:
     return msg
 
 
-class Diagnostics:
-    """The latest key/values of the /diagnostics status whose name contains ``name_part``."""
-
-    def __init__(self, node: Any, name_part: str) -> None:
-        from diagnostic_msgs.msg import DiagnosticArray
-
-        from valve_model_pkg.nodes.common import TOPIC_DIAGNOSTICS
-        self.name_part = name_part
-        self.values: dict[str, str] = {}
-        self.count = 0
-        node.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, self._on, 50)
-
-    def _on(self, msg: Any) -> None:
-        for status in msg.status:
-            if self.name_part in status.name:
-                self.values = {kv.key: kv.value for kv in status.values}
-                self.count += 1
-
-    def int(self, key: str) -> int:
-        """An integer value, -1 while absent."""
-        return int(self.values.get(key, -1))
-
-    def rejected(self, input_name: str, kinds: tuple[str, ...] | None = None) -> int:
-        """Sum of ``rejected_<input>_<kind>`` (all kinds, or those in ``kinds``)."""
-        prefix = f'rejected_{input_name}_'
-        return sum(int(v) for k, v in self.values.items() if k.startswith(prefix)
-                   and (kinds is None or k[len(prefix):] in kinds))
-
-
 def wait_counts(ros: Any, predicate: Callable[[], bool], what: str,
                 timeout_s: float = 60.0) -> None:
     """Wait (generously: the machine is shared) until ``predicate`` holds."""
     ros.wait_for(predicate, timeout_s, what)
-
-
-def wait_matched(ros: Any, publishers: list[Any], what: str) -> None:
-    """Wait until every publisher has a subscriber (a burst before that is lost)."""
-    ros.wait_for(lambda: all(p.get_subscription_count() > 0 for p in publishers), 60.0,
-                 f'{what} to subscribe')

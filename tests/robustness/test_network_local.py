@@ -11,17 +11,15 @@ from __future__ import annotations
 
 import ipaddress
 import os
-import signal
 import socket
 import subprocess
 import sys
-import time
 import xml.etree.ElementTree as ET
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+from node_harness import poll_until
 from suite_paths import REPO_ROOT
 
 pytest.importorskip('rclpy')
@@ -134,40 +132,6 @@ def _is_loopback(address: str) -> bool:
     return (mapped or ip).is_loopback
 
 
-class _Process:
-    """A child process in its own session, output captured to a file."""
-
-    def __init__(self, name: str, argv: list[str], env: dict[str, str], log_dir: Path):
-        self.name = name
-        self.log_path = log_dir / f'{name}.log'
-        self._log = open(self.log_path, 'w')
-        self.proc = subprocess.Popen(argv, env=env, stdout=self._log, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.DEVNULL, start_new_session=True)
-
-    @property
-    def output(self) -> str:
-        self._log.flush()
-        return self.log_path.read_text(errors='replace')
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGINT)
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
-        self._log.close()
-
-
-@pytest.fixture
-def processes() -> Iterator[list[_Process]]:
-    started: list[_Process] = []
-    yield started
-    for process in reversed(started):
-        process.stop()
-
-
 def test_profile_confines_fast_dds_to_loopback_without_multicast() -> None:
     root = ET.parse(PROFILE).getroot()
     ns = FASTDDS_NS
@@ -212,27 +176,23 @@ def test_env_bash_sets_the_profile_and_the_switch_opts_out() -> None:
 
 
 @pytest.mark.node
-def test_running_nodes_bind_no_socket_beyond_loopback_and_still_talk(processes, tmp_path):
+def test_running_nodes_bind_no_socket_beyond_loopback_and_still_talk(start_node):
     env = suite_env()
     python = env['VIRTUAL_ENV'] + '/bin/python'
+    listener = start_node(python, '-c', LISTENER, env=env, name='listener')
+    talker = start_node(python, '-c', TALKER, env=env, name='talker')
+    simulator = start_node('valve_simulator', '--ros-args', '-p', 'publish_rate_hz:=200.0',
+                           env=env)
+    processes = (listener, talker, simulator)
 
-    def start(name: str, *argv: str) -> _Process:
-        process = _Process(name, list(argv), env, tmp_path)
-        processes.append(process)
-        return process
-
-    listener = start('listener', python, '-c', LISTENER)
-    start('talker', python, '-c', TALKER)
-    start('valve_simulator', 'valve_simulator', '--ros-args', '-p', 'publish_rate_hz:=200.0')
-
-    # Discovery by unicast on 127.0.0.1 only: the listener hears both other processes.
-    t0 = time.monotonic()
-    while not all(f'received {what}' in listener.output for what in ('chatter', 'state')):
-        dead = [p.name for p in processes if p.proc.poll() is not None]
+    def heard_both() -> bool:
+        dead = [p.name for p in processes if not p.alive()]
         assert not dead, f'{dead} ended early:\n' + '\n'.join(
             f'--- {p.name}\n{p.output[-2000:]}' for p in processes)
-        assert time.monotonic() - t0 < 60.0, 'no discovery within 60 s:\n' + listener.output
-        time.sleep(0.1)
+        return all(f'received {what}' in listener.output for what in ('chatter', 'state'))
+
+    # Discovery by unicast on 127.0.0.1 only: the listener hears both other processes.
+    poll_until(heard_both, 60.0, 'the listener to hear the talker and the simulator')
 
     for process in processes:
         sockets = inet_sockets(process.proc.pid)

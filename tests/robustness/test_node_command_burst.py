@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import pytest
 
-from node.conftest import ros, start_node  # noqa: F401 - fixtures
-from robustness.node_fuzz import Diagnostics, wait_counts, wait_matched
+from node_harness import Diagnostics
+from robustness.node_fuzz import wait_counts
 
 pytestmark = [pytest.mark.node, pytest.mark.slow]
 
@@ -44,7 +44,7 @@ def _burst(harness, diag: Diagnostics, pub, make, prefix: str, what: str) -> tup
 # serial: the test's own subscriber must keep up with the node's answer to the burst
 # (beside a CPU-bound test under pytest-xdist it saw duty commands up to 3594 of 4263).
 @pytest.mark.serial
-def test_flow_to_duty_accounts_for_every_flow_command(start_node, ros):  # noqa: F811
+def test_flow_to_duty_accounts_for_every_flow_command(start_node, ros):
     from rclpy.node import Node
     from valve_msgs.msg import DutyCommand, FlowCommand
 
@@ -59,7 +59,7 @@ def test_flow_to_duty_accounts_for_every_flow_command(start_node, ros):  # noqa:
     client.create_subscription(DutyCommand, TOPIC_DUTY_COMMAND,
                                lambda m: duties.append(m.sequence), COMMAND_QOS)
     pub = client.create_publisher(FlowCommand, TOPIC_FLOW_COMMAND, COMMAND_QOS)
-    wait_matched(ros, [pub], f'flow_to_duty\n{node.output[-2000:]}')
+    ros.wait_matched([pub], f'flow_to_duty\n{node.output[-2000:]}')
 
     def make(seq: int) -> FlowCommand:
         msg = FlowCommand(sequence=seq, mass_flow=1.0e-4 * (seq % 20))
@@ -77,7 +77,7 @@ def test_flow_to_duty_accounts_for_every_flow_command(start_node, ros):  # noqa:
     assert node.alive() and node.stop() == 0
 
 
-def test_simulator_accounts_for_every_duty_command(start_node, ros):  # noqa: F811
+def test_simulator_accounts_for_every_duty_command(start_node, ros):
     from valve_msgs.msg import DutyCommand
 
     from valve_model_pkg.interface import TOPIC_DUTY_COMMAND
@@ -90,7 +90,7 @@ def test_simulator_accounts_for_every_duty_command(start_node, ros):  # noqa: F8
     diag = Diagnostics(probe, 'real-time model')
     pub = probe.create_publisher(DutyCommand, TOPIC_DUTY_COMMAND, COMMAND_QOS)
     ros.wait_for(lambda: probe.count > 10, 60.0, f'valve/state\n{sim.output[-2000:]}')
-    wait_matched(ros, [pub], 'valve_simulator')
+    ros.wait_matched([pub], 'valve_simulator')
 
     def make(seq: int) -> DutyCommand:
         msg = DutyCommand(sequence=seq, duty=(seq % 10) / 10.0, pwm_frequency=50.0)

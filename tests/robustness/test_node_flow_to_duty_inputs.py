@@ -13,9 +13,9 @@ import math
 import pytest
 from hypothesis import strategies as st
 
-from node.conftest import ros, start_node  # noqa: F401 - fixtures
-from robustness.node_fuzz import (Diagnostics, any_float, collect, frame_ids, sequences,
-                                  set_header, stamps, wait_counts, wait_matched)
+from node_harness import Diagnostics
+from robustness.node_fuzz import (any_float, collect, frame_ids, sequences, set_header, stamps,
+                                  wait_counts)
 
 pytestmark = pytest.mark.node
 
@@ -40,7 +40,7 @@ pressures = st.tuples(st.sampled_from(['supply', 'output']),
                       stamps, sequences)
 
 
-def test_any_input_is_survived_and_counted(start_node, ros):  # noqa: F811
+def test_any_input_is_survived_and_counted(start_node, ros):
     from rclpy.node import Node
     from sensor_msgs.msg import FluidPressure
     from valve_msgs.msg import FlowCommand, FlowToDutyStatus
@@ -61,7 +61,7 @@ def test_any_input_is_survived_and_counted(start_node, ros):  # noqa: F811
                                               PRESSURE_QOS),
             'output': client.create_publisher(FluidPressure, TOPIC_OUTPUT_PRESSURE,
                                               PRESSURE_QOS)}
-    wait_matched(ros, [flow_pub, *pubs.values()], f'flow_to_duty\n{node.output[-2000:]}')
+    ros.wait_matched([flow_pub, *pubs.values()], f'flow_to_duty\n{node.output[-2000:]}')
     wait_counts(ros, lambda: diag.count > 0, 'the flow_to_duty diagnostics')
 
     expected = {'flow_command': 0, 'supply_pressure': 0, 'output_pressure': 0}

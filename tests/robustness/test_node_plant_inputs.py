@@ -13,9 +13,9 @@ import math
 import pytest
 from hypothesis import strategies as st
 
-from node.conftest import ros, start_node  # noqa: F401 - fixtures
-from robustness.node_fuzz import (Diagnostics, any_float, collect, frame_ids, sequences,
-                                  set_header, stamps, wait_counts, wait_matched)
+from node_harness import Diagnostics
+from robustness.node_fuzz import (any_float, collect, frame_ids, sequences, set_header, stamps,
+                                  wait_counts)
 
 pytestmark = pytest.mark.node
 
@@ -64,7 +64,7 @@ joint_states = st.tuples(
 goals = st.one_of(st.floats(0.0, STROKE_M), any_float)
 
 
-def test_cylinder_survives_any_valve_state(start_node, ros):  # noqa: F811
+def test_cylinder_survives_any_valve_state(start_node, ros):
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
     from valve_msgs.msg import ValveState
@@ -79,7 +79,7 @@ def test_cylinder_survives_any_valve_state(start_node, ros):  # noqa: F811
     joints: list = []
     client.create_subscription(JointState, TOPIC_JOINT_STATES, joints.append, JOINT_STATES_QOS)
     pub = client.create_publisher(ValveState, TOPIC_STATE, STATE_QOS)
-    wait_matched(ros, [pub], f'pneumatic_cylinder\n{node.output[-2000:]}')
+    ros.wait_matched([pub], f'pneumatic_cylinder\n{node.output[-2000:]}')
     wait_counts(ros, lambda: diag.count > 0, 'the cylinder diagnostics')
 
     expected = 0
@@ -106,7 +106,7 @@ def test_cylinder_survives_any_valve_state(start_node, ros):  # noqa: F811
     print(f'{len(examples)} valve states, {expected} invalid, node: {diag.values}')
 
 
-def test_position_controller_survives_any_joint_state_and_goal(start_node, ros):  # noqa: F811
+def test_position_controller_survives_any_joint_state_and_goal(start_node, ros):
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
@@ -125,7 +125,7 @@ def test_position_controller_survives_any_joint_state_and_goal(start_node, ros):
     client.create_subscription(FlowCommand, TOPIC_FLOW_COMMAND, flows.append, COMMAND_QOS)
     joint_pub = client.create_publisher(JointState, TOPIC_JOINT_STATES, JOINT_STATES_QOS)
     goal_pub = client.create_publisher(Float64, TOPIC_POSITION_GOAL, COMMAND_QOS)
-    wait_matched(ros, [joint_pub, goal_pub], f'position_controller\n{node.output[-2000:]}')
+    ros.wait_matched([joint_pub, goal_pub], f'position_controller\n{node.output[-2000:]}')
     wait_counts(ros, lambda: diag.count > 0, 'the controller diagnostics')
 
     expected_goals = 0

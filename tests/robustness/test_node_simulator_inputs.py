@@ -13,9 +13,9 @@ import math
 import pytest
 from hypothesis import strategies as st
 
-from node.conftest import ros, start_node  # noqa: F401 - fixtures
-from robustness.node_fuzz import (Diagnostics, any_float, collect, frame_ids, sequences,
-                                  set_header, stamps, wait_counts, wait_matched)
+from node_harness import Diagnostics
+from robustness.node_fuzz import (any_float, collect, frame_ids, sequences, set_header, stamps,
+                                  wait_counts)
 
 pytestmark = pytest.mark.node
 
@@ -46,7 +46,7 @@ pressures = st.tuples(st.sampled_from(['supply', 'output']),
                       stamps, sequences)
 
 
-def test_any_input_is_survived_and_counted(start_node, ros):  # noqa: F811
+def test_any_input_is_survived_and_counted(start_node, ros):
     from sensor_msgs.msg import FluidPressure
     from valve_msgs.msg import DutyCommand
 
@@ -63,7 +63,7 @@ def test_any_input_is_survived_and_counted(start_node, ros):  # noqa: F811
             'output': probe.create_publisher(FluidPressure, TOPIC_OUTPUT_PRESSURE, PRESSURE_QOS)}
     duty_pub = probe.create_publisher(DutyCommand, TOPIC_DUTY_COMMAND, COMMAND_QOS)
     ros.wait_for(lambda: probe.count > 10, 60.0, f'valve/state\n{sim.output[-2000:]}')
-    wait_matched(ros, [duty_pub, *pubs.values()], 'valve_simulator')
+    ros.wait_matched([duty_pub, *pubs.values()], 'valve_simulator')
     wait_counts(ros, lambda: diag.count > 0, 'the simulator diagnostics')
 
     expected = {'duty_command': 0, 'supply_pressure': 0, 'output_pressure': 0}

@@ -10,7 +10,7 @@ import textwrap
 
 import pytest
 
-from polling import poll_until
+from suite_waits import wait_until
 from valve_bringup.supervisor import ChildExited, ProcessSpec, Supervisor
 
 PY = sys.executable
@@ -31,7 +31,7 @@ def _alive(pid: int) -> bool:
 
 def _pid_written(pidfile) -> int:  # noqa: ANN001 - a Path
     """The pid a child writes to ``pidfile``, once it is there."""
-    poll_until(lambda: pidfile.exists() and pidfile.read_text().strip() != '', 20.0,
+    wait_until(lambda: pidfile.exists() and pidfile.read_text().strip() != '', 20.0,
                f'a pid in {pidfile}')
     return int(pidfile.read_text())
 
@@ -49,7 +49,7 @@ def test_output_is_prefixed_and_children_stop_on_sigint() -> None:
                 sys.exit(0)
         ''')]))
         # the child's own line (its command line, which the supervisor echoes, has the text)
-        poll_until(lambda: '] hello from child' in out.getvalue(), 20.0, 'the child\'s line')
+        wait_until(lambda: '] hello from child' in out.getvalue(), 20.0, 'the child\'s line')
         assert 'running' in sup.table()
     assert proc.returncode == 0
     text = out.getvalue()
@@ -65,7 +65,7 @@ def test_a_child_that_ignores_sigint_is_terminated() -> None:
                                               'signal.signal(signal.SIGINT, signal.SIG_IGN)\n'
                                               'print("ignoring SIGINT", flush=True)\n'
                                               'time.sleep(60)']))
-    poll_until(lambda: '] ignoring SIGINT' in out.getvalue(), 20.0,
+    wait_until(lambda: '] ignoring SIGINT' in out.getvalue(), 20.0,
                'the child to ignore SIGINT')
     codes = sup.stop()
     assert codes['stubborn'] == -signal.SIGTERM
@@ -85,7 +85,7 @@ def test_grandchildren_are_stopped_with_their_parent(tmp_path) -> None:
     grandchild = _pid_written(pidfile)
     assert _alive(grandchild)
     sup.stop()
-    poll_until(lambda: not _alive(grandchild), 10.0, 'the grandchild to end')
+    wait_until(lambda: not _alive(grandchild), 10.0, 'the grandchild to end')
 
 
 def test_children_die_when_the_supervisor_is_killed(tmp_path) -> None:
@@ -106,7 +106,7 @@ def test_children_die_when_the_supervisor_is_killed(tmp_path) -> None:
     assert _alive(child)
     parent.kill()
     parent.wait()
-    poll_until(lambda: not _alive(child), 10.0, 'the child of the killed supervisor to end')
+    wait_until(lambda: not _alive(child), 10.0, 'the child of the killed supervisor to end')
 
 
 def test_check_alive_reports_a_crashed_child() -> None:
