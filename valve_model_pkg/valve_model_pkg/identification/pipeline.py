@@ -18,10 +18,10 @@ import math
 import numpy as np
 
 from ..model.parameters import EFFECTS, ValveParameters
+from .criteria import DBIC_THRESHOLD, delta_bic, effective_counts, resolution_floors
 from .diagnosis import (
-    DBIC_THRESHOLD, CandidateResult, Diagnosis, _dbic, _effective_counts, _floors,
-    describe_remaining, refit_effect, refit_effect_or_stop, score_signatures, second_effect,
-    select, slow_effect,
+    CandidateResult, Diagnosis, describe_remaining, refit_effect, score_signatures,
+    second_effect, select, slow_effect,
 )
 from .drive import DriveReport, fit_drive
 from .measurements import Measurement, hold_out
@@ -517,7 +517,7 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
     others = [space.to_unit(start)]
     if through:
         # The prior (packaged set or --params) is a start of the polish too: the refits
-        # scan their effect from it (diagnosis.refit_effect_or_stop), and a baseline that
+        # scan their effect from it (diagnosis.refit_effect), and a baseline that
         # never looked there would lose to "prior plus a little of any effect" on a valve
         # that is its prior (a clean record was answered end_stop_bounce).
         others.append(space.to_unit(space.base))
@@ -589,7 +589,7 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
                          True: (fit, c_best)}
             needed = {slow_effect(c.effect, settings.operation_search_window_s)
                       for c in chosen}
-            bars = {k: (d.serial(), c, d.errors(baseline_params).mae_per_file, _floors(d))
+            bars = {k: (d.serial(), c, d.errors(baseline_params).mae_per_file, resolution_floors(d))
                     for k, (d, c) in on_window.items() if k in needed}
 
         def run(c: CandidateResult) -> CandidateResult:
@@ -597,8 +597,9 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
             t1 = time.perf_counter()
             how = ''
             if search is fit:
-                p_aug, cost, ext = refit_effect(space, search.serial(), baseline_params,
-                                                c.effect, refit_settings, progress=None)
+                r = refit_effect(space, search.serial(), baseline_params, c.effect,
+                                 refit_settings, progress=None)
+                p_aug, cost, ext = r.params, r.cost, r.space
             else:
                 slow = slow_effect(c.effect, settings.operation_search_window_s)
                 d_s, c_search, base_mae_s, floors_s = bars[slow]
@@ -606,17 +607,17 @@ def identify(fit_files: Sequence[Measurement], val_files: Sequence[Measurement] 
                 if slow:
                     how = (f' (slower than the {settings.operation_search_window_s:g} s '
                            'search window: searched on the fit window)')
-                p_aug, cost, ext, stopped = refit_effect_or_stop(
-                    space, d_s, baseline_params, c.effect, refit_settings,
-                    bar_cost=c_search, rank_data=fit.serial())
+                r = refit_effect(space, d_s, baseline_params, c.effect, refit_settings,
+                                 bar_cost=c_search, rank_data=fit.serial())
+                p_aug, cost, ext, stopped = r.params, r.cost, r.space, r.stopped
                 if stopped:
                     how += (f' (stopped after the coarse profile: no trial amount brought the '
                             f'{window} cost below the baseline\'s {c_search:.4g} A)')
                 # Could it pay? The fit criterion (dBIC, effective sample counts) on the
                 # data it searched; one that cannot is evaluated as found, not polished.
                 # (samples counted in the candidate's residual, as select() does)
-                dbic_s = _dbic(base_mae_s, d_s.errors(p_aug).mae_per_file,
-                               _effective_counts(d_s, p_aug), len(c.fields), floors_s)
+                dbic_s = delta_bic(base_mae_s, d_s.errors(p_aug).mae_per_file,
+                               effective_counts(d_s, p_aug), len(c.fields), floors_s)
                 if not stopped and dbic_s < DBIC_THRESHOLD:
                     # It could pay: polish it on the whole fit window like the baseline.
                     p_aug, cost = polish_candidate(ext, fit.serial(), p_aug, baseline_params,

@@ -33,7 +33,7 @@ from ..model.parameters import ValveParameters
 from .problem import GAP, PAPER_SYMBOLS, FitData, ParameterSpace, equivalent_gap_m
 
 __all__ = ['SensitivityReport', 'analyse_sensitivity', 'noise_std', 'equivalent_gap_m',
-           'residual_inflation', 'misfit_floor_pct']
+           'residual_inflation', 'misfit_floor_pct', 'perturbed_values']
 
 _PINNED_CI95_PCT = 5.0
 #: NRMSE [%] above which the intervals are floored at the NRMSE.
@@ -95,8 +95,8 @@ class SensitivityReport:
         }
 
 
-def _perturbed_values(space: ParameterSpace, params: ValveParameters, step: float
-                      ) -> tuple[np.ndarray, np.ndarray]:
+def perturbed_values(space: ParameterSpace, params: ValveParameters, step: float
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Rows +-step (log) per free parameter, shape (2n, n), and each row pair's divisor.
 
     A parameter at 0 (an effect switched off) steps one-sidedly by ``step`` of its range.
@@ -120,7 +120,7 @@ def _jacobian(space: ParameterSpace, data: FitData, params: ValveParameters,
               step: float = _REL_STEP) -> np.ndarray:
     """d(current)/d(ln value) stacked over files, shape (n_valid_samples, n_params),
     by central differences of ``step`` in the logarithm of each value."""
-    rows, denom = _perturbed_values(space, params, step)
+    rows, denom = perturbed_values(space, params, step)
     raw = space.raw_from_values(rows)
     ok = space.feasible(raw)
     raw[~ok] = params.to_vector()  # an infeasible step becomes a zero column

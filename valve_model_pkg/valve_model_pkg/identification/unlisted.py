@@ -56,10 +56,11 @@ import numpy as np
 
 from ..model.magnetics import inductance, inductance_slope
 from ..model.parameters import ValveParameters
-from .diagnosis import (DBIC_THRESHOLD, MIN_EXPLAINED, MIN_VALIDATION_GAIN, Diagnosis,
-                        _dbic, _effective_counts, _floors, _noise_per_file)
+from .criteria import (DBIC_THRESHOLD, MIN_EXPLAINED, MIN_VALIDATION_GAIN, delta_bic,
+                       effective_counts, noise_per_file, resolution_floors, structured_energy_of)
+from .diagnosis import Diagnosis
 from .problem import IDENTIFIED_FIELDS, FitData, ParameterSpace, baseline_space
-from .sensitivity import _perturbed_values
+from .sensitivity import perturbed_values
 
 __all__ = ['LIBRARY', 'MAX_TERMS', 'SparseModel', 'UnlistedResult', 'library',
            'responses', 'stlsq_path', 'search_unlisted', 'offer_unlisted']
@@ -274,7 +275,7 @@ def _simulate(data: FitData, raw: np.ndarray, names: list[str]
 def _jacobian(space: ParameterSpace, data: FitData, params: ValveParameters
               ) -> list[np.ndarray]:
     """d(current)/d(ln value) of the baseline parameters, per file (n_samples, n)."""
-    rows, denom = _perturbed_values(space, params, 0.01)
+    rows, denom = perturbed_values(space, params, 0.01)
     raw = space.raw_from_values(rows)
     ok = space.feasible(raw)
     raw[~ok] = params.to_vector()   # an infeasible step becomes a zero column
@@ -329,15 +330,6 @@ def _apply(cols: list[np.ndarray], res: list[np.ndarray], support: tuple[int, ..
     """Residuals after the term: measured - (model + sum xi_k response_k)."""
     del support
     return [r - c[:, columns] @ coef for r, c in zip(res, cols)]
-
-
-def _structured(res: list[np.ndarray], noise: list[float]) -> float:
-    """Mean over files of the residual energy beyond the (baseline's) noise [A^2]."""
-    vals = []
-    for r, s in zip(res, noise):
-        ok = np.isfinite(r)
-        vals.append(max(float(np.mean(r[ok] ** 2)) - s ** 2, 0.0))
-    return float(np.mean(vals))
 
 
 #: Largest change of a baseline parameter the joint (linearised) step may make, in ln.
@@ -405,9 +397,9 @@ def search_unlisted(fit: FitData, val: FitData | None, params: ValveParameters
     b = _stack(fit, [np.where(np.isfinite(r), r, 0.0) for r in res_f])
     Ap, bp = _project_out(J / jn, A, b)
     supports = stlsq_path(Ap, bp)
-    counts_f = _effective_counts(fit, params)
-    counts_v = _effective_counts(val, params)
-    floors_f, floors_v = _floors(fit), _floors(val)
+    counts_f = effective_counts(fit, params)
+    counts_v = effective_counts(val, params)
+    floors_f, floors_v = resolution_floors(fit), resolution_floors(val)
     mae_f0, mae_v0 = _mae(fit, res_f), _mae(val, res_v)
     path: list[tuple[SparseModel, tuple]] = []
     for s in supports:
@@ -422,8 +414,8 @@ def search_unlisted(fit: FitData, val: FitData | None, params: ValveParameters
         after_v = _apply(sim_v[2], sim_v[1], tuple(range(len(s))), coef, list(s))
         m.fit_mae, m.val_mae = _mae(fit, after_f), _mae(val, after_v)
         p = len(s)
-        m.dbic_fit = _dbic(mae_f0, m.fit_mae, counts_f, p, floors_f)
-        m.dbic_val = _dbic(mae_v0, m.val_mae, counts_v, p, floors_v)
+        m.dbic_fit = delta_bic(mae_f0, m.fit_mae, counts_f, p, floors_f)
+        m.dbic_val = delta_bic(mae_v0, m.val_mae, counts_v, p, floors_v)
         m.fit_gain = 1.0 - sum(m.fit_mae.values()) / sum(mae_f0.values())
         m.val_gain = 1.0 - sum(m.val_mae.values()) / sum(mae_v0.values())
         why = []
@@ -452,9 +444,9 @@ def search_unlisted(fit: FitData, val: FitData | None, params: ValveParameters
     out.errors = {'baseline_fit': _figures(fit, res_f), 'baseline_validation':
                   _figures(val, res_v), 'augmented_fit': _figures(fit, after_f),
                   'augmented_validation': _figures(val, after_v)}
-    noise = _noise_per_file(val, params)
-    before = _structured(res_v, noise)
-    out.structure_explained = 1.0 - _structured(after_v, noise) / before if before > 0 \
+    noise = noise_per_file(val, params)
+    before = structured_energy_of(res_v, noise)
+    out.structure_explained = 1.0 - structured_energy_of(after_v, noise) / before if before > 0 \
         else 0.0
     out.confidence = 'medium' if out.structure_explained >= MIN_EXPLAINED else 'low'
     out.currents = {'fit': [m.current_a - r for m, r in zip(fit.measurements, after_f)],
