@@ -2,15 +2,16 @@
 numbers and the main PWM grid placed where the controller has it. The emulator's PWM grid
 is locked to its 1 kHz telemetry (both tick from model time 0), so a period starts exactly
 at a sample time; the nominal model must then reproduce the recorded interval means (a
-reader that put the start mid-interval, or rebuilt the step from the two end stamps, was
-off by tens of mA). Fast: no identification run."""
+start put mid-interval, or a step rebuilt from the two end stamps, is off by tens of mA).
+Fast: no identification run."""
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
-from valve_model_pkg.identification.measurements import (
-    _bag_records_to_measurement, drive_from_in_force,
-)
+from suite_bags import header, write_bag
+from valve_model_pkg.identification.measurements import drive_from_in_force, read_bag
 from valve_model_pkg.identification.model_adapter import prepare_trace, simulate_trace_batch
 from valve_model_pkg.model import InputTrace, load_parameters
 from valve_model_pkg.model import simulate_trace_batch as model_trace_batch
@@ -19,8 +20,10 @@ _N = 1201          # telemetry messages, 1 ms apart, from model time 0
 _STEP_S = 1e-3
 
 
-def _lockstep_records() -> tuple[list[tuple], np.ndarray]:
-    """ValveState fields of the emulator on the simulation clock (nominal model, 50 Hz)."""
+def _lockstep_bag(path: Path) -> tuple[Path, np.ndarray]:
+    """A bag of the emulator's ValveState on the simulation clock (nominal model, 50 Hz)
+    and the recorded interval-mean current."""
+    from valve_model_pkg.recording import build_typestore
     t = np.arange(_N) * _STEP_S
     # commands given between period starts (control ticks); each latches at the next start
     t_cmd = [0.0, 0.0123, 0.0571, 0.2333, 0.6012]
@@ -33,16 +36,24 @@ def _lockstep_records() -> tuple[list[tuple], np.ndarray]:
     # stamps on receipt with a /clock a step behind now and then, the last one included
     lag = np.where(np.arange(_N) % 7 == 3, _STEP_S, 0.0)
     lag[-1] = _STEP_S
-    stamps = 100.0 + t - lag
-    records = [('valve', float(stamps[k]), float(stamps[k]), k, 0.0, 0.0, 0.0, False, 4e5,
-                0.0, 50.0, float(in_force[k]), float(res.coil_current_a[0, k]), 1.0)
-               for k in range(_N)]
-    return records, res.coil_current_a[0]
+    stamps_ns = np.round((100.0 + t - lag) * 1e9).astype(np.int64)
+    store = build_typestore()
+    state = store.types['valve_msgs/msg/ValveState']
+    write_bag(path, store, [
+        ('/valve/state', 'valve_msgs/msg/ValveState', int(ns), state(
+            header=header(store.types, int(ns), 'valve'), sequence=k, coil_voltage=0.0,
+            coil_current=0.0, coil_current_mean=float(res.coil_current_a[0, k]),
+            coil_voltage_mean=float('nan'), spool_position=0.0, spool_velocity=0.0,
+            spool_position_avg=0.0, mass_flow=0.0, duty=float(in_force[k]),
+            pwm_frequency=50.0, supply_pressure=4e5, output_pressure=0.0, source=0,
+            position_measured=False))
+        for k, ns in enumerate(stamps_ns)])
+    return path, res.coil_current_a[0]
 
 
-def test_lockstep_bag_time_axis_and_pwm_grid_match_the_emulator() -> None:
-    records, _ = _lockstep_records()
-    m = _bag_records_to_measurement('lockstep', '/valve/state', None, records)
+def test_lockstep_bag_time_axis_and_pwm_grid_match_the_emulator(tmp_path: Path) -> None:
+    bag, _ = _lockstep_bag(tmp_path / 'bag')
+    m = read_bag(bag)
     # one message per 1 ms step: the lagging last stamp must not shorten the step
     np.testing.assert_allclose(m.t_s, np.arange(_N) * _STEP_S, atol=1e-9)
     # the first energised period starts exactly at 20 ms (the grid of model time 0)
@@ -51,10 +62,10 @@ def test_lockstep_bag_time_axis_and_pwm_grid_match_the_emulator() -> None:
     np.testing.assert_allclose(np.diff(m.drive.period_starts_s[:6]), 0.02, atol=1e-9)
 
 
-def test_nominal_model_reproduces_a_lockstep_bag_through_the_adapter() -> None:
+def test_nominal_model_reproduces_a_lockstep_bag_through_the_adapter(tmp_path: Path) -> None:
     """Reader + adapter + nominal parameters = the recorded interval means (< 1 mA)."""
-    records, recorded = _lockstep_records()
-    m = _bag_records_to_measurement('lockstep', '/valve/state', None, records)
+    bag, recorded = _lockstep_bag(tmp_path / 'bag')
+    m = read_bag(bag)
     sim, _ = simulate_trace_batch(load_parameters().to_vector()[None, :], prepare_trace(m))
     err = sim[0] - recorded
     assert np.max(np.abs(err[m.valid])) < 1e-3

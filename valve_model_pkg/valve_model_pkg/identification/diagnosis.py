@@ -65,12 +65,11 @@ _SCAN_FRACTIONS = tuple(float(f) for f in np.linspace(0.02, 0.98, 25))
 # An effect with a time constant (coil heating: amount R_th, time constant tau) is scanned
 # in (initial rate R_th / tau, tau), log-spaced, 25 x 7 points: on a record shorter than
 # tau the current carries the rate (dT ~ R_th P t / tau), so amount and time constant trade
-# off along a valley of constant rate. With tau held at its neutral 60 s no amount reached
-# it (2026-11-26: the loop's coil of 40 K/W and 3 s; the scan ended at 19 K/W), and a grid
-# in (R_th, tau) put its best points between the valley's (95 K/W and 4 s for a coil of
-# 40 K/W and 1.5 s: 0.53 against 0.41 mA on the fit window, three times the hold-out
-# error). Two zooms follow the valley: 9 x 9 points one step either side of the best,
-# then of the zoom's best.
+# off along a valley of constant rate. A scan at one fixed tau misses the valley when the
+# true tau is far from it, and an axis-aligned grid in (R_th, tau) steps over it (its best
+# points lie between the valley's, at several times the hold-out error of the right pair).
+# Two zooms follow the valley: 9 x 9 points one step either side of the best, then of the
+# zoom's best.
 _SCAN_RATES, _SCAN_TAUS, _ZOOMS = 25, 7, 2
 
 

@@ -23,7 +23,6 @@ whether it is pinned down and whether it sits at a bound (a sign of misfit).
 from __future__ import annotations
 
 import math
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -115,7 +114,7 @@ def _costs(data: FitData, raw: np.ndarray, configs: list[ElectronicsConfig]) -> 
         view = data.serial()
         view.electronics = cfg
         return float(view.cost(raw[None, :])[0])
-    workers = max(1, min(len(configs), os.cpu_count() or 1))
+    workers = max(1, min(len(configs), data.workers))
     if workers == 1:
         return np.array([one(c) for c in configs])
     with ThreadPoolExecutor(max_workers=workers) as pool:
@@ -195,7 +194,7 @@ def fit_drive(data: FitData, params: ValveParameters, *, effort: int = 120,
             v = data.serial()
             v.electronics = cfg
             views.append(v)
-        workers = max(1, min(len(views), os.cpu_count() or 1))
+        workers = max(1, min(len(views), data.workers))
         with ThreadPoolExecutor(max_workers=workers) as pool:
             sims = list(pool.map(lambda v: v.simulate(raw[None, :]), views))
         for j in range(len(names)):

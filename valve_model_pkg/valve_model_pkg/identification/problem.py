@@ -363,7 +363,11 @@ class FitData:
                         for m, v in zip(self.measurements, self.valid)]
         self.durations = [float(w.sum()) for w in self.weights]
         self._count = [0]  # shared with serial() views, so threads' runs are counted too
+        #: False keeps every batch on the calling thread (see :meth:`serial`).
         self.parallel = True
+        #: Threads a small batch is split over (:meth:`cost`) and the drive electronics'
+        #: candidates run on.
+        self.workers = _WORKERS
         #: Drive electronics of the records through the electronics (identified
         #: separately, :mod:`.drive`); the same for every run of a batch.
         self.electronics = ElectronicsConfig()
@@ -409,12 +413,12 @@ class FitData:
         """Sum over files of the mean absolute current error [A], shape (m,)."""
         raw = np.atleast_2d(raw)
         m_rows = raw.shape[0]
-        if self.parallel and _SPLIT_MIN_BATCH <= m_rows < PARALLEL_MIN_BATCH and _WORKERS > 1:
+        if self.parallel and _SPLIT_MIN_BATCH <= m_rows < PARALLEL_MIN_BATCH and self.workers > 1:
             # The kernel runs batches below PARALLEL_MIN_BATCH on the calling thread (the
             # lock-step Nelder-Mead asks 2-7 points at a time): split them over threads,
             # each simulating without the GIL, so both cores work.
             view = self.serial()
-            parts = np.array_split(raw, min(_WORKERS, m_rows))
+            parts = np.array_split(raw, min(self.workers, m_rows))
             return np.concatenate(list(_pool().map(view.cost, parts)))
         total = np.zeros(raw.shape[0])
         for m, setup, w, T in zip(self.measurements, self.setups, self.weights,

@@ -33,12 +33,14 @@ from ..model.parameters import ValveParameters
 from .problem import GAP, PAPER_SYMBOLS, FitData, ParameterSpace, equivalent_gap_m
 
 __all__ = ['SensitivityReport', 'analyse_sensitivity', 'noise_std', 'equivalent_gap_m',
-           'residual_inflation', 'misfit_floor_pct', 'perturbed_values']
+           'residual_inflation', 'misfit_floor_pct', 'perturbed_values',
+           'file_jacobians', 'current_jacobian', 'JACOBIAN_STEP']
 
 _PINNED_CI95_PCT = 5.0
 #: NRMSE [%] above which the intervals are floored at the NRMSE.
 _MISFIT_NRMSE_PCT = 5.0
-_REL_STEP = 0.01
+#: Relative step of the finite differences of the current [1].
+JACOBIAN_STEP = 0.01
 #: Further finite-difference steps that check the Jacobian for jumps (see
 #: analyse_sensitivity), and the spread of a column's size that counts as not smooth.
 _CHECK_STEPS = (0.003, 0.03)
@@ -116,22 +118,26 @@ def perturbed_values(space: ParameterSpace, params: ValveParameters, step: float
     return rows, denom
 
 
-def _jacobian(space: ParameterSpace, data: FitData, params: ValveParameters,
-              step: float = _REL_STEP) -> np.ndarray:
-    """d(current)/d(ln value) stacked over files, shape (n_valid_samples, n_params),
-    by central differences of ``step`` in the logarithm of each value."""
+def file_jacobians(space: ParameterSpace, data: FitData, params: ValveParameters,
+                   step: float = JACOBIAN_STEP) -> list[np.ndarray]:
+    """d(current)/d(ln value) of each file, shape (n_samples, n_params), by central
+    differences of ``step`` in the logarithm of each value (one batch of simulations); an
+    infeasible step gives a zero column."""
     rows, denom = perturbed_values(space, params, step)
     raw = space.raw_from_values(rows)
     ok = space.feasible(raw)
-    raw[~ok] = params.to_vector()  # an infeasible step becomes a zero column
-    blocks = []
-    for (cur, _), valid in zip(data.simulate(raw), data.valid):
-        c = cur[:, valid]
-        jb = np.empty((c.shape[1], space.size))
-        for j in range(space.size):
-            jb[:, j] = (c[2 * j] - c[2 * j + 1]) / denom[j]
-        blocks.append(jb)
-    return np.vstack(blocks)
+    raw[~ok] = params.to_vector()
+    n = space.size
+    return [np.column_stack([(c[2 * j] - c[2 * j + 1]) / denom[j] for j in range(n)])
+            for c, _ in data.simulate(raw)]
+
+
+def current_jacobian(space: ParameterSpace, data: FitData, params: ValveParameters,
+                     step: float = JACOBIAN_STEP) -> np.ndarray:
+    """:func:`file_jacobians` of the valid samples, stacked over the files, shape
+    (n_valid_samples, n_params)."""
+    return np.vstack([jb[valid] for jb, valid in zip(file_jacobians(space, data, params, step),
+                                                     data.valid)])
 
 
 def _white_variance(jac: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
@@ -249,12 +255,12 @@ def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParam
         Entries for every search coordinate; when the space uses ``equivalent_gap_m``,
         also l_c, mu_r and x_t, reported as not identifiable on their own.
     """
-    jac = _jacobian(space, data, params)
+    jac = current_jacobian(space, data, params)
     # The current through the drive electronics is not a smooth function of the
     # parameters (a chopper edge or the end of the boost moves by whole switching events),
     # so one finite-difference step can see a jump and claim a tight interval: the
     # Jacobian is also taken at a third and at three times that step.
-    extra = {step: _jacobian(space, data, params, step) for step in _CHECK_STEPS}
+    extra = {step: current_jacobian(space, data, params, step) for step in _CHECK_STEPS}
     residuals = data.residuals(params)
     sig = [noise_std(r) for r in residuals]
     sigma = float(np.nanmedian(sig)) if sig else math.nan
@@ -285,7 +291,7 @@ def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParam
             rough.append(n)
             notes_rough = ', '.join(f'{1e3 * r / 100.0:.3g}' for r in rms)
             notes.append(f'the current is not a smooth function of {PAPER_SYMBOLS.get(n, n)} '
-                         f'here (mA per % at steps of {_REL_STEP:g}, '
+                         f'here (mA per % at steps of {JACOBIAN_STEP:g}, '
                          + ', '.join(f'{x:g}' for x in _CHECK_STEPS) + f': {notes_rough}; '
                          'switching events of the drive electronics move): its interval '
                          'is the median of the three, and it is not reported pinned down')

@@ -44,7 +44,7 @@ coefficients go to ``report.json`` under ``unlisted`` and the augmented model's 
 stay the baseline's. Records through the drive electronics are not offered this search
 (the chopper regulates the current, so an extra voltage does not show in it as the
 linearised bare-coil response says); neither is a baseline with parameters at a search
-bound that the data determine (its misfit is not read as a missing effect, issue 12).
+bound that the data determine (its misfit is not read as a missing effect).
 """
 from __future__ import annotations
 
@@ -60,7 +60,7 @@ from .criteria import (DBIC_THRESHOLD, MIN_EXPLAINED, MIN_VALIDATION_GAIN, delta
                        effective_counts, noise_per_file, resolution_floors, structured_energy_of)
 from .diagnosis import Diagnosis
 from .problem import IDENTIFIED_FIELDS, FitData, ParameterSpace, baseline_space
-from .sensitivity import perturbed_values
+from .sensitivity import file_jacobians
 
 __all__ = ['LIBRARY', 'MAX_TERMS', 'SparseModel', 'UnlistedResult', 'library',
            'responses', 'stlsq_path', 'search_unlisted', 'offer_unlisted']
@@ -272,18 +272,6 @@ def _simulate(data: FitData, raw: np.ndarray, names: list[str]
     return base, res, cols
 
 
-def _jacobian(space: ParameterSpace, data: FitData, params: ValveParameters
-              ) -> list[np.ndarray]:
-    """d(current)/d(ln value) of the baseline parameters, per file (n_samples, n)."""
-    rows, denom = perturbed_values(space, params, 0.01)
-    raw = space.raw_from_values(rows)
-    ok = space.feasible(raw)
-    raw[~ok] = params.to_vector()   # an infeasible step becomes a zero column
-    n = space.size
-    return [np.column_stack([(c[2 * j] - c[2 * j + 1]) / denom[j] for j in range(n)])
-            for c, _ in data.simulate(raw)]
-
-
 def _project_out(J: np.ndarray, A: np.ndarray, b: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
     """``A`` and ``b`` with the span of ``J`` removed (Frisch-Waugh: the library's
@@ -390,7 +378,7 @@ def search_unlisted(fit: FitData, val: FitData | None, params: ValveParameters
     raw0 = params.to_vector()
     base_f, res_f, cols_f = _simulate(fit, raw0, names)
     _, res_v, _ = _simulate(val, raw0, names)
-    J = _stack(fit, _jacobian(space, fit, params))
+    J = _stack(fit, file_jacobians(space, fit, params))
     jn = np.linalg.norm(J, axis=0)
     jn = np.where(jn > 0, jn, 1.0)
     A = _stack(fit, cols_f)
@@ -481,7 +469,7 @@ def offer_unlisted(diag: Diagnosis, fit: FitData, val: FitData | None,
     misfit = list(diag.numbers.get('baseline_at_search_bound') or [])
     res = search_unlisted(fit, val, params)
     if res.tried and misfit and res.claimed:
-        # Issue 12: the misfit of a baseline at a bound is not read as a missing effect.
+        # The misfit of a baseline at a bound is not read as a missing effect.
         res.claimed = False
         res.reason = ('a sparse term pays, but the baseline has parameters at a search bound '
                       '(' + ', '.join(misfit) + '): its residual is a misfit, not read as an '
