@@ -272,12 +272,21 @@ class RefitResult:
     stopped : bool
         True when the search stopped after the coarse profile: no trial amount brought the
         cost below ``bar_cost``.
+    screen_dbic : float
+        The fit criterion's dBIC after the coarse profile when ``screen`` was given (nan
+        otherwise); the refit stops there when it is not below :data:`SCREEN_DBIC`.
     """
 
     params: ValveParameters
     cost: float
     space: ParameterSpace
     stopped: bool = False
+    screen_dbic: float = math.nan
+
+    @property
+    def screened_out(self) -> bool:
+        """True when the screen after the coarse profile stopped the refit."""
+        return not math.isnan(self.screen_dbic) and not self.screen_dbic < SCREEN_DBIC
 
 
 def _profile_starts(u_base: np.ndarray, first: int) -> list[np.ndarray]:
@@ -328,8 +337,8 @@ def _fine_starts(res_u: np.ndarray, fractions: list[float], first: int) -> np.nd
 
 def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, effect: str,
                  settings: SearchSettings, progress: Callable[[str], None] | None = None,
-                 bar_cost: float | None = None, rank_data: FitData | None = None
-                 ) -> RefitResult:
+                 bar_cost: float | None = None, rank_data: FitData | None = None,
+                 screen: Callable[[ValveParameters], float] | None = None) -> RefitResult:
     """Refit the baseline parameters plus one effect's, from the baseline optimum.
 
     Profile first: one simplex per trial amount of the effect, the effect held there while
@@ -367,6 +376,11 @@ def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, 
         compensating basin (the baseline parameters at a bound standing in for the effect)
         as well as the effect's own, and the longer record tells them apart. Step records
         keep the profile alone.
+    screen : callable, optional
+        The fit criterion's dBIC of a parameter set on the data searched. After the coarse
+        profile a refit whose dBIC is not below :data:`SCREEN_DBIC` stops: it does not pay
+        even before the criterion's margin, and the fine profile only moves the amount
+        between neighbouring trial amounts.
 
     Returns
     -------
@@ -403,12 +417,17 @@ def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, 
         if pick > 0:   # a scanned point beats the profile's best on the whole fit window
             u_pick, c_pick = scanned[pick - 1]
             res = replace(res, u=u_pick, cost=c_pick)
+    d = math.nan
+    if screen is not None:
+        d = screen(ext.params(res.u))
+        if not d < SCREEN_DBIC:
+            return RefitResult(ext.params(res.u), res.cost, ext, screen_dbic=d)
     res2 = direct_search(fun, _fine_starts(res.u, fractions, first),
                          replace(settings, initial_step=0.5 * settings.initial_step),
                          progress=progress, label=f'refit {effect} (fine)',
                          fixed=np.array([first]))
     best = res2 if res2.cost <= res.cost else res
-    return RefitResult(ext.params(best.u), best.cost, ext)
+    return RefitResult(ext.params(best.u), best.cost, ext, screen_dbic=d)
 
 
 def _has_release(m: object) -> bool:
@@ -421,6 +440,12 @@ def _has_release(m: object) -> bool:
     return bool(np.any(v[first:] < 0.1 * v.max()))
 
 
+#: A refit whose coarse profile leaves the fit criterion's dBIC at or above this stops
+#: there (:func:`refit_effect`'s ``screen``): to be kept it would need the fine profile to
+#: gain more than ``-DBIC_THRESHOLD`` more, and the fine profile only moves the amount
+#: between neighbouring trial amounts, which changes the cost of an effect the trial
+#: amounts miss by a fraction of a per cent.
+SCREEN_DBIC = 0.0
 #: A runner-up that gains this share of the winner's validation gain cannot be told apart.
 INDISTINGUISHABLE = 0.8
 #: Structured RMS left after the claimed effect, relative to the noise, above which the
@@ -739,12 +764,17 @@ def second_effect(diag: Diagnosis, space: ParameterSpace, fit: FitData, val: Fit
         return
     other = others[0]
     ext = effect_space(space, diag.effect)
-    p2 = refit_effect(ext, fit.serial(), diag.params, other.effect, settings).params
-    counts_fit = effective_counts(fit, p2)   # counted in the model under test (select)
-    one_fit, two_fit = fit.errors(diag.params), fit.errors(p2)
+    one_fit = fit.errors(diag.params)
     p = len(other.fields)
-    dfit = delta_bic(one_fit.mae_per_file, two_fit.mae_per_file, counts_fit, p,
-                     resolution_floors(fit))
+    floors = resolution_floors(fit)
+
+    def fit_dbic(params: ValveParameters) -> float:
+        # samples counted in the model under test, as select() counts them
+        return delta_bic(one_fit.mae_per_file, fit.errors(params).mae_per_file,
+                         effective_counts(fit, params), p, floors)
+    p2 = refit_effect(ext, fit.serial(), diag.params, other.effect, settings,
+                      screen=fit_dbic).params
+    dfit = fit_dbic(p2)
     dval = math.nan
     gain_val = math.nan
     if val is not None:

@@ -36,7 +36,7 @@ from ..interface import TOPIC_STATE
 from ..model.parameters import EFFECTS, ValveParameters
 from .criteria import DBIC_THRESHOLD, delta_bic, effective_counts, resolution_floors
 from .diagnosis import (
-    CandidateResult, Diagnosis, RefitResult, describe_remaining, refit_effect,
+    SCREEN_DBIC, CandidateResult, Diagnosis, RefitResult, describe_remaining, refit_effect,
     score_signatures, second_effect, select, slow_effect,
 )
 from .drive import DriveReport, fit_drive
@@ -206,6 +206,10 @@ MISFIT_CI95_PCT = 50.0
 CONVERGENCE_FRACTION = 0.02
 #: ... or by less than this relative amount (noise-free data).
 CONVERGENCE_RELATIVE = 1e-3
+#: Relative tolerance of the polishes' simplices (:class:`~.search.SearchSettings`): far
+#: below the convergence tolerance (at least 1e-3 of the cost), so a polish that stops on
+#: it has not left a gain that would matter.
+POLISH_TOLERANCE = 1e-4
 
 
 @dataclass
@@ -570,7 +574,7 @@ def _try_other_starts(space: ParameterSpace, data: FitData, check_data: FitData,
     n_others = len(others)
     st = SearchSettings(global_samples=0, starts=n_others + 1, max_iterations=iterations,
                         initial_step=0.1, restarts=0, stall_iterations=30,
-                        tolerance=1e-6, seed=1)
+                        tolerance=POLISH_TOLERANCE, seed=1)
     res = direct_search(fun_c, np.vstack([u[None, :], np.atleast_2d(others)]), st,
                         label='baseline other starts')
     there = float(fun(res.u[None, :])[0])
@@ -589,8 +593,8 @@ def polish(space: ParameterSpace, data: FitData, u: np.ndarray, cost: float,
     """Polish the baseline until a fresh local search no longer pays (see Convergence).
 
     The first round also runs independent simplices from ``others`` (other start points:
-    the measured values, the global stage's other good points), in lock step: a lower cost
-    reached from elsewhere means the search had stopped in a local minimum. With
+    the measured values, the prior), in lock step: a lower cost reached from elsewhere
+    means the search had stopped in a local minimum. With
     ``check_data`` (the search window of a long record) those simplices run there, and
     their best point is carried to ``data`` when it is better there too; the rounds on
     ``data`` then start from the best point (and a second start beside it, so two cores
@@ -620,7 +624,8 @@ def polish(space: ParameterSpace, data: FitData, u: np.ndarray, cost: float,
         short = iterations < 300
         st = SearchSettings(global_samples=0, starts=starts.shape[0], max_iterations=iterations,
                             initial_step=0.1 / (r + 1), restarts=1 if short else 2,
-                            stall_iterations=40 if short else 60, tolerance=1e-6, seed=r + 1)
+                            stall_iterations=40 if short else 60, tolerance=POLISH_TOLERANCE,
+                            seed=r + 1)
         res = direct_search(fun, starts, st, label=f'baseline polish {r + 1}')
         gain = best_c - res.cost
         costs.append(float(res.cost))
@@ -667,10 +672,11 @@ class BaselineFit:
     drive: DriveReport | None
 
 
-def polish_baseline(prep: Prepared, res: SearchResult, rounds: ElectronicsRounds,
-                    settings: IdentifySettings, say: Say) -> BaselineFit:
+def polish_baseline(prep: Prepared, rounds: ElectronicsRounds, settings: IdentifySettings,
+                    say: Say) -> BaselineFit:
     """Local polishes on the whole fit window until they no longer pay, from the search's
-    optimum and from other start points; then the electronics' last fit there."""
+    optimum and from the measured values (and for records through the electronics the
+    prior); then the electronics' last fit there."""
     space, fit = prep.space, prep.fit
     through = prep.through_electronics
     u_best, drive = rounds.u, rounds.drive
@@ -683,8 +689,8 @@ def polish_baseline(prep: Prepared, res: SearchResult, rounds: ElectronicsRounds
         # looked there would lose to "prior plus a little of any effect" on a valve that
         # is its prior.
         others.append(space.to_unit(space.base))
-    if res.starts_u is not None:
-        others += [x for x in res.starts_u if np.max(np.abs(x - u_best)) > 0.05][:3]
+    # The global stage's other good points are not among them: the search ran a simplex
+    # from each of them already.
     u_best, conv = polish(space, fit, u_best, c_best, noise0, say, others=np.array(others),
                           check_data=None if prep.search is fit else prep.search,
                           check_label=prep.search_note and f'the first '
@@ -873,9 +879,9 @@ class RefitJob:
         The baseline optimum.
     effort : SearchSettings
         Each refit's effort.
-    bars : dict or None
-        By "slower than the search window": the :class:`RefitBar` of the data searched;
-        None when the search data are the fit data (step records).
+    bars : dict
+        By "slower than the search window": the :class:`RefitBar` of the data searched
+        (step records: ``False``, the fit data).
     settings : IdentifySettings
         The settings.
     timings : dict
@@ -887,28 +893,40 @@ class RefitJob:
     prep: Prepared
     baseline: BaselineFit
     effort: SearchSettings
-    bars: dict[bool, RefitBar] | None
+    bars: dict[bool, RefitBar]
     settings: IdentifySettings
     timings: dict[str, float]
     say: Say
 
 
 def refit_bars(prep: Prepared, chosen: list[CandidateResult], baseline: BaselineFit,
-               settings: IdentifySettings) -> dict[bool, RefitBar] | None:
-    """The bar, the baseline's errors and floors on the data each refit searches: the
-    search window, or the whole fit window for an effect slower than the search window
-    (coil heating: its time constant is 1 s or more, the search window 0.4 s; there its
-    cost only rises with the heating, on the fit window the true amount lowers it).
-    None for step records (no window)."""
+               settings: IdentifySettings) -> dict[bool, RefitBar]:
+    """The bar, the baseline's errors and floors on the data each refit searches, by
+    "slower than the search window": for step records the fit data (``False``); for
+    records through the electronics the search window, or the whole fit window for an
+    effect slower than the search window (coil heating: its time constant is 1 s or more,
+    the search window 0.4 s; there its cost only rises with the heating, on the fit
+    window the true amount lowers it)."""
     if prep.search is prep.fit:
-        return None
-    on_window = {False: (prep.search,
-                         float(unit_objective(prep.space, prep.search)(baseline.u[None, :])[0])),
-                 True: (prep.fit, baseline.convergence.final_cost_a)}
-    needed = {slow_effect(c.effect, settings.operation_search_window_s) for c in chosen}
+        on_window = {False: (prep.fit, baseline.convergence.final_cost_a)}
+        needed = {False}
+    else:
+        on_window = {False: (prep.search, float(unit_objective(prep.space, prep.search)(
+                         baseline.u[None, :])[0])),
+                     True: (prep.fit, baseline.convergence.final_cost_a)}
+        needed = {slow_effect(c.effect, settings.operation_search_window_s) for c in chosen}
     return {k: RefitBar(d.serial(), c, d.errors(baseline.params).mae_per_file,
                         resolution_floors(d))
             for k, (d, c) in on_window.items() if k in needed}
+
+
+def _fit_criterion(bar: RefitBar, c: CandidateResult) -> Callable[[ValveParameters], float]:
+    """The fit criterion's dBIC of a refit of ``c`` on the data ``bar`` searches, with the
+    refit's own effective sample counts (as :func:`~.diagnosis.select` counts them)."""
+    def dbic(params: ValveParameters) -> float:
+        return delta_bic(bar.base_mae, bar.data.errors(params).mae_per_file,
+                         effective_counts(bar.data, params), len(c.fields), bar.floors)
+    return dbic
 
 
 def polish_candidate(ext: ParameterSpace, data: FitData, params: ValveParameters,
@@ -942,9 +960,9 @@ class WindowRefit:
 
 def _refit_on_window(c: CandidateResult, job: RefitJob) -> WindowRefit:
     """Refit ``c`` on its window (records through the electronics): stop after the coarse
-    profile if nothing beats the bar; else judge it there by the fit criterion (dBIC with
-    the candidate's effective sample counts, as :func:`~.diagnosis.select` counts them)
-    and polish on the whole fit window only one that could pay."""
+    profile if nothing beats the bar or the fit criterion shows it cannot pay; else judge
+    it there by the fit criterion and polish on the whole fit window only one that could
+    pay."""
     span = job.settings.operation_search_window_s
     slow = slow_effect(c.effect, span)
     bar = job.bars[slow]
@@ -952,13 +970,16 @@ def _refit_on_window(c: CandidateResult, job: RefitJob) -> WindowRefit:
     how = (f' (slower than the {span:g} s search window: searched on the fit window)'
            if slow else '')
     fit = job.prep.fit
+    criterion = _fit_criterion(bar, c)
     r: RefitResult = refit_effect(job.prep.space, bar.data, job.baseline.params, c.effect,
-                                  job.effort, bar_cost=bar.cost, rank_data=fit.serial())
+                                  job.effort, bar_cost=bar.cost, rank_data=fit.serial(),
+                                  screen=criterion)
     if r.stopped:
         how += (f' (stopped after the coarse profile: no trial amount brought the '
                 f'{window} cost below the baseline\'s {bar.cost:.4g} A)')
-    dbic_s = delta_bic(bar.base_mae, bar.data.errors(r.params).mae_per_file,
-                       effective_counts(bar.data, r.params), len(c.fields), bar.floors)
+    elif r.screened_out:
+        how += _screened(r, window)
+    dbic_s = criterion(r.params)
     if not r.stopped and dbic_s < DBIC_THRESHOLD:
         p_aug, cost = polish_candidate(r.space, fit.serial(), r.params, job.baseline.params,
                                        job.settings)
@@ -971,14 +992,20 @@ def _refit_on_window(c: CandidateResult, job: RefitJob) -> WindowRefit:
     return WindowRefit(r.params, cost, how)
 
 
+def _screened(r: RefitResult, where: str) -> str:
+    return (f' (stopped after the coarse profile: {where} dBIC {r.screen_dbic:.1f}, not '
+            f'below {SCREEN_DBIC:g}: cannot pay)')
+
+
 def refit_candidate(c: CandidateResult, job: RefitJob) -> CandidateResult:
     """Refit one candidate (in its own thread, its simulations on that thread without the
     GIL) and record the result on ``c``."""
     t1 = time.perf_counter()
-    if job.bars is None:
-        r = refit_effect(job.prep.space, job.prep.search.serial(), job.baseline.params,
-                         c.effect, job.effort, progress=None)
-        done = WindowRefit(r.params, r.cost, '')
+    if job.prep.search is job.prep.fit:
+        bar = job.bars[False]
+        r = refit_effect(job.prep.space, bar.data, job.baseline.params, c.effect,
+                         job.effort, progress=None, screen=_fit_criterion(bar, c))
+        done = WindowRefit(r.params, r.cost, _screened(r, 'fit') if r.screened_out else '')
     else:
         done = _refit_on_window(c, job)
     c.refitted = True
@@ -1030,8 +1057,12 @@ def _refit_all(prep: Prepared, analysis: BaselineAnalysis, baseline: BaselineFit
                    refit_bars(prep, chosen, baseline, settings), settings, timings, say)
     t0 = time.perf_counter()
     workers = max(1, min(len(chosen), settings.workers))
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        list(pool.map(partial(refit_candidate, job=job), chosen))
+    if workers == 1:
+        for c in chosen:
+            refit_candidate(c, job)
+    else:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            list(pool.map(partial(refit_candidate, job=job), chosen))
     timings['refits'] = _lap(say, f'{len(chosen)} refits', t0)
 
 
@@ -1120,7 +1151,7 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
     if prep.through_electronics:
         timings['electronics'] = _lap(say, 'drive electronics', t0)
     t0 = time.perf_counter()
-    baseline = polish_baseline(prep, res, rounds, settings, say)
+    baseline = polish_baseline(prep, rounds, settings, say)
     timings['baseline_polish'] = _lap(say, 'baseline polish', t0)
     timings['baseline_fit'] = sum(timings.get(k, 0.0) for k in (
         'baseline_search', 'electronics', 'baseline_polish'))
