@@ -986,7 +986,7 @@ def _refit_on_window(c: CandidateResult, job: RefitJob) -> WindowRefit:
         return WindowRefit(p_aug, cost,
                            how + f' ({window} dBIC {dbic_s:.1f}: polished on the fit window)')
     cost = float(fit.serial().cost(r.params.to_vector()[None, :])[0])
-    if not r.stopped:
+    if not r.stopped and not r.screened_out:
         how += (f' ({window} dBIC {dbic_s:.1f}, not below {DBIC_THRESHOLD:g}: cannot pay, '
                 'not polished on the fit window, evaluated as found)')
     return WindowRefit(r.params, cost, how)
