@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT / 'tests'))
 
 from datagen.generate import CASES, LISTED_EFFECTS, generate_case  # noqa: E402
 from valve_model_pkg.identification.csv_reader import read_csv  # noqa: E402
-from valve_model_pkg.identification.pipeline import IdentifySettings, identify  # noqa: E402
+from valve_model_pkg.identification import IdentifySettings, identify  # noqa: E402
 from valve_model_pkg.identification.problem import equivalent_gap_m  # noqa: E402
 from valve_model_pkg.model.parameters import load_parameters  # noqa: E402
 
@@ -88,7 +88,7 @@ def _operation_records(tmp: str, base, load: str) -> list[dict]:
     out = []
     rec = _write_operation(Path(tmp) / 'ops10.csv', base, 10.0, 3e-3, 1)
     t0 = time.perf_counter()
-    ident = identify(read_measurements([rec]), [], base, IdentifySettings(diagnose=False))
+    ident = identify(read_measurements([rec]), [], IdentifySettings(diagnose=False), base=base)
     t_ops = time.perf_counter() - t0
     out.append(_record(
         'identify_operation_10s_1khz', t_ops, 's', 'target', 60.0, '<= 60 s on 2 cores',
@@ -99,7 +99,7 @@ def _operation_records(tmp: str, base, load: str) -> list[dict]:
     rec3 = _write_operation(Path(tmp) / 'ops3.csv', base, 3.0, 3e-3, 2)
     t0 = time.perf_counter()
     ident = identify(read_measurements(steps['fit'] + [str(rec3)]),
-                     read_measurements(steps['validate']), base, IdentifySettings())
+                     read_measurements(steps['validate']), IdentifySettings(), base=base)
     t_loop = time.perf_counter() - t0
     out.append(_record(
         'close_the_loop_60ms_pair_plus_3s_record', t_loop, 's', 'target', 60.0,
@@ -114,8 +114,8 @@ def _operation_records(tmp: str, base, load: str) -> list[dict]:
         truth = base.replace(**{n: getattr(base, n) * (1 + rng.uniform(-0.1, 0.1))
                                 for n in names})
         rec = _write_operation(Path(tmp) / f'opsT{k}.csv', truth, 2.0, 3e-3, 10 + k)
-        ident = identify(read_measurements([rec]), [], base,
-                         IdentifySettings.quick(diagnose=False))
+        ident = identify(read_measurements([rec]), [],
+                         IdentifySettings(quick=True, diagnose=False), base=base)
         p = ident.baseline.params
         for n in names:
             errs.setdefault(n, []).append(100 * abs(getattr(p, n) / getattr(truth, n) - 1))
@@ -139,14 +139,14 @@ def main() -> int:
         fit = [read_csv(f) for f in paper['fit']]
         val = [read_csv(f) for f in paper['validate']]
         t0 = time.perf_counter()
-        identify(fit, val, base, IdentifySettings.quick(diagnose=False))
+        identify(fit, val, IdentifySettings(quick=True, diagnose=False), base=base)
         warm = time.perf_counter() - t0
         records.append(_record('numba_warmup', warm, 's', None, None, 'informative', True,
                                'first run in a fresh process: kernel compilation or cache '
                                f'load, plus a quick fit; {load}'))
 
         t0 = time.perf_counter()
-        ident = identify(fit, val, base, IdentifySettings(diagnose=False))
+        ident = identify(fit, val, IdentifySettings(diagnose=False), base=base)
         t_fit = ident.timings_s['baseline_fit']
         records.append(_record(
             'identify_8_params_40ms_50khz', t_fit, 's', 'target', 30.0, '<= 30 s on 2 cores',
@@ -167,7 +167,7 @@ def main() -> int:
         fit = [read_csv(f) for f in case['fit']]
         val = [read_csv(f) for f in case['validate']]
         t0 = time.perf_counter()
-        ident = identify(fit, val, base, IdentifySettings())
+        ident = identify(fit, val, IdentifySettings(), base=base)
         t_loop = time.perf_counter() - t0
         records.append(_record(
             'close_the_loop_40ms', t_loop, 's', 'target', 180.0, '<= 180 s on 2 cores',
@@ -178,7 +178,7 @@ def main() -> int:
         for name in CASES[1:]:
             c = generate_case(tmp, name, seed=5)
             res = identify([read_csv(f) for f in c['fit']],
-                           [read_csv(f) for f in c['validate']], base, IdentifySettings())
+                           [read_csv(f) for f in c['validate']], IdentifySettings(), base=base)
             want = name if name in LISTED_EFFECTS else 'none'
             ok = res.diagnosis.effect == want or (
                 name not in LISTED_EFFECTS and name != 'none'

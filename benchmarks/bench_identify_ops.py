@@ -37,7 +37,7 @@ from common import record as _record, write_results  # noqa: E402
 from datagen.generate import generate_case  # noqa: E402
 from valve_model_pkg.identification.csv_reader import read_csv  # noqa: E402
 from valve_model_pkg.identification.readers import read_measurements  # noqa: E402
-from valve_model_pkg.identification.pipeline import IdentifySettings, identify  # noqa: E402
+from valve_model_pkg.identification import IdentifySettings, identify  # noqa: E402
 from valve_model_pkg.model.parameters import load_parameters  # noqa: E402
 
 
@@ -69,9 +69,10 @@ def main() -> int:
         case = generate_case(tmp, 'none', seed=11)
         fit = [read_csv(f) for f in case['fit']]
         val = [read_csv(f) for f in case['validate']]
-        identify(fit, val, base, IdentifySettings.quick(diagnose=False))  # numba warm-up
+        # numba warm-up
+        identify(fit, val, IdentifySettings(quick=True, diagnose=False), base=base)
         t0 = time.perf_counter()
-        ident = identify(fit, val, base, IdentifySettings())
+        ident = identify(fit, val, IdentifySettings(), base=base)
         t_step = time.perf_counter() - t0
         records.append(_record(
             'identify_step_40ms_close_the_loop', t_step, 's', None, None, 'informative', True,
@@ -80,7 +81,7 @@ def main() -> int:
 
         rec = _write_operation(Path(tmp) / 'ops10.csv', base, 10.0, 3e-3, 1)
         t0 = time.perf_counter()
-        ident = identify(read_measurements([rec]), [], base, IdentifySettings())
+        ident = identify(read_measurements([rec]), [], IdentifySettings(), base=base)
         t_ops = time.perf_counter() - t0
         records.append(_record(
             'identify_operation_10s_1khz_close_the_loop', t_ops, 's',
@@ -92,8 +93,8 @@ def main() -> int:
         fit_b = _bench_step(Path(tmp) / 'bench24.csv', 24.0, 1)
         val_b = _bench_step(Path(tmp) / 'bench15.csv', 15.0, 2)
         t0 = time.perf_counter()
-        ident = identify(read_measurements([fit_b]), read_measurements([val_b]), base,
-                         IdentifySettings())
+        ident = identify(read_measurements([fit_b]), read_measurements([val_b]),
+                         IdentifySettings(), base=base)
         t_bench = time.perf_counter() - t0
         records.append(_record(
             'identify_bench_bags_1p4s_1khz', t_bench, 's', 'identify_step_40ms_close_the_loop',

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import csv
 import json
+import queue
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -136,6 +139,27 @@ def test_an_unreachable_scheduler_is_refused_and_nothing_written(
     assert not out.exists()
 
 
+def _pump(stream: object, sink: 'queue.Queue[str]') -> None:
+    """Every line of ``stream`` into ``sink``, until it ends."""
+    for line in stream:
+        sink.put(line)
+
+
+def _wait_for_line(lines: 'queue.Queue[str]', marker: str, timeout_s: float) -> list[str]:
+    """Lines from ``lines`` up to the first one holding ``marker``; fails after
+    ``timeout_s`` naming the last lines seen."""
+    said: list[str] = []
+    deadline = time.monotonic() + timeout_s
+    while not said or marker not in said[-1]:
+        left = deadline - time.monotonic()
+        try:
+            said.append(lines.get(timeout=max(left, 0.0)))
+        except queue.Empty:
+            raise AssertionError(f'no line with {marker!r} in {timeout_s:g} s; last lines: '
+                                 f'{said[-5:]}') from None
+    return said
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize('sig', ['SIGINT', 'SIGKILL'])
 def test_an_interrupted_run_resumes_with_the_same_command(manifest: Path, tmp_path: Path,
@@ -144,7 +168,6 @@ def test_an_interrupted_run_resumes_with_the_same_command(manifest: Path, tmp_pa
     import signal
     import subprocess
     import sys
-    import time
 
     from suite_paths import REPO_ROOT
 
@@ -155,18 +178,21 @@ def test_an_interrupted_run_resumes_with_the_same_command(manifest: Path, tmp_pa
         [str(REPO_ROOT / 'valve_model_pkg'), os.environ.get('PYTHONPATH', '')]))
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
                             env=env, start_new_session=True)   # own group, as a terminal has
-    deadline = time.monotonic() + 120
-    while not list(out.glob('valves/V0*/report.json')) and time.monotonic() < deadline:
-        time.sleep(0.2)
-    assert list(out.glob('valves/V0*/report.json')), 'no valve finished in 120 s'
+    lines: queue.Queue[str] = queue.Queue()
+    reader = threading.Thread(target=_pump, args=(proc.stderr, lines), daemon=True)
+    reader.start()
+    said = _wait_for_line(lines, ' ok in ', timeout_s=120)   # a valve saved, then said
     if sig == 'SIGINT':
         os.killpg(proc.pid, signal.SIGINT)                 # Ctrl-C reaches the whole group
     else:
         os.kill(proc.pid, signal.SIGKILL)                  # the main process only
-    _, err = proc.communicate(timeout=60)   # returns once the workers let go of stderr too
+    proc.wait(timeout=60)
+    reader.join(timeout=60)       # stderr ends once the workers let go of it too
+    assert not reader.is_alive(), 'the workers still hold stderr 60 s after the stop'
+    err = ''.join(said + list(lines.queue))
     # a finished valve as the store defines it: renamed into place; a SIGKILL during a
     # save leaves a hidden valves/.<id>.tmp-* folder (with its report.json) that the next
-    # run removes (pathlib's '*' matches hidden names: seen counting 2 where 1 was kept)
+    # run removes (pathlib's '*' matches hidden names, so they are left out here)
     finished = sorted(p.parent.name for p in out.glob('valves/*/report.json')
                       if not p.parent.name.startswith('.'))
     if sig == 'SIGINT':

@@ -1,4 +1,4 @@
-"""Intervals that widen when the residual is structured (issue 12, item 4): a model error is
+"""Intervals that widen when the residual is structured: a model error is
 a bias, so no parameter is pinned tighter than the change that moves the current by the
 residual's structure; white noise alone leaves the intervals as they were."""
 from __future__ import annotations

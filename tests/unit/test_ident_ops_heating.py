@@ -1,9 +1,9 @@
-"""Coil heating named from an operational record through the drive electronics (issue 13:
-the loop's checker chooses the effect). The heating shows in the current only in the boost
+"""Coil heating named from an operational record through the drive electronics (the bench
+loop's checker chooses the effect). The heating shows in the current only in the boost
 and release phases of each PWM period, and a time constant of seconds is longer than the
 0.4 s search window: the refit scans amount and time constant jointly on the fit window
-(diagnosis.effect_scan, slow_effect). Before that change the loop's records were answered
-`none` or `coil_heating` by chance (2026-11-26). A whole close-the-loop run: slow."""
+(diagnosis.effect_scan, slow_effect): a search window alone answers such records by chance.
+A whole close-the-loop run: slow."""
 from __future__ import annotations
 
 import json

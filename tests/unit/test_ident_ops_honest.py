@@ -1,4 +1,4 @@
-"""No false discovery on clean data (issue 12, item 4): records of the nominal valve made
+"""No false discovery on clean data: records of the nominal valve made
 by the suite's own model, at 0, 1, 3 and 10 mA of noise, are answered ``none``; steps (24 V
 fit, 15 V validation from valve_simulate) and an operational record through the drive
 electronics (one record: the last 30 % held out). Each is a whole close-the-loop run,
@@ -39,8 +39,8 @@ def _noisy_step(tmp: Path, volts: float, noise_a: float, seed: int,
 @pytest.mark.slow
 @pytest.mark.parametrize('noise_ma', NOISE_MA)
 def test_clean_nominal_steps_are_answered_none(tmp_path: Path, noise_ma: float) -> None:
-    # noise-free: 30 ms steps, the records on which leakage_inductance was claimed with a
-    # resolution floor of 2e-4 of the range (the baseline misses the 15 V step by 0.9 mA)
+    # noise-free: 30 ms steps, on which the baseline misses the 15 V step by about 1 mA: a
+    # resolution floor much below 1e-3 of the range reads that as leakage_inductance
     duration_s = 0.03 if noise_ma == 0.0 else 0.04
     fit = _noisy_step(tmp_path, 24.0, 1e-3 * noise_ma, 1, duration_s)
     val = _noisy_step(tmp_path, 15.0, 1e-3 * noise_ma, 2, duration_s)
@@ -52,8 +52,7 @@ def test_clean_nominal_steps_are_answered_none(tmp_path: Path, noise_ma: float) 
     if noise_ma == 0.0:   # a residual below the resolution floor is not structure
         assert rep['diagnosis']['confidence'] == 'high', rep['diagnosis']['evidence']
     assert rep['baseline_convergence']['converged']
-    # Nor an effect outside the list (issue 13, item 4): no sparse term is claimed. (This
-    # was a --quick run of its own in test_ident_unlisted.py on the same 3 mA records.)
+    # Nor an effect outside the list: no sparse term is claimed.
     assert rep['unlisted'] is None or not rep['unlisted']['claimed']
 
 

@@ -9,10 +9,11 @@ import pytest
 
 from valve_model_pkg.dataformat import write_table
 from valve_model_pkg.errors import MeasurementFormatError
+from valve_model_pkg.identification import IdentifySettings
 from valve_model_pkg.identification.csv_reader import read_csv
 from valve_model_pkg.identification.measurement import hold_out
 from valve_model_pkg.identification.pwm_grid import DISCARD_MIN_S, drive_from_in_force
-from valve_model_pkg.identification.pipeline import IdentifySettings, prepare_files
+from valve_model_pkg.identification.pipeline import prepare_files
 from valve_model_pkg.model import InputTrace, load_parameters, simulate_trace_batch
 
 
@@ -78,8 +79,9 @@ def test_a_record_in_motion_discards_its_first_periods(tmp_path: Path) -> None:
 def test_a_single_record_holds_out_its_last_30_percent(tmp_path: Path) -> None:
     path, _ = _ops(tmp_path)
     m = read_csv(path)
-    fit, val, notes = prepare_files([m], [], IdentifySettings())
-    assert len(fit) == 1 and len(val) == 1 and 'held out' in notes[0]
+    files = prepare_files([m], [], IdentifySettings())
+    fit, val = files.fit, files.validation
+    assert len(fit) == 1 and len(val) == 1 and 'held out' in files.notes[0]
     split = m.t_s[0] + 0.7 * (m.t_s[-1] - m.t_s[0])
     assert fit[0].t_s[-1] <= split + 1e-12
     assert not val[0].valid[val[0].t_s < split].any() and val[0].valid[-1]

@@ -1,10 +1,8 @@
-"""Intervals through the drive electronics (issue 12, item 4): the current is not a smooth
-function of every parameter (a chopper edge or the end of the boost moves by a whole
-switching event), so one finite-difference step can land on a jump and claim a tight
-interval. Seen on a generated operational record: s "pinned" to +-0.47 % while 28 % off
-the truth (its sensitivity 7.2, 77 and 26 mA per % at steps of 0.3, 1 and 3 %). The
-analysis takes the Jacobian at three steps, uses the median variance, and never calls a
-parameter whose sensitivity changes with the step pinned down."""
+"""Intervals through the drive electronics: the current is not a smooth function of every
+parameter (a chopper edge or the end of the boost moves by a whole switching event), so one
+finite-difference step can land on a jump and claim a tight interval for a parameter far
+off its truth. The analysis takes the Jacobian at three steps, uses the median variance,
+and never calls a parameter whose sensitivity changes with the step pinned down."""
 from __future__ import annotations
 
 from types import SimpleNamespace
@@ -25,14 +23,14 @@ def _fake(monkeypatch, jump: bool):
     rng = np.random.default_rng(3)
     noise = rng.normal(0.0, 1e-3, n)
 
-    def jacobian(space, data, params, step=sens_mod._REL_STEP):
+    def jacobian(space, data, params, step=sens_mod.JACOBIAN_STEP):
         a = np.full(n, 0.5)                      # smooth: the same at every step
         b = 0.5 * np.sin(2 * np.pi * 2 * t)      # smooth unless ``jump``
-        if jump and step == sens_mod._REL_STEP:
+        if jump and step == sens_mod.JACOBIAN_STEP:
             b = b * 10.0                          # the 1 % step lands on a jump
         return np.column_stack([a, b])
 
-    monkeypatch.setattr(sens_mod, '_jacobian', jacobian)
+    monkeypatch.setattr(sens_mod, 'current_jacobian', jacobian)
     space = SimpleNamespace(names=('coil_resistance_ohm', 'stroke_m'),
                             bounds=(_Bound(low=1.0, high=30.0), _Bound(low=1e-4, high=1e-3)))
     data = SimpleNamespace(residuals=lambda params: [noise])

@@ -1,4 +1,4 @@
-"""An effect outside the list (issue 13, item 4): the open-ended sparse term.
+"""An effect outside the list: the open-ended sparse term.
 
 When no listed effect explains a structured residual, ``valve_identify`` tries a sparse term
 in the voltage balance (:mod:`valve_model_pkg.identification.unlisted`) selected on the
@@ -29,6 +29,7 @@ import pytest
 from datagen.cache import dataset
 from datagen.generate import LISTED_EFFECTS, OUTSIDE_EFFECT, OUTSIDE_EFFECT_2
 from valve_model_pkg.cli.identify import main as identify_main
+from valve_model_pkg.identification import IdentifySettings, identify, write_report
 from valve_model_pkg.identification.unlisted import LIBRARY, responses, stlsq_path
 from valve_model_pkg.model.magnetics import inductance
 from valve_model_pkg.model.parameters import load_parameters
@@ -87,25 +88,14 @@ def _check_unlisted_invariants(rep: dict) -> None:
 @pytest.fixture(scope='module')
 def supply_ripple(data_dir: Path, tmp_path_factory: pytest.TempPathFactory
                   ) -> tuple[object, dict]:
-    """One ``valve_identify --quick`` run of the supply-ripple case: (the Identification
-    the command computed, its report.json). ``--quick`` is ``IdentifySettings.quick()``, the
-    effort of test_identification_loop.py, so both files' checks share this run."""
-    from valve_model_pkg.identification import pipeline
-    seen = []
-    real = pipeline.identify
-
-    def keep(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202 - identify's own signature
-        seen.append(real(*args, **kwargs))
-        return seen[-1]
-    patch = pytest.MonkeyPatch()
-    patch.setattr(pipeline, 'identify', keep)   # the command imports it when it runs
-    try:
-        rep = _identify(dataset(data_dir, OUTSIDE_EFFECT),
-                        tmp_path_factory.mktemp('supply-ripple') / 'rep')
-    finally:
-        patch.undo()
-    assert len(seen) == 1
-    return seen[0], rep
+    """One identification of the supply-ripple case through the front door with
+    ``valve_identify --quick``'s settings (the effort of test_identification_loop.py): the
+    Identification and the report.json content written from it. Both files' checks share
+    this run."""
+    truth = dataset(data_dir, OUTSIDE_EFFECT)
+    ident = identify(truth['fit'], truth['validate'], IdentifySettings(quick=True))
+    rep = write_report(ident, tmp_path_factory.mktemp('supply-ripple'), plots=False)
+    return ident, rep
 
 
 @pytest.mark.slow
@@ -151,7 +141,6 @@ def test_diode_drop_is_claimed_unlisted_and_kept_out_of_params_yaml(
 @pytest.mark.xdist_group('supply_ripple')
 def test_effect_outside_the_list_shows_structure_and_claims_nothing_firmly(
         supply_ripple: tuple[object, dict]) -> None:
-    # (Moved from test_identification_loop.py: it ran the same identification again.)
     ident = supply_ripple[0]
     d = ident.diagnosis
     # Not a listed effect with confidence it does not have...

@@ -3,7 +3,7 @@
 The data come from ``tests/datagen`` (its own model, integrated with solve_ivp, with every
 listed effect in a form of its own and one effect outside the list), with bench noise
 (0.5 % of full scale, 12-bit) and missing samples, on valve instances that differ from
-Table 2. The identification runs with its reduced test effort (``IdentifySettings.quick``).
+Table 2. The identification runs with its reduced test effort (``IdentifySettings(quick=True)``).
 The effect outside the list (``supply_ripple``) is checked in test_ident_unlisted.py, on the
 one run of that case both files need.
 """
@@ -18,8 +18,8 @@ import pytest
 
 from datagen.cache import dataset
 from datagen.generate import LISTED_EFFECTS
+from valve_model_pkg.identification import IdentifySettings, identify
 from valve_model_pkg.identification.csv_reader import read_csv
-from valve_model_pkg.identification.pipeline import IdentifySettings, identify
 from valve_model_pkg.identification.problem import equivalent_gap_m
 from valve_model_pkg.model.parameters import load_parameters
 
@@ -43,16 +43,15 @@ def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _run(truth: dict) -> object:
-    fit = [read_csv(f) for f in truth['fit']]
-    val = [read_csv(f) for f in truth['validate']]
-    return identify(fit, val, load_parameters(), IdentifySettings.quick())
+    # the front door reads the records from their paths
+    return identify(truth['fit'], truth['validate'], IdentifySettings(quick=True))
 
 
 def test_recovers_table2_from_a_noisy_24v_step_and_validates_at_15v(data_dir: Path) -> None:
     truth = dataset(data_dir, 'paper')
     fit = [read_csv(f) for f in truth['fit']]
     val = [read_csv(f) for f in truth['validate']]
-    ident = identify(fit, val, load_parameters(), IdentifySettings.quick(diagnose=False))
+    ident = identify(fit, val, IdentifySettings(quick=True, diagnose=False))
     p = ident.baseline.params
     sens = ident.baseline.sensitivity
     tv = truth['valve']

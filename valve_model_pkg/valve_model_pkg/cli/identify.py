@@ -3,15 +3,24 @@
 Usage::
 
     valve_identify --fit FILE... [--validate FILE...] [--params YAML] -o DIR
+                   [--quick] [--no-diagnosis] [--effects EFFECT...] [--seed N]
+                   [--threads N] [--no-plots] [--topic TOPIC] [--valve NAME]
+                   [--map ROLE=TOPIC[.FIELD]...] [--voltage CH --current CH ...]
 
-FILE is a ``step``, ``pwm`` or ``operation`` record of the measured-data format or a
-rosbag2 bag directory recorded from the suite (``/valve/state``). ``pwm`` and ``operation``
+FILE is a ``step``, ``pwm`` or ``operation`` record of the measured-data format, a
+rosbag2 bag directory (the suite's ``/valve/state``, or a user's own topics with
+``--map``) or an instrument export (imported with the options of ``valve_import`` into
+``DIR/imported/``). ``pwm`` and ``operation``
 records and PWM bags run the model's drive electronics from the commands and compare like
 with like (interval means); one such record without ``--validate`` has its last 30 % held
 out for validation (docs/identification.md). The supply pressure comes from each file.
 Progress goes to stderr; DIR receives report.json, report.md with PNG plots and
 params.yaml (loadable by valve_simulate / valve_map). Exit status: 0 on success, 2 on
 refused input (one line naming file, line and reason), 1 on a failure inside.
+
+The options are parsed into one :class:`~valve_model_pkg.identification.IdentifySettings`
+(:func:`settings_from_args`) and handed to
+:func:`~valve_model_pkg.identification.identify`, as a Python user would.
 """
 from __future__ import annotations
 
@@ -19,6 +28,10 @@ import argparse
 import logging
 import sys
 import time
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..identification import IdentifySettings
 
 __all__ = ['main']
 
@@ -39,6 +52,7 @@ class _MapAction(argparse.Action):
 
 def _parser() -> argparse.ArgumentParser:
     from valve_model_pkg.interface import TOPIC_STATE
+    from valve_model_pkg.model.parameters import EFFECTS
 
     p = argparse.ArgumentParser(
         prog='valve_identify',
@@ -68,8 +82,15 @@ def _parser() -> argparse.ArgumentParser:
                         'may be numbers)')
     p.add_argument('--no-diagnosis', action='store_true',
                    help='stop after the baseline fit (no effect search)')
+    p.add_argument('--effects', nargs='+', default=None, metavar='EFFECT',
+                   choices=list(EFFECTS),
+                   help='candidate effects (default: all of ' + ', '.join(EFFECTS) + ')')
     p.add_argument('--quick', action='store_true',
                    help='smaller search effort (for tests and previews)')
+    p.add_argument('--seed', type=int, default=0,
+                   help='seed of the baseline search\'s global stage (default 0)')
+    p.add_argument('--threads', type=_positive_int, default=None, metavar='N',
+                   help='threads of the identification (default: one per CPU)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
     p.add_argument('--quiet', action='store_true', help='no progress output')
     from valve_model_pkg.instruments import add_import_options
@@ -77,17 +98,34 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a whole number') from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'{value} is not at least 1')
+    return value
+
+
+def settings_from_args(args: argparse.Namespace) -> 'IdentifySettings':
+    """The :class:`~valve_model_pkg.identification.IdentifySettings` of the arguments."""
+    from ..identification import IdentifySettings
+    return IdentifySettings(
+        params_file=args.params, allow_implausible=args.allow_implausible, topic=args.topic,
+        valve=args.valve, topic_map=tuple(args.map), diagnose=not args.no_diagnosis,
+        effects=tuple(args.effects) if args.effects is not None else None, quick=args.quick,
+        seed=args.seed, threads=args.threads)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``valve_identify``."""
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s: %(message)s')
     from ..errors import IdentificationError, InstrumentFormatError, MeasurementFormatError
+    from ..errors import ParameterError
+    from ..identification import identify, write_report
     from ..instruments import options_from_args, records_for
-    from ..identification.readers import read_measurements
-    from ..identification.topic_map import parse_topic_map
-    from ..identification.pipeline import IdentifySettings, identify
-    from ..identification.report import write_report
-    from ..model.parameters import ParameterError, load_parameters
 
     start = time.perf_counter()
 
@@ -97,29 +135,15 @@ def main(argv: list[str] | None = None) -> int:
                   flush=True)
 
     try:
-        mapping = parse_topic_map(args.map) or None
         imports = options_from_args(args)
-        fit = read_measurements(records_for(args.fit, imports, args.out, progress),
-                                topic=args.topic, valve=args.valve, mapping=mapping)
-        val = read_measurements(records_for(args.validate, imports, args.out, progress),
-                                topic=args.topic, valve=args.valve, mapping=mapping)
-        for m in fit + val:
-            if m.supply_pressure_pa is None:
-                raise MeasurementFormatError(
-                    m.source, None, 'metadata lacks supply_pressure_pa (gauge, Pa)')
-            for note in m.notes:
-                progress(f'{m.name}: {note}')
-        base = load_parameters(args.params, allow_implausible=args.allow_implausible)
+        fit = records_for(args.fit, imports, args.out, progress)
+        val = records_for(args.validate, imports, args.out, progress)
+        ident = identify(fit, val, settings_from_args(args), progress=progress)
+        rep = write_report(ident, args.out, plots=not args.no_plots)
     except (MeasurementFormatError, InstrumentFormatError, ParameterError,
             FileNotFoundError) as err:
         print(f'valve_identify: error: {err}', file=sys.stderr)
         return 2
-    settings = IdentifySettings(diagnose=not args.no_diagnosis)
-    if args.quick:
-        settings = IdentifySettings.quick(diagnose=not args.no_diagnosis)
-    try:
-        ident = identify(fit, val, base, settings, progress=progress)
-        rep = write_report(ident, args.out, plots=not args.no_plots)
     except IdentificationError as err:
         print(f'valve_identify: error: {err}', file=sys.stderr)
         return 1

@@ -83,6 +83,24 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def _defaults(args: argparse.Namespace) -> dict[str, object] | str:
+    """The manifest's default options from the arguments (the valves' own options win), or
+    the reason an argument is refused."""
+    defaults: dict[str, object] = {}
+    if args.params is not None:
+        params = Path(args.params).expanduser()
+        if not params.is_file():
+            return f'{args.params}: --params: no such file'
+        defaults['params'] = str(params.resolve())
+    if args.quick:
+        defaults['quick'] = True
+    if args.no_diagnosis:
+        defaults['diagnose'] = False
+    if args.no_plots:
+        defaults['plots'] = False
+    return defaults
+
+
 def _main(args: argparse.Namespace) -> int:
     from ..fleet import (THRESHOLD, ManifestError, SchedulerError, StoreBusyError, read_manifest,
                          run_fleet)
@@ -97,18 +115,9 @@ def _main(args: argparse.Namespace) -> int:
         print(f'{PROG}: error: {msg}', file=sys.stderr)
         return 2
 
-    defaults: dict[str, object] = {}
-    if args.params is not None:
-        params = Path(args.params).expanduser()
-        if not params.is_file():
-            return refuse(f'{args.params}: --params: no such file')
-        defaults['params'] = str(params.resolve())
-    if args.quick:
-        defaults['quick'] = True
-    if args.no_diagnosis:
-        defaults['diagnose'] = False
-    if args.no_plots:
-        defaults['plots'] = False
+    defaults = _defaults(args)
+    if isinstance(defaults, str):
+        return refuse(defaults)
     threshold = THRESHOLD if args.outlier_threshold is None else args.outlier_threshold
     if not threshold > 0:
         return refuse(f'--outlier-threshold: {args.outlier_threshold} is not above 0')

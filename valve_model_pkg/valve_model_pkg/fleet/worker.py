@@ -1,7 +1,7 @@
 """One valve's identification, run inside a worker process (local pool or Dask worker).
 
-:func:`run_valve` does what ``valve_identify`` does for one valve (the same public entry
-points: ``read_measurements``, ``load_parameters``, ``identify``, ``write_report``) in a
+:func:`run_valve` does what ``valve_identify`` does for one valve (the same front door:
+``identify`` with the :class:`IdentifySettings` of its options, ``write_report``) in a
 private temporary folder and returns the files it wrote as bytes. The caller (the fleet
 runner, in the main process) alone writes into the output folder, so a worker never leaves
 half a valve there and a remote Dask worker needs no write access to it.
@@ -19,9 +19,13 @@ import threading
 import time
 import traceback
 from pathlib import Path
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
-__all__ = ['init_worker', 'limit_threads', 'run_valve', 'single_thread_env']
+if TYPE_CHECKING:
+    from ..identification import IdentifySettings
+
+__all__ = ['init_worker', 'limit_threads', 'run_valve', 'settings_from_options',
+           'single_thread_env']
 
 #: thread-pool sizes of the numeric libraries: one valve uses one core of its worker, so N
 #: workers keep to N cores instead of N x cores threads fighting over them
@@ -90,6 +94,16 @@ def _first_line(err: BaseException) -> str:
     return f'{type(err).__name__}: {text[0]}' if text else type(err).__name__
 
 
+def settings_from_options(opts: dict[str, Any]) -> 'IdentifySettings':
+    """The :class:`~valve_model_pkg.identification.IdentifySettings` of a valve's manifest
+    options (``params``, ``quick``, ``diagnose``, ``topic``, ``valve``); what the manifest
+    does not name keeps ``valve_identify``'s default."""
+    from ..identification import IdentifySettings
+    kw: dict[str, Any] = {k: opts[k] for k in ('topic', 'valve') if k in opts}
+    return IdentifySettings(params_file=opts.get('params'), quick=bool(opts.get('quick')),
+                            diagnose=bool(opts.get('diagnose', True)), **kw)
+
+
 def run_valve(job: dict[str, Any]) -> dict[str, Any]:
     """Identify one valve.
 
@@ -120,37 +134,19 @@ def run_valve(job: dict[str, Any]) -> dict[str, Any]:
 
     opts = job.get('options', {})
     try:
-        from ..errors import IdentificationError, MeasurementFormatError
-        from ..identification.readers import read_measurements
-        from ..identification.pipeline import IdentifySettings, identify
-        from ..identification.report import write_report
-        from ..model.parameters import ParameterError, load_parameters
+        from ..errors import IdentificationError, MeasurementFormatError, ParameterError
+        from ..identification import identify, write_report
         try:
-            # Bag topic and frame only when the manifest names them: the reader's defaults
-            # are the suite's.
-            kw = {k: opts[k] for k in ('topic', 'valve') if k in opts}
-            fit = read_measurements(job['fit'], **kw)
-            val = read_measurements(job['validate'], **kw)
-            for m in fit + val:
-                if m.supply_pressure_pa is None:
-                    raise MeasurementFormatError(
-                        m.source, None, 'metadata lacks supply_pressure_pa (gauge, Pa)')
-                for note in m.notes:
-                    progress(f'{m.name}: {note}')
-            base = load_parameters(opts.get('params'))
-        except (MeasurementFormatError, ParameterError, FileNotFoundError) as err:
-            out['reason'] = f'refused input: {err}'.splitlines()[0]
-            out['detail'] = str(err)
-            return out
-        diagnose = bool(opts.get('diagnose', True))
-        settings = (IdentifySettings.quick(diagnose=diagnose) if opts.get('quick')
-                    else IdentifySettings(diagnose=diagnose))
-        try:
-            ident = identify(fit, val, base, settings, progress=progress)
+            ident = identify(job['fit'], job['validate'], settings_from_options(opts),
+                             progress=progress)
             with tempfile.TemporaryDirectory(prefix='valve-fleet-') as tmp:
                 write_report(ident, tmp, plots=bool(opts.get('plots', True)))
                 out['files'] = {p.name: p.read_bytes() for p in sorted(Path(tmp).iterdir())
                                 if p.is_file()}
+        except (MeasurementFormatError, ParameterError, FileNotFoundError) as err:
+            out['reason'] = f'refused input: {err}'.splitlines()[0]
+            out['detail'] = str(err)
+            return out
         except IdentificationError as err:
             out['reason'] = f'identification failed: {_first_line(err)}'
             out['detail'] = traceback.format_exc()

@@ -36,20 +36,16 @@ from typing import Callable
 import numpy as np
 
 from ..model.parameters import EFFECTS, ValveParameters
-from .problem import FitData, ParameterSpace, effect_space, unit_objective
-from .search import SearchSettings, direct_search
+from .criteria import (DBIC_THRESHOLD, MIN_EXPLAINED, MIN_VALIDATION_GAIN, delta_bic,
+                       effective_counts, noise_per_file, resolution_floors, structured_energy)
+from .problem import ErrorFigures, FitData, ParameterSpace, effect_space, unit_objective
 from .residuals import ljung_box
-from .sensitivity import noise_std
+from .search import SearchSettings, direct_search
+from .sensitivity import perturbed_values
 
-__all__ = ['CandidateResult', 'Diagnosis', 'score_signatures', 'refit_effect', 'select',
-           'DBIC_THRESHOLD', 'MIN_VALIDATION_GAIN']
+__all__ = ['CandidateResult', 'Diagnosis', 'RefitResult', 'score_signatures', 'refit_effect',
+           'select', 'second_effect', 'describe_remaining', 'effect_scan', 'slow_effect']
 
-#: Strong evidence on the BIC scale (Kass & Raftery: > 10).
-DBIC_THRESHOLD = -10.0
-#: Smallest relative fall of the validation mean absolute error worth an effect.
-MIN_VALIDATION_GAIN = 0.02
-#: Share of the validation residual's structured energy the effect must explain.
-MIN_EXPLAINED = 0.5
 #: Structured residual RMS (beyond noise), relative to the noise, that counts as structure.
 STRUCTURE_FRACTION = 0.3
 #: Ljung-Box p-value below which a residual counts as structured whatever its size.
@@ -69,12 +65,11 @@ _SCAN_FRACTIONS = tuple(float(f) for f in np.linspace(0.02, 0.98, 25))
 # An effect with a time constant (coil heating: amount R_th, time constant tau) is scanned
 # in (initial rate R_th / tau, tau), log-spaced, 25 x 7 points: on a record shorter than
 # tau the current carries the rate (dT ~ R_th P t / tau), so amount and time constant trade
-# off along a valley of constant rate. With tau held at its neutral 60 s no amount reached
-# it (2026-11-26: the loop's coil of 40 K/W and 3 s; the scan ended at 19 K/W), and a grid
-# in (R_th, tau) put its best points between the valley's (95 K/W and 4 s for a coil of
-# 40 K/W and 1.5 s: 0.53 against 0.41 mA on the fit window, three times the hold-out
-# error). Two zooms follow the valley: 9 x 9 points one step either side of the best,
-# then of the zoom's best.
+# off along a valley of constant rate. A scan at one fixed tau misses the valley when the
+# true tau is far from it, and an axis-aligned grid in (R_th, tau) steps over it (its best
+# points lie between the valley's, at several times the hold-out error of the right pair).
+# Two zooms follow the valley: 9 x 9 points one step either side of the best, then of the
+# zoom's best.
 _SCAN_RATES, _SCAN_TAUS, _ZOOMS = 25, 7, 2
 
 
@@ -233,10 +228,9 @@ def score_signatures(space: ParameterSpace, data: FitData, params: ValveParamete
         the probe signature that best fits the residual (negative = the wrong sign, the
         effect cannot produce it).
     """
-    from .sensitivity import _perturbed_values
     base = params.to_vector()
     n = space.size
-    vrows, denom = _perturbed_values(space, params, 0.01)
+    vrows, denom = perturbed_values(space, params, 0.01)
     effects = list(EFFECTS)
     raw = np.vstack([base[None, :], space.raw_from_values(vrows)]
                     + [_probe(params, eff, _PROBE_FRACTION).to_vector()[None, :]
@@ -263,59 +257,141 @@ def score_signatures(space: ParameterSpace, data: FitData, params: ValveParamete
     return out
 
 
-def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, effect: str,
-                 settings: SearchSettings, progress: Callable[[str], None] | None = None
-                 ) -> tuple[ValveParameters, float, ParameterSpace]:
-    """Refit the baseline parameters plus one effect's, from the baseline optimum.
+@dataclass
+class RefitResult:
+    """A candidate's refit (:func:`refit_effect`).
 
-    Returns
-    -------
-    params, cost, space
-        The refitted parameters, their cost on ``data`` and the extended space.
+    Attributes
+    ----------
+    params : ValveParameters
+        The refitted parameters (baseline parameters and the effect's).
+    cost : float
+        Their cost on the data searched [A].
+    space : ParameterSpace
+        The baseline space extended by the effect's fields.
+    stopped : bool
+        True when the search stopped after the coarse profile: no trial amount brought the
+        cost below ``bar_cost``.
+    screen_dbic : float
+        The fit criterion's dBIC after the coarse profile when ``screen`` was given (nan
+        otherwise); the refit stops there when it is not below :data:`SCREEN_DBIC`.
     """
-    p, cost, ext, _ = refit_effect_or_stop(space, data, params, effect, settings,
-                                           progress=progress)
-    return p, cost, ext
+
+    params: ValveParameters
+    cost: float
+    space: ParameterSpace
+    stopped: bool = False
+    screen_dbic: float = math.nan
+
+    @property
+    def screened_out(self) -> bool:
+        """True when the screen after the coarse profile stopped the refit."""
+        return not math.isnan(self.screen_dbic) and not self.screen_dbic < SCREEN_DBIC
 
 
-def refit_effect_or_stop(space: ParameterSpace, data: FitData, params: ValveParameters,
-                         effect: str, settings: SearchSettings,
-                         progress: Callable[[str], None] | None = None,
-                         bar_cost: float | None = None,
-                         rank_data: FitData | None = None
-                         ) -> tuple[ValveParameters, float, ParameterSpace, bool]:
-    """:func:`refit_effect` that may stop after its coarse profile.
-
-    When ``bar_cost`` is given (the baseline's own cost on ``data``) and none of the coarse
-    profile's trial amounts brings the cost below it, the effect cannot pay and the fine
-    profile is skipped (records through the electronics, where each simulation is dear).
-
-    ``rank_data`` (the whole fit window when ``data`` is a search window): the coarse
-    profile's best and the scan's best points are compared on it, and the fine profile
-    starts from the better. A short search window can hold a compensating basin as well
-    as the effect's own (the baseline parameters at a bound standing in for the effect);
-    the longer record tells them apart.
-
-    Returns
-    -------
-    params, cost, space, stopped
-    """
-    ext = effect_space(space, effect)
-    u_base = ext.to_unit(params)
-    first = ext.names.index(EFFECTS[effect].fields[0])
-    # Profile first: one simplex per trial amount of the effect, the effect held there
-    # while the baseline parameters adapt (they trade off strongly against most effects,
-    # so a joint simplex started at the baseline optimum tends to stall near it). The
-    # restarts then free the effect too.
-    fun = unit_objective(ext, data)
-    fractions = list(_PROFILE_FRACTIONS)
+def _profile_starts(u_base: np.ndarray, first: int) -> list[np.ndarray]:
+    """One start per trial amount of :data:`_PROFILE_FRACTIONS`, the rest at ``u_base``."""
     starts = []
     for frac in _PROFILE_FRACTIONS:
         u = u_base.copy()
         u[first] = frac
         starts.append(u)
-    # (only with ``rank_data``: records through the electronics, where the search window is
-    # short; step records keep the profile alone, which names their cases right)
+    return starts
+
+
+def _scan_best(ext: ParameterSpace, effect: str, origin: np.ndarray,
+               fun: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, float] | None:
+    """The best point of the effect's scan around ``origin`` (with its zooms for an
+    effect with a time constant) and its cost; None when no scanned point is feasible."""
+    trial = effect_scan(ext, effect, origin)
+    costs = fun(trial)
+    for level in range(1, _ZOOMS + 1):
+        if _time_constant_field(effect) is None or not np.isfinite(costs).any():
+            break
+        zoom = effect_scan(ext, effect, origin, around=trial[int(np.argmin(costs))],
+                           level=level)
+        trial, costs = np.vstack([trial, zoom]), np.concatenate([costs, fun(zoom)])
+    if not np.isfinite(costs).any():
+        return None
+    best = int(np.argmin(costs))
+    return trial[best].copy(), float(costs[best])
+
+
+def _fine_starts(res_u: np.ndarray, fractions: list[float], first: int) -> np.ndarray:
+    """Starts of the fine profile: four amounts between the best trial amount and its
+    neighbours on the grid of ``fractions``, from the baseline parameters that amount
+    found, and the best point itself."""
+    grid = np.array(sorted(set(fractions)))
+    k = int(np.argmin(np.abs(grid - res_u[first])))
+    lo = grid[k - 1] if k > 0 else 0.0
+    hi = grid[k + 1] if k + 1 < grid.size else 1.0
+    fine = []
+    for frac in (lo + 0.5 * (grid[k] - lo), grid[k] - 0.25 * (grid[k] - lo),
+                 grid[k] + 0.25 * (hi - grid[k]), grid[k] + 0.5 * (hi - grid[k])):
+        u = res_u.copy()
+        u[first] = frac
+        fine.append(u)
+    fine.append(res_u.copy())
+    return np.array(fine)
+
+
+def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, effect: str,
+                 settings: SearchSettings, progress: Callable[[str], None] | None = None,
+                 bar_cost: float | None = None, rank_data: FitData | None = None,
+                 screen: Callable[[ValveParameters], float] | None = None) -> RefitResult:
+    """Refit the baseline parameters plus one effect's, from the baseline optimum.
+
+    Profile first: one simplex per trial amount of the effect, the effect held there while
+    the baseline parameters adapt (they trade off strongly against most effects, so a joint
+    simplex started at the baseline optimum tends to stall near it). Then a fine profile
+    around the best amount, between its neighbours on the grid, and restarts that free
+    everything: without that second look the free restarts rarely leave the grid value,
+    as the effect and the baseline parameters have to move together.
+
+    Parameters
+    ----------
+    space : ParameterSpace
+        The baseline space.
+    data : FitData
+        The data searched.
+    params : ValveParameters
+        The baseline optimum.
+    effect : str
+        Name of the effect (:data:`~valve_model_pkg.model.parameters.EFFECTS`).
+    settings : SearchSettings
+        Effort of the profiles.
+    progress : callable, optional
+        Receives progress lines.
+    bar_cost : float, optional
+        The baseline's own cost on ``data`` [A]. When none of the coarse profile's trial
+        amounts (nor the scan) brings the cost below it, the effect cannot pay and the fine
+        profile is skipped (``stopped``): records through the electronics, where each
+        simulation is dear.
+    rank_data : FitData, optional
+        The whole fit window when ``data`` is a search window (records through the
+        electronics). The effect's amount is then first scanned (:func:`effect_scan`) with
+        every other parameter at the baseline optimum and at the prior, one batch each;
+        the coarse profile's best and the scan's best are compared on ``rank_data`` and the
+        fine profile starts from the better: a short search window can hold a
+        compensating basin (the baseline parameters at a bound standing in for the effect)
+        as well as the effect's own, and the longer record tells them apart. Step records
+        keep the profile alone.
+    screen : callable, optional
+        The fit criterion's dBIC of a parameter set on the data searched. After the coarse
+        profile a refit whose dBIC is not below :data:`SCREEN_DBIC` stops: it does not pay
+        even before the criterion's margin, and the fine profile only moves the amount
+        between neighbouring trial amounts.
+
+    Returns
+    -------
+    RefitResult
+    """
+    ext = effect_space(space, effect)
+    u_base = ext.to_unit(params)
+    first = ext.names.index(EFFECTS[effect].fields[0])
+    fun = unit_objective(ext, data)
+    fractions = list(_PROFILE_FRACTIONS)
+    starts = _profile_starts(u_base, first)
     scanned: list[tuple[np.ndarray, float]] = []
     origins = []
     if rank_data is not None:
@@ -324,24 +400,16 @@ def refit_effect_or_stop(space: ParameterSpace, data: FitData, params: ValvePara
         if float(np.max(np.abs(np.delete(u_prior - u_base, first)))) > 0.05:
             origins.append(u_prior)   # the prior (packaged set or --params), if elsewhere
     for origin in origins:
-        trial = effect_scan(ext, effect, origin)
-        costs = fun(trial)
-        for level in range(1, _ZOOMS + 1):
-            if _time_constant_field(effect) is None or not np.isfinite(costs).any():
-                break
-            zoom = effect_scan(ext, effect, origin, around=trial[int(np.argmin(costs))],
-                               level=level)
-            trial, costs = np.vstack([trial, zoom]), np.concatenate([costs, fun(zoom)])
-        if np.isfinite(costs).any():
-            best = int(np.argmin(costs))
-            starts.append(trial[best].copy())
-            fractions.append(float(trial[best, first]))
-            scanned.append((trial[best].copy(), float(costs[best])))
+        found = _scan_best(ext, effect, origin, fun)
+        if found is not None:
+            starts.append(found[0].copy())
+            fractions.append(float(found[0][first]))
+            scanned.append(found)
     coarse = replace(settings, restarts=0)
     res = direct_search(fun, np.array(starts), coarse, progress=progress,
                         label=f'refit {effect}', fixed=np.array([first]))
     if bar_cost is not None and not min([res.cost] + [c for _, c in scanned]) < bar_cost:
-        return ext.params(res.u), res.cost, ext, True
+        return RefitResult(ext.params(res.u), res.cost, ext, stopped=True)
     if rank_data is not None and scanned:
         points = np.array([res.u] + [u for u, _ in scanned])
         ranked = unit_objective(ext, rank_data)(points)
@@ -349,98 +417,17 @@ def refit_effect_or_stop(space: ParameterSpace, data: FitData, params: ValvePara
         if pick > 0:   # a scanned point beats the profile's best on the whole fit window
             u_pick, c_pick = scanned[pick - 1]
             res = replace(res, u=u_pick, cost=c_pick)
-    # Fine profile around the best trial amount, between its neighbours on the grid, from
-    # the baseline parameters that amount found; then restarts that free everything
-    # (without this second look the free restarts rarely leave the grid value: the effect
-    # and the baseline parameters have to move together).
-    grid = np.array(sorted(set(fractions)))
-    k = int(np.argmin(np.abs(grid - res.u[first])))
-    lo = grid[k - 1] if k > 0 else 0.0
-    hi = grid[k + 1] if k + 1 < grid.size else 1.0
-    fine = []
-    for frac in (lo + 0.5 * (grid[k] - lo), grid[k] - 0.25 * (grid[k] - lo),
-                 grid[k] + 0.25 * (hi - grid[k]), grid[k] + 0.5 * (hi - grid[k])):
-        u = res.u.copy()
-        u[first] = frac
-        fine.append(u)
-    fine.append(res.u.copy())
-    res2 = direct_search(fun, np.array(fine), replace(settings, initial_step=0.5 *
-                                                      settings.initial_step),
+    d = math.nan
+    if screen is not None:
+        d = screen(ext.params(res.u))
+        if not d < SCREEN_DBIC:
+            return RefitResult(ext.params(res.u), res.cost, ext, screen_dbic=d)
+    res2 = direct_search(fun, _fine_starts(res.u, fractions, first),
+                         replace(settings, initial_step=0.5 * settings.initial_step),
                          progress=progress, label=f'refit {effect} (fine)',
                          fixed=np.array([first]))
     best = res2 if res2.cost <= res.cost else res
-    return ext.params(best.u), best.cost, ext, False
-
-
-#: Resolution floor, relative to each file's current range (0.1 %: 1.1 mA on a 24 V step
-#: of the Table 2 valve): below it two models are equal and a residual is not structure.
-#: It is the accuracy of the current sensing such records come from (shunt + ADC, 0.1-1 %
-#: of range) and of the order of the baseline search's own tolerance. It adds to the MAEs
-#: the BIC compares and floors the noise estimate: without it a noise-free record
-#: (valve_simulate) made a 0.4 mA extrapolation miss of the baseline (0.03 % of range)
-#: look like 23 000 x the noise, and leakage_inductance was claimed on the nominal valve
-#: (2026-11-25, 30 ms steps at 24 and 15 V). Noisy records (noise >= 1 mA) hardly move.
-MAE_FLOOR_FRACTION = 1e-3
-
-
-def _dbic(base_mae: dict[str, float], aug_mae: dict[str, float], counts: dict[str, int],
-          p: int, floors: dict[str, float] | None = None) -> float:
-    """Laplace-likelihood BIC difference (augmented minus baseline), per-file MAEs."""
-    total = sum(counts.values())
-    d = 0.0
-    for name, n in counts.items():
-        f = floors.get(name, 0.0) if floors else 0.0
-        b, a = base_mae[name] + f, aug_mae[name] + f
-        if b > 0 and a > 0:
-            d += 2.0 * n * math.log(a / b)
-    return d + p * math.log(max(total, 2.0))
-
-
-def _effective_counts(data: FitData, params: ValveParameters) -> dict[str, float]:
-    """Samples of each file divided by the correlation time ``(1 + rho) / (1 - rho)`` of
-    the residual of ``params`` (rho: lag-1 autocorrelation, capped at 0.999): a smooth,
-    correlated residual (a noise-free record, a structured misfit) has few independent
-    samples, and the BIC must not count every one of them as evidence."""
-    out = {}
-    for m, v, r in zip(data.measurements, data.valid, data.residuals(params)):
-        x = r[np.isfinite(r)]
-        rho = 0.0
-        if x.size > 4:
-            x = x - x.mean()
-            den = float(x @ x)
-            rho = float(x[:-1] @ x[1:]) / den if den > 0 else 0.999
-        rho = min(max(rho, 0.0), 0.999)
-        out[m.name] = int(v.sum()) * (1.0 - rho) / (1.0 + rho)
-    return out
-
-
-def _floors(data: FitData) -> dict[str, float]:
-    out = {}
-    for m, v in zip(data.measurements, data.valid):
-        c = m.current_a[v]
-        out[m.name] = MAE_FLOOR_FRACTION * float(np.ptp(c)) if c.size else 0.0
-    return out
-
-
-def _noise_per_file(data: FitData, params: ValveParameters) -> list[float]:
-    """Noise of each file, estimated once from the baseline residual [A], at least the
-    resolution floor (:data:`MAE_FLOOR_FRACTION` of the file's current range)."""
-    floors = _floors(data)
-    return [max(noise_std(r), floors[m.name])
-            for m, r in zip(data.measurements, data.residuals(params))]
-
-
-def _structured_energy(data: FitData, params: ValveParameters, noise: list[float]) -> float:
-    """Mean over files of the residual energy beyond the noise [A^2].
-
-    The same noise estimate (the baseline's) is used for every model compared, so the
-    difference between two models is not blurred by two noise estimates.
-    """
-    vals = []
-    for r, s in zip(data.residuals(params), noise):
-        ok = np.isfinite(r)
-        vals.append(max(float(np.mean(r[ok] ** 2)) - s ** 2, 0.0))
-    return float(np.mean(vals))
+    return RefitResult(ext.params(best.u), best.cost, ext, screen_dbic=d)
 
 
 def _has_release(m: object) -> bool:
@@ -453,179 +440,296 @@ def _has_release(m: object) -> bool:
     return bool(np.any(v[first:] < 0.1 * v.max()))
 
 
+#: A refit whose coarse profile leaves the fit criterion's dBIC at or above this stops
+#: there (:func:`refit_effect`'s ``screen``): to be kept it would need the fine profile to
+#: gain more than ``-DBIC_THRESHOLD`` more, and the fine profile only moves the amount
+#: between neighbouring trial amounts, which changes the cost of an effect the trial
+#: amounts miss by a fraction of a per cent.
+SCREEN_DBIC = 0.0
 #: A runner-up that gains this share of the winner's validation gain cannot be told apart.
 INDISTINGUISHABLE = 0.8
 #: Structured RMS left after the claimed effect, relative to the noise, above which the
 #: claim is only of low confidence (something else is at work, maybe outside the list).
 REMAINING_STRUCTURE = 1.0
+#: Share of the structure the claimed effect must remove for confidence high.
+HIGH_CONFIDENCE_EXPLAINED = 0.7
+#: Share of the structure removed below which some of it is reported as unexplained.
+FULLY_EXPLAINED = 0.9
+
+
+@dataclass
+class Reference:
+    """The baseline the candidates are judged against (:func:`select`).
+
+    Attributes
+    ----------
+    fit_errors, validation_errors : ErrorFigures
+        The baseline's errors on the fit and validation data (None without validation).
+    fit_floors, validation_floors, judge_floors : dict
+        Resolution floor of each file [A] (``judge_floors``: of ``judge``).
+    judge : FitData
+        The data the structure is judged on: the validation data, else the fit data.
+    noise : list of float
+        Noise of each file of ``judge`` from the baseline residual [A].
+    structured_energy : float
+        The baseline residual's energy beyond the noise on ``judge`` [A^2].
+    """
+
+    fit_errors: ErrorFigures
+    validation_errors: ErrorFigures | None
+    fit_floors: dict[str, float]
+    validation_floors: dict[str, float]
+    judge_floors: dict[str, float]
+    judge: FitData
+    noise: list[float]
+    structured_energy: float
+
+
+def _reference(fit: FitData, val: FitData | None, baseline: ValveParameters) -> Reference:
+    judge = val if val is not None else fit
+    noise = noise_per_file(judge, baseline)
+    fit_floors = resolution_floors(fit)
+    val_floors = resolution_floors(val) if val is not None else {}
+    return Reference(fit_errors=fit.errors(baseline),
+                     validation_errors=val.errors(baseline) if val is not None else None,
+                     fit_floors=fit_floors, validation_floors=val_floors,
+                     judge_floors=val_floors if val is not None else fit_floors,
+                     judge=judge, noise=noise,
+                     structured_energy=structured_energy(judge, baseline, noise))
+
+
+def _judge_candidate(c: CandidateResult, ref: Reference, fit: FitData, val: FitData | None,
+                     at_bound: list[str], space: ParameterSpace | None) -> None:
+    """Apply the keep rule to one refitted candidate: its errors, dBICs, the structure it
+    explains, ``kept`` and the reason in words (set on ``c``)."""
+    p = len(c.fields)
+    # Independent samples are counted in the residual of the model under test (the
+    # augmented one): the baseline's misfit is the very structure the candidate may
+    # remove, and counted there it would leave a handful of samples and hide a candidate
+    # that removes most of the error. A candidate that does not fit keeps a structured
+    # residual, so its count stays small.
+    aug_fit = fit.errors(c.params)
+    c.fit_cost = sum(aug_fit.mae_per_file.values())
+    c.fit_gain = 1.0 - c.fit_cost / sum(ref.fit_errors.mae_per_file.values())
+    c.dbic_fit = delta_bic(ref.fit_errors.mae_per_file, aug_fit.mae_per_file,
+                           effective_counts(fit, c.params), p, ref.fit_floors)
+    if val is not None and ref.validation_errors is not None:
+        aug_val = val.errors(c.params)
+        c.val_cost = sum(aug_val.mae_per_file.values())
+        c.val_gain = 1.0 - c.val_cost / sum(ref.validation_errors.mae_per_file.values())
+        c.dbic_val = delta_bic(ref.validation_errors.mae_per_file, aug_val.mae_per_file,
+                               effective_counts(val, c.params), p, ref.validation_floors)
+    struct_aug = structured_energy(ref.judge, c.params, ref.noise)
+    c.structure_explained = (1.0 - struct_aug / ref.structured_energy
+                             if ref.structured_energy > 0 else 0.0)
+    reasons = []
+    if not c.dbic_fit < DBIC_THRESHOLD:
+        reasons.append(f'fit dBIC {c.dbic_fit:.1f} not below {DBIC_THRESHOLD:g}')
+    if val is not None:
+        if not c.dbic_val < DBIC_THRESHOLD:
+            reasons.append(f'validation dBIC {c.dbic_val:.1f} not below '
+                           f'{DBIC_THRESHOLD:g}')
+        if not c.val_gain >= MIN_VALIDATION_GAIN:
+            reasons.append(f'validation error falls {100 * c.val_gain:.2f} %, less than '
+                           f'{100 * MIN_VALIDATION_GAIN:g} %')
+    if at_bound and space is not None:
+        still = [n for n in fit.at_bound(space, c.params) if n in space.names]
+        if still:
+            reasons.append('its refit keeps baseline parameters at a search bound ('
+                           + ', '.join(still) + '): a misfit, not an effect')
+    c.kept = not reasons
+    c.reason = 'pays for its parameters on fit and validation data' if c.kept else \
+        '; '.join(reasons)
+
+
+@dataclass
+class Structure:
+    """The baseline residual's structure on the judging data (:func:`select`).
+
+    Attributes
+    ----------
+    rms_a : float
+        Structured RMS beyond the noise [A].
+    noise_std_a : float
+        Median noise of the files [A].
+    ljung_box_p : float
+        Smallest Ljung-Box p-value of the files.
+    floor_rms_a : float
+        Median resolution floor of the files [A].
+    sizeable : bool
+        The structured RMS exceeds :data:`STRUCTURE_FRACTION` of the noise.
+    structured : bool
+        Sizeable, or far from white while above the resolution floor.
+    """
+
+    rms_a: float
+    noise_std_a: float
+    ljung_box_p: float
+    floor_rms_a: float
+    sizeable: bool
+    structured: bool
+
+
+def _structure(ref: Reference, baseline: ValveParameters) -> Structure:
+    """Structure: clearly more residual than noise, or a residual far from white -- the
+    latter only when the residual is above the resolution floor (a noise-free record's
+    residual of numerics is smooth, hence "not white", and means nothing)."""
+    base_res = ref.judge.residuals(baseline)
+    sigma = float(np.median(ref.noise))
+    lb_p = min(ljung_box(r)[1] for r in base_res)
+    floor_rms = float(np.median(list(ref.judge_floors.values()) or [0.0]))
+    base_rms = math.sqrt(float(np.mean([np.mean(r[np.isfinite(r)] ** 2) for r in base_res])))
+    sizeable = math.sqrt(ref.structured_energy) > STRUCTURE_FRACTION * sigma
+    structured = sizeable or (math.isfinite(lb_p) and lb_p < WHITENESS_P
+                              and base_rms > floor_rms)
+    return Structure(rms_a=math.sqrt(ref.structured_energy), noise_std_a=sigma,
+                     ljung_box_p=lb_p, floor_rms_a=floor_rms, sizeable=sizeable,
+                     structured=structured)
+
+
+@dataclass
+class Verdict:
+    """The answer of :func:`select` before the notes common to every answer."""
+
+    effect: str
+    confidence: str
+    params: ValveParameters
+    unexplained: bool
+    evidence: list[str]
+
+
+def _gain(c: CandidateResult) -> float:
+    """The candidate's validation gain, its fit gain without validation data."""
+    return c.val_gain if math.isfinite(c.val_gain) else c.fit_gain
+
+
+def _verdict_nothing_kept(ranked: list[CandidateResult], st: Structure,
+                          baseline: ValveParameters) -> Verdict:
+    evidence = ['no candidate effect pays for its extra parameters on both the fit and the '
+                'validation data']
+    if st.structured:
+        evidence.append(
+            f'but the baseline residual is structured ({1e3 * st.rms_a:.2f} '
+            f'mA RMS beyond {1e3 * st.noise_std_a:.2f} mA noise, Ljung-Box p = '
+            f'{st.ljung_box_p:.2g}): something the candidate list does not hold is at work; '
+            'see the residual analysis')
+    best = ranked[0] if ranked else None
+    if best is not None and math.isfinite(best.val_gain):
+        evidence.append(f'best candidate {best.effect}: validation error '
+                        f'{100 * best.val_gain:+.2f} % ({best.reason})')
+    return Verdict('none', 'low' if st.structured else 'high', baseline, st.structured,
+                   evidence)
+
+
+def _verdict_kept(kept: list[CandidateResult], st: Structure, baseline: ValveParameters,
+                  at_bound: list[str]) -> Verdict:
+    best = kept[0]
+    # The share of structure explained only means something when the baseline residual
+    # has structure; on a near-white residual the two criteria decide alone.
+    if st.sizeable and best.structure_explained < MIN_EXPLAINED:
+        return Verdict('none', 'low', baseline, st.structured, [
+            f'{best.effect} lowers the validation error by {100 * best.val_gain:.1f} % '
+            f'but removes only {100 * best.structure_explained:.0f} % of the residual '
+            'structure: not claimed; the residual points to an effect outside the '
+            'candidate list'])
+    evidence = []
+    close = [c for c in kept[1:] if _gain(c) > INDISTINGUISHABLE * _gain(best)]
+    weak = not st.sizeable or best.structure_explained < HIGH_CONFIDENCE_EXPLAINED
+    confidence = 'medium' if weak else 'high'
+    if close:
+        confidence = 'low'
+        evidence.append(
+            'the data cannot separate ' + ' and '.join(
+                [best.effect] + [c.effect for c in close]) + ': '
+            + ', '.join(f'{c.effect} gains {100 * _gain(c):.1f} %' for c in [best] + close)
+            + f' (within {100 * (1 - INDISTINGUISHABLE):.0f} %); confidence low')
+    if at_bound:
+        confidence = 'low' if confidence == 'low' else 'medium'
+        evidence.append('the baseline had parameters at a search bound ('
+                        + ', '.join(at_bound) + '); the augmented model brings them '
+                        'inside, so the claim stands, with at most medium confidence')
+    if not st.sizeable:
+        evidence.append('the baseline residual is hardly above the noise: the effect '
+                        'is small and the hold-out gain is the main evidence')
+    evidence.append(
+        f'{best.effect} lowers the validation error by {100 * best.val_gain:.1f} % '
+        f'(fit {100 * best.fit_gain:.1f} %), dBIC fit {best.dbic_fit:.0f}, '
+        f'validation {best.dbic_val:.0f}, and removes '
+        f'{100 * best.structure_explained:.0f} % of the residual structure')
+    if len(kept) > 1:
+        evidence.append(f'runner-up {kept[1].effect}: validation '
+                        f'{100 * kept[1].val_gain:.1f} %')
+    return Verdict(best.effect, confidence, best.params,
+                   st.sizeable and best.structure_explained < FULLY_EXPLAINED, evidence)
 
 
 def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
            baseline: ValveParameters, *, baseline_at_bound: list[str] | None = None,
            space: ParameterSpace | None = None) -> Diagnosis:
-    """Apply the keep rule (module notes) and decide the diagnosis."""
-    floors_fit = _floors(fit)
-    floors_val = _floors(val) if val is not None else {}
+    """Apply the keep rule (module notes) and decide the diagnosis.
+
+    Parameters
+    ----------
+    candidates : list of CandidateResult
+        The candidates, refitted or not (``params`` set on the refitted ones).
+    fit, val : FitData
+        Fit and validation data (``val`` None: the fit criterion alone).
+    baseline : ValveParameters
+        The baseline optimum.
+    baseline_at_bound : list of str, optional
+        Baseline parameters at a search bound that the data determine (a misfit).
+    space : ParameterSpace, optional
+        The baseline space (to tell whether a refit keeps them at the bound).
+
+    Returns
+    -------
+    Diagnosis
+        ``candidates`` ranked by gain, best first.
+    """
     at_bound = list(baseline_at_bound or [])
-    counts_fit = _effective_counts(fit, baseline)
-    base_fit = fit.errors(baseline)
-    base_val = val.errors(baseline) if val is not None else None
-    counts_val = _effective_counts(val, baseline) if val is not None else {}
-    judge = val if val is not None else fit
-    noise = _noise_per_file(judge, baseline)
-    struct_base = _structured_energy(judge, baseline, noise)
+    ref = _reference(fit, val, baseline)
     for c in candidates:
         if not c.refitted or c.params is None:
             c.reason = c.reason or 'not refitted (signature too weak)'
             continue
-        p = len(c.fields)
-        # Independent samples are counted in the residual of the model under test (the
-        # augmented one): the baseline's misfit is the very structure the candidate may
-        # remove, and counted there it left a handful of samples, so a candidate that cut
-        # the error by 84 % on fit and validation missed dBIC -10. A candidate that does
-        # not fit keeps a structured residual, so its count stays small as before.
-        counts_fit = _effective_counts(fit, c.params)
-        counts_val = _effective_counts(val, c.params) if val is not None else {}
-        aug_fit = fit.errors(c.params)
-        c.fit_cost = sum(aug_fit.mae_per_file.values())
-        c.fit_gain = 1.0 - c.fit_cost / sum(base_fit.mae_per_file.values())
-        c.dbic_fit = _dbic(base_fit.mae_per_file, aug_fit.mae_per_file, counts_fit, p,
-                           floors_fit)
-        if val is not None and base_val is not None:
-            aug_val = val.errors(c.params)
-            c.val_cost = sum(aug_val.mae_per_file.values())
-            c.val_gain = 1.0 - c.val_cost / sum(base_val.mae_per_file.values())
-            c.dbic_val = _dbic(base_val.mae_per_file, aug_val.mae_per_file, counts_val, p,
-                               floors_val)
-        struct_aug = _structured_energy(judge, c.params, noise)
-        c.structure_explained = (1.0 - struct_aug / struct_base) if struct_base > 0 else 0.0
-        reasons = []
-        if not c.dbic_fit < DBIC_THRESHOLD:
-            reasons.append(f'fit dBIC {c.dbic_fit:.1f} not below {DBIC_THRESHOLD:g}')
-        if val is not None:
-            if not c.dbic_val < DBIC_THRESHOLD:
-                reasons.append(f'validation dBIC {c.dbic_val:.1f} not below '
-                               f'{DBIC_THRESHOLD:g}')
-            if not c.val_gain >= MIN_VALIDATION_GAIN:
-                reasons.append(f'validation error falls {100 * c.val_gain:.2f} %, less than '
-                               f'{100 * MIN_VALIDATION_GAIN:g} %')
-        if at_bound and space is not None:
-            still = [n for n in fit.at_bound(space, c.params) if n in space.names]
-            if still:
-                reasons.append('its refit keeps baseline parameters at a search bound ('
-                               + ', '.join(still) + '): a misfit, not an effect')
-        c.kept = not reasons
-        c.reason = 'pays for its parameters on fit and validation data' if c.kept else \
-            '; '.join(reasons)
+        _judge_candidate(c, ref, fit, val, at_bound, space)
     ranked = sorted(candidates, key=lambda c: -(c.val_gain if math.isfinite(c.val_gain)
                                                 else c.fit_gain if math.isfinite(c.fit_gain)
                                                 else -math.inf))
     kept = [c for c in ranked if c.kept]
-    evidence: list[str] = []
+    st = _structure(ref, baseline)
     numbers: dict[str, object] = {
-        'baseline_validation_structured_rms_a': math.sqrt(struct_base),
+        'baseline_validation_structured_rms_a': st.rms_a,
         'rule': (f'keep if dBIC(fit) < {DBIC_THRESHOLD:g} and dBIC(validation) < '
                  f'{DBIC_THRESHOLD:g} and validation MAE falls >= '
                  f'{100 * MIN_VALIDATION_GAIN:g} %; claim if it also removes >= '
                  f'{100 * MIN_EXPLAINED:g} % of the validation residual energy beyond noise'),
+        'resolution_floor_a': st.floor_rms_a,
+        'baseline_ljung_box_p_min': st.ljung_box_p,
+        'baseline_noise_std_a': st.noise_std_a,
     }
-    base_res = judge.residuals(baseline)
-    sigma = float(np.median(noise))
-    lb_p = min(ljung_box(r)[1] for r in base_res)
-    # Structure: clearly more residual than noise, or a residual far from white -- the
-    # latter only when the residual is above the resolution floor (a noise-free record's
-    # residual of numerics is smooth, hence "not white", and means nothing).
-    floors_judge = floors_val if val is not None else floors_fit
-    floor_rms = float(np.median(list(floors_judge.values()) or [0.0]))
-    base_rms = math.sqrt(float(np.mean([np.mean(r[np.isfinite(r)] ** 2) for r in base_res])))
-    sizeable = math.sqrt(struct_base) > STRUCTURE_FRACTION * sigma
-    structured = sizeable or (math.isfinite(lb_p) and lb_p < WHITENESS_P
-                              and base_rms > floor_rms)
-    numbers['resolution_floor_a'] = floor_rms
-    numbers['baseline_ljung_box_p_min'] = lb_p
-    numbers['baseline_noise_std_a'] = sigma
-    unexplained = structured
-    if not kept:
-        effect, params = 'none', baseline
-        confidence = 'low' if structured else 'high'
-        evidence.append('no candidate effect pays for its extra parameters on both the fit '
-                        'and the validation data')
-        if structured:
-            evidence.append(
-                f'but the baseline residual is structured ({1e3 * math.sqrt(struct_base):.2f} '
-                f'mA RMS beyond {1e3 * sigma:.2f} mA noise, Ljung-Box p = {lb_p:.2g}): '
-                'something the candidate list does not hold is at work; see the residual '
-                'analysis')
-        best = ranked[0] if ranked else None
-        if best is not None and math.isfinite(best.val_gain):
-            evidence.append(f'best candidate {best.effect}: validation error '
-                            f'{100 * best.val_gain:+.2f} % ({best.reason})')
-    else:
-        best = kept[0]
-        # The share of structure explained only means something when the baseline
-        # residual has structure; on a near-white residual the two criteria decide alone.
-        if sizeable and best.structure_explained < MIN_EXPLAINED:
-            effect, confidence, params = 'none', 'low', baseline
-            evidence.append(
-                f'{best.effect} lowers the validation error by {100 * best.val_gain:.1f} % '
-                f'but removes only {100 * best.structure_explained:.0f} % of the residual '
-                'structure: not claimed; the residual points to an effect outside the '
-                'candidate list')
-        else:
-            effect, params = best.effect, best.params
-            runner = kept[1] if len(kept) > 1 else None
-            gain_of = (lambda c: c.val_gain if math.isfinite(c.val_gain) else c.fit_gain)
-            close = [c for c in kept[1:] if gain_of(c) > INDISTINGUISHABLE * gain_of(best)]
-            weak = not sizeable or best.structure_explained < 0.7
-            confidence = 'medium' if weak else 'high'
-            if close:
-                confidence = 'low'
-                evidence.append(
-                    'the data cannot separate ' + ' and '.join(
-                        [best.effect] + [c.effect for c in close]) + ': '
-                    + ', '.join(f'{c.effect} gains {100 * gain_of(c):.1f} %'
-                                for c in [best] + close)
-                    + f' (within {100 * (1 - INDISTINGUISHABLE):.0f} %); confidence low')
-            if at_bound:
-                confidence = 'low' if confidence == 'low' else 'medium'
-                evidence.append('the baseline had parameters at a search bound ('
-                                + ', '.join(at_bound) + '); the augmented model brings them '
-                                'inside, so the claim stands, with at most medium confidence')
-            if not sizeable:
-                evidence.append('the baseline residual is hardly above the noise: the effect '
-                                'is small and the hold-out gain is the main evidence')
-            evidence.append(
-                f'{best.effect} lowers the validation error by {100 * best.val_gain:.1f} % '
-                f'(fit {100 * best.fit_gain:.1f} %), dBIC fit {best.dbic_fit:.0f}, '
-                f'validation {best.dbic_val:.0f}, and removes '
-                f'{100 * best.structure_explained:.0f} % of the residual structure')
-            if runner is not None:
-                evidence.append(f'runner-up {runner.effect}: validation '
-                                f'{100 * runner.val_gain:.1f} %')
-            unexplained = sizeable and best.structure_explained < 0.9
-    if at_bound and effect == 'none':
-        evidence.append('baseline parameters at a search bound (' + ', '.join(at_bound)
-                        + '): the baseline misfits; its residual is not read as a missing '
-                        'effect')
-        confidence = 'low'
-        unexplained = True
+    v = (_verdict_kept(kept, st, baseline, at_bound) if kept
+         else _verdict_nothing_kept(ranked, st, baseline))
+    if at_bound and v.effect == 'none':
+        v.evidence.append('baseline parameters at a search bound (' + ', '.join(at_bound)
+                          + '): the baseline misfits; its residual is not read as a missing '
+                          'effect')
+        v.confidence, v.unexplained = 'low', True
     if not any(_has_release(m) for m in fit.measurements + (val.measurements if val else [])):
-        evidence.append('no file switches the voltage off after the valve opened: without a '
-                        'closing stroke coulomb_friction acts exactly like a larger spring '
-                        'pre-tension (delta + F_c/k) and cannot be detected')
+        v.evidence.append('no file switches the voltage off after the valve opened: without a '
+                          'closing stroke coulomb_friction acts exactly like a larger spring '
+                          'pre-tension (delta + F_c/k) and cannot be detected')
     numbers['baseline_at_search_bound'] = at_bound
     indist = []
-    if effect != 'none':
-        gain_of = (lambda c: c.val_gain if math.isfinite(c.val_gain) else c.fit_gain)
-        b0 = kept[0]
-        indist = [c.effect for c in kept[1:] if gain_of(c) > INDISTINGUISHABLE * gain_of(b0)]
+    if v.effect != 'none':
+        indist = [c.effect for c in kept[1:] if _gain(c) > INDISTINGUISHABLE * _gain(kept[0])]
         numbers['indistinguishable_from'] = indist
-    return Diagnosis(effect=effect, confidence=confidence, candidates=ranked,
-                     evidence=evidence, numbers=numbers, params=params,
-                     unexplained_structure=bool(unexplained),
-                     kept_effects=[effect] if effect != 'none' else [],
-                     indistinguishable=indist, judge=judge,
-                     base_mae={'noise': noise, 'struct_base': struct_base})
+    return Diagnosis(effect=v.effect, confidence=v.confidence, candidates=ranked,
+                     evidence=v.evidence, numbers=numbers, params=v.params,
+                     unexplained_structure=bool(v.unexplained),
+                     kept_effects=[v.effect] if v.effect != 'none' else [],
+                     indistinguishable=indist, judge=ref.judge,
+                     base_mae={'noise': ref.noise, 'struct_base': ref.structured_energy})
 
 
 def describe_remaining(diag: Diagnosis, augmented: object) -> None:
@@ -660,17 +764,24 @@ def second_effect(diag: Diagnosis, space: ParameterSpace, fit: FitData, val: Fit
         return
     other = others[0]
     ext = effect_space(space, diag.effect)
-    p2, _, _ = refit_effect(ext, fit.serial(), diag.params, other.effect, settings)
-    counts_fit = _effective_counts(fit, p2)   # counted in the model under test (select)
-    one_fit, two_fit = fit.errors(diag.params), fit.errors(p2)
+    one_fit = fit.errors(diag.params)
     p = len(other.fields)
-    dfit = _dbic(one_fit.mae_per_file, two_fit.mae_per_file, counts_fit, p, _floors(fit))
+    floors = resolution_floors(fit)
+
+    def fit_dbic(params: ValveParameters) -> float:
+        # samples counted in the model under test, as select() counts them
+        return delta_bic(one_fit.mae_per_file, fit.errors(params).mae_per_file,
+                         effective_counts(fit, params), p, floors)
+    p2 = refit_effect(ext, fit.serial(), diag.params, other.effect, settings,
+                      screen=fit_dbic).params
+    dfit = fit_dbic(p2)
     dval = math.nan
     gain_val = math.nan
     if val is not None:
-        counts_val = _effective_counts(val, p2)
+        counts_val = effective_counts(val, p2)
         one_val, two_val = val.errors(diag.params), val.errors(p2)
-        dval = _dbic(one_val.mae_per_file, two_val.mae_per_file, counts_val, p, _floors(val))
+        dval = delta_bic(one_val.mae_per_file, two_val.mae_per_file, counts_val, p,
+                         resolution_floors(val))
         gain_val = 1.0 - sum(two_val.mae_per_file.values()) / sum(
             one_val.mae_per_file.values())
     val_ok = val is None or (dval < DBIC_THRESHOLD and gain_val >= MIN_VALIDATION_GAIN)

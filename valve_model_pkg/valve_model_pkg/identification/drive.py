@@ -23,7 +23,6 @@ whether it is pinned down and whether it sits at a bound (a sign of misfit).
 from __future__ import annotations
 
 import math
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -68,6 +67,14 @@ class DriveReport:
                 'pinned_down': self.pinned, 'at_search_bound': self.at_bound,
                 'carried_by_the_data': self.carried, 'notes': self.notes,
                 'nominal': {k: getattr(ElectronicsConfig(), k) for k in DRIVE_BOUNDS}}
+
+
+@dataclass
+class DriveFit:
+    """Electronics constants and their cost [A] (:func:`_search_drive`)."""
+
+    electronics: ElectronicsConfig
+    cost: float
 
 
 def _hold_samples(data: FitData) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -115,11 +122,76 @@ def _costs(data: FitData, raw: np.ndarray, configs: list[ElectronicsConfig]) -> 
         view = data.serial()
         view.electronics = cfg
         return float(view.cost(raw[None, :])[0])
-    workers = max(1, min(len(configs), os.cpu_count() or 1))
+    workers = max(1, min(len(configs), data.workers))
     if workers == 1:
         return np.array([one(c) for c in configs])
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return np.array(list(pool.map(one, configs)))
+
+
+def _search_drive(data: FitData, params: ValveParameters, base: ElectronicsConfig,
+                  bounds: list[ParameterBound], effort: int) -> DriveFit:
+    """Bounded direct search of the electronics constants of ``bounds`` from ``base``, the
+    valve held at ``params``."""
+    raw = params.to_vector()
+
+    def configs(u: np.ndarray) -> list[ElectronicsConfig]:
+        out = []
+        for row in np.atleast_2d(u):
+            out.append(base.replace(**{b.name: float(b.from_unit(np.array(x)))
+                                       for b, x in zip(bounds, row)}))
+        return out
+
+    best = DriveFit(base, float(_costs(data, raw, [base])[0]))
+    if bounds:
+        u0 = np.array([b.to_unit(getattr(base, b.name)) for b in bounds])
+        settings = SearchSettings(global_samples=0, starts=1, max_iterations=effort,
+                                  initial_step=0.15, restarts=1, stall_iterations=25,
+                                  tolerance=1e-4)
+        res = direct_search(lambda u: _costs(data, raw, configs(u)), u0, settings,
+                            label='drive electronics')
+        if res.cost < best.cost:
+            best = DriveFit(configs(res.u)[0], res.cost)
+    return best
+
+
+def _intervals(data: FitData, params: ValveParameters, cfg: ElectronicsConfig,
+               names: list[str], noise_a: float | None, inflation: float
+               ) -> dict[str, float | None]:
+    """95 % half-widths [%] of the constants ``names`` from d(current)/d(ln value), one
+    run per +-1 % step (None where the current does not move)."""
+    from .sensitivity import noise_std
+    raw = params.to_vector()
+    values = {n: float(getattr(cfg, n)) for n in names}
+    views = []
+    for n in names:
+        for sgn in (1.0, -1.0):
+            v = data.serial()
+            v.electronics = cfg.replace(**{n: values[n] * math.exp(sgn * 0.01)})
+            views.append(v)
+    workers = max(1, min(len(views), data.workers))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        sims = list(pool.map(lambda v: v.simulate(raw[None, :]), views))
+    cols = []
+    for j in range(len(names)):
+        plus, minus = sims[2 * j], sims[2 * j + 1]
+        cols.append(np.concatenate([(p[0][0] - q[0][0])[valid] / 0.02
+                                    for p, q, valid in zip(plus, minus, data.valid)]))
+    jac = np.column_stack(cols)
+    view = data.serial()
+    view.electronics = cfg
+    res_now = view.residuals(params)
+    sigma = noise_a if noise_a else float(np.nanmedian([noise_std(r) for r in res_now]))
+    if not math.isfinite(sigma) or sigma <= 0:
+        sigma = 1e-3
+    fim = jac.T @ jac / sigma ** 2
+    try:
+        cov = np.linalg.pinv(fim)
+        std = 100.0 * np.sqrt(np.maximum(np.diag(cov), 0.0)) * inflation
+    except np.linalg.LinAlgError:
+        std = np.full(len(names), np.inf)
+    return {n: (None if fim[j, j] <= 0.0 else float(1.96 * std[j]))
+            for j, n in enumerate(names)}
 
 
 def fit_drive(data: FitData, params: ValveParameters, *, effort: int = 120,
@@ -140,7 +212,6 @@ def fit_drive(data: FitData, params: ValveParameters, *, effort: int = 120,
         Factor on the standard errors for a correlated/structured residual (the valve
         parameters' factor, :func:`.sensitivity.analyse_sensitivity`).
     """
-    from .sensitivity import noise_std
     carried = _carried(data)
     names = [n for n in DRIVE_BOUNDS if carried[n]]
     notes = []
@@ -155,76 +226,23 @@ def fit_drive(data: FitData, params: ValveParameters, *, effort: int = 120,
     if missing:
         notes.append('not carried by these records (held at their nominal values): '
                      + ', '.join(missing))
-    raw = params.to_vector()
     bounds = [ParameterBound(n, *DRIVE_BOUNDS[n]) for n in names]
-
-    def configs(u: np.ndarray) -> list[ElectronicsConfig]:
-        out = []
-        for row in np.atleast_2d(u):
-            out.append(base.replace(**{b.name: float(b.from_unit(np.array(x)))
-                                       for b, x in zip(bounds, row)}))
-        return out
-
-    best_cfg, best_cost = base, float(_costs(data, raw, [base])[0])
-    if names:
-        u0 = np.array([b.to_unit(getattr(base, b.name)) for b in bounds])
-        settings = SearchSettings(global_samples=0, starts=1, max_iterations=effort,
-                                  initial_step=0.15, restarts=1, stall_iterations=25,
-                                  tolerance=1e-4)
-        res = direct_search(lambda u: _costs(data, raw, configs(u)), u0, settings,
-                            label='drive electronics')
-        if res.cost < best_cost:
-            best_cfg, best_cost = configs(res.u)[0], res.cost
-    # Local intervals: d(current)/d(ln value), one run per +-1 % step.
-    values = {n: float(getattr(best_cfg, n)) for n in DRIVE_BOUNDS}
+    best = _search_drive(data, params, base, bounds, effort)
+    values = {n: float(getattr(best.electronics, n)) for n in DRIVE_BOUNDS}
     ci: dict[str, float | None] = {n: None for n in DRIVE_BOUNDS}
     at_bound = []
     for b in bounds:
         u = b.to_unit(values[b.name])
         if u <= AT_BOUND_FRACTION or u >= 1.0 - AT_BOUND_FRACTION:
             at_bound.append(b.name)
-    pinned: list[str] = []
     if names:
-        cfgs = []
-        for n in names:
-            for sgn in (1.0, -1.0):
-                cfgs.append(best_cfg.replace(**{n: values[n] * math.exp(sgn * 0.01)}))
-        cols = []
-        views = []
-        for cfg in cfgs:
-            v = data.serial()
-            v.electronics = cfg
-            views.append(v)
-        workers = max(1, min(len(views), os.cpu_count() or 1))
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            sims = list(pool.map(lambda v: v.simulate(raw[None, :]), views))
-        for j in range(len(names)):
-            plus, minus = sims[2 * j], sims[2 * j + 1]
-            cols.append(np.concatenate([(p[0][0] - q[0][0])[valid] / 0.02
-                                        for p, q, valid in zip(plus, minus, data.valid)]))
-        jac = np.column_stack(cols)
-        view = data.serial()
-        view.electronics = best_cfg
-        res_now = view.residuals(params)
-        sigma = noise_a if noise_a else float(np.nanmedian([noise_std(r) for r in res_now]))
-        if not math.isfinite(sigma) or sigma <= 0:
-            sigma = 1e-3
-        fim = jac.T @ jac / sigma ** 2
-        try:
-            cov = np.linalg.pinv(fim)
-            std = 100.0 * np.sqrt(np.maximum(np.diag(cov), 0.0)) * inflation
-        except np.linalg.LinAlgError:
-            std = np.full(len(names), np.inf)
-        for j, n in enumerate(names):
-            if fim[j, j] <= 0.0:
-                continue
-            ci[n] = float(1.96 * std[j])
-            if ci[n] < _PINNED_CI95_PCT and n not in at_bound:
-                pinned.append(n)
+        ci.update(_intervals(data, params, best.electronics, names, noise_a, inflation))
+    pinned = [n for n in names
+              if ci[n] is not None and ci[n] < _PINNED_CI95_PCT and n not in at_bound]
     if at_bound:
         notes.append('at a search bound (a sign of misfit, never reported pinned down): '
                      + ', '.join(at_bound))
-    return DriveReport(electronics=best_cfg, values=values,
+    return DriveReport(electronics=best.electronics, values=values,
                        bounds={n: DRIVE_BOUNDS[n] for n in DRIVE_BOUNDS}, ci95_pct=ci,
                        pinned=pinned, at_bound=at_bound, carried=carried, notes=notes,
-                       cost=best_cost)
+                       cost=best.cost)

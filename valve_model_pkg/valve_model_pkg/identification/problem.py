@@ -17,6 +17,8 @@ from __future__ import annotations
 import copy
 import math
 import os
+import threading
+from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -278,6 +280,8 @@ class ErrorFigures:
                 'mae_per_file_a': self.mae_per_file}
 
 
+#: Parameter sets whose residuals :meth:`FitData.residuals` keeps.
+RESIDUAL_CACHE = 32
 #: Smallest batch :meth:`FitData.cost` splits over threads.
 _SPLIT_MIN_BATCH = 2
 _WORKERS = os.cpu_count() or 1
@@ -363,10 +367,19 @@ class FitData:
                         for m, v in zip(self.measurements, self.valid)]
         self.durations = [float(w.sum()) for w in self.weights]
         self._count = [0]  # shared with serial() views, so threads' runs are counted too
+        #: False keeps every batch on the calling thread (see :meth:`serial`).
         self.parallel = True
+        #: Threads a small batch is split over (:meth:`cost`) and the drive electronics'
+        #: candidates run on.
+        self.workers = _WORKERS
         #: Drive electronics of the records through the electronics (identified
         #: separately, :mod:`.drive`); the same for every run of a batch.
         self.electronics = ElectronicsConfig()
+        # The residuals of the last parameter sets asked for (shared with serial()
+        # views): the stages after the search ask for the same models' residuals again
+        # (errors, noise, effective sample counts, structure), and a run is dear.
+        self._residuals: OrderedDict[tuple, list[np.ndarray]] = OrderedDict()
+        self._lock = threading.Lock()
 
     @property
     def through_electronics(self) -> bool:
@@ -409,12 +422,12 @@ class FitData:
         """Sum over files of the mean absolute current error [A], shape (m,)."""
         raw = np.atleast_2d(raw)
         m_rows = raw.shape[0]
-        if self.parallel and _SPLIT_MIN_BATCH <= m_rows < PARALLEL_MIN_BATCH and _WORKERS > 1:
+        if self.parallel and _SPLIT_MIN_BATCH <= m_rows < PARALLEL_MIN_BATCH and self.workers > 1:
             # The kernel runs batches below PARALLEL_MIN_BATCH on the calling thread (the
             # lock-step Nelder-Mead asks 2-7 points at a time): split them over threads,
             # each simulating without the GIL, so both cores work.
             view = self.serial()
-            parts = np.array_split(raw, min(_WORKERS, m_rows))
+            parts = np.array_split(raw, min(self.workers, m_rows))
             return np.concatenate(list(_pool().map(view.cost, parts)))
         total = np.zeros(raw.shape[0])
         for m, setup, w, T in zip(self.measurements, self.setups, self.weights,
@@ -428,10 +441,27 @@ class FitData:
         return np.where(np.isfinite(total), total, np.inf)
 
     def residuals(self, params: ValveParameters) -> list[np.ndarray]:
-        """Measured minus simulated current of each file [A] (nan where not measured)."""
-        sims = self.simulate(params.to_vector()[None, :])
-        return [np.where(v, m.current_a - c[0], np.nan)
-                for m, v, (c, _) in zip(self.measurements, self.valid, sims)]
+        """Measured minus simulated current of each file [A] (nan where not measured).
+
+        The last :data:`RESIDUAL_CACHE` parameter sets' residuals (under the electronics in
+        force) are kept and handed out again (read-only arrays)."""
+        raw = params.to_vector()
+        key = (raw.tobytes(), self.electronics)
+        with self._lock:
+            hit = self._residuals.get(key)
+            if hit is not None:
+                self._residuals.move_to_end(key)
+                return list(hit)
+        sims = self.simulate(raw[None, :])
+        out = [np.where(v, m.current_a - c[0], np.nan)
+               for m, v, (c, _) in zip(self.measurements, self.valid, sims)]
+        for r in out:
+            r.setflags(write=False)
+        with self._lock:
+            self._residuals[key] = out
+            while len(self._residuals) > RESIDUAL_CACHE:
+                self._residuals.popitem(last=False)
+        return list(out)
 
     def errors(self, params: ValveParameters) -> ErrorFigures:
         """IAE, RMSE and NRMSE of ``params`` on these files."""

@@ -33,12 +33,14 @@ from ..model.parameters import ValveParameters
 from .problem import GAP, PAPER_SYMBOLS, FitData, ParameterSpace, equivalent_gap_m
 
 __all__ = ['SensitivityReport', 'analyse_sensitivity', 'noise_std', 'equivalent_gap_m',
-           'residual_inflation', 'misfit_floor_pct']
+           'residual_inflation', 'misfit_floor_pct', 'perturbed_values',
+           'file_jacobians', 'current_jacobian', 'JACOBIAN_STEP']
 
 _PINNED_CI95_PCT = 5.0
 #: NRMSE [%] above which the intervals are floored at the NRMSE.
 _MISFIT_NRMSE_PCT = 5.0
-_REL_STEP = 0.01
+#: Relative step of the finite differences of the current [1].
+JACOBIAN_STEP = 0.01
 #: Further finite-difference steps that check the Jacobian for jumps (see
 #: analyse_sensitivity), and the spread of a column's size that counts as not smooth.
 _CHECK_STEPS = (0.003, 0.03)
@@ -95,8 +97,8 @@ class SensitivityReport:
         }
 
 
-def _perturbed_values(space: ParameterSpace, params: ValveParameters, step: float
-                      ) -> tuple[np.ndarray, np.ndarray]:
+def perturbed_values(space: ParameterSpace, params: ValveParameters, step: float
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Rows +-step (log) per free parameter, shape (2n, n), and each row pair's divisor.
 
     A parameter at 0 (an effect switched off) steps one-sidedly by ``step`` of its range.
@@ -116,36 +118,63 @@ def _perturbed_values(space: ParameterSpace, params: ValveParameters, step: floa
     return rows, denom
 
 
-def _jacobian(space: ParameterSpace, data: FitData, params: ValveParameters,
-              step: float = _REL_STEP) -> np.ndarray:
-    """d(current)/d(ln value) stacked over files, shape (n_valid_samples, n_params),
-    by central differences of ``step`` in the logarithm of each value."""
-    rows, denom = _perturbed_values(space, params, step)
+def file_jacobians(space: ParameterSpace, data: FitData, params: ValveParameters,
+                   step: float = JACOBIAN_STEP) -> list[np.ndarray]:
+    """d(current)/d(ln value) of each file, shape (n_samples, n_params), by central
+    differences of ``step`` in the logarithm of each value (one batch of simulations); an
+    infeasible step gives a zero column."""
+    rows, denom = perturbed_values(space, params, step)
     raw = space.raw_from_values(rows)
     ok = space.feasible(raw)
-    raw[~ok] = params.to_vector()  # an infeasible step becomes a zero column
-    blocks = []
-    for (cur, _), valid in zip(data.simulate(raw), data.valid):
-        c = cur[:, valid]
-        jb = np.empty((c.shape[1], space.size))
-        for j in range(space.size):
-            jb[:, j] = (c[2 * j] - c[2 * j + 1]) / denom[j]
-        blocks.append(jb)
-    return np.vstack(blocks)
+    raw[~ok] = params.to_vector()
+    n = space.size
+    return [np.column_stack([(c[2 * j] - c[2 * j + 1]) / denom[j] for j in range(n)])
+            for c, _ in data.simulate(raw)]
 
 
-def _white_variance(jac: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """White-noise variances of the relative parameters from ``jac`` at noise ``sigma``
-    (directions beyond _NULL_STD_PCT left out), and which parameters have weight > 0.25 in
-    such a direction."""
+def current_jacobian(space: ParameterSpace, data: FitData, params: ValveParameters,
+                     step: float = JACOBIAN_STEP) -> np.ndarray:
+    """:func:`file_jacobians` of the valid samples, stacked over the files, shape
+    (n_valid_samples, n_params)."""
+    return np.vstack([jb[valid] for jb, valid in zip(file_jacobians(space, data, params, step),
+                                                     data.valid)])
+
+
+@dataclass
+class _Information:
+    """The Fisher information's eigen-decomposition and white-noise variances."""
+
+    evals: np.ndarray
+    evecs: np.ndarray
+    null: np.ndarray
+    var: np.ndarray
+
+
+def _information(jac: np.ndarray, sigma: float) -> _Information:
+    """Eigen-directions of ``F = J^T J / sigma^2``, those beyond _NULL_STD_PCT (``null``),
+    and the white-noise variances of the relative parameters with them left out."""
     evals, evecs = np.linalg.eigh(jac.T @ jac / sigma ** 2)
     evals = np.maximum(evals, 0.0)
     std_dir = np.where(evals > 0, 100.0 / np.sqrt(np.maximum(evals, 1e-300)), np.inf)
     null = std_dir > _NULL_STD_PCT
     keep = ~null
     var = (evecs[:, keep] ** 2) @ (1.0 / evals[keep]) if keep.any() else np.zeros(jac.shape[1])
-    weight = (evecs[:, null] ** 2).sum(axis=1) if null.any() else np.zeros(jac.shape[1])
-    return var, weight > 0.25
+    return _Information(evals, evecs, null, var)
+
+
+def _null_weight(info: _Information) -> np.ndarray:
+    """Each parameter's weight in the directions the data cannot see."""
+    if not info.null.any():
+        return np.zeros(info.evecs.shape[0])
+    return (info.evecs[:, info.null] ** 2).sum(axis=1)
+
+
+def _white_variance(jac: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """White-noise variances of the relative parameters from ``jac`` at noise ``sigma``
+    (directions beyond _NULL_STD_PCT left out), and which parameters have weight > 0.25 in
+    such a direction."""
+    info = _information(jac, sigma)
+    return info.var, _null_weight(info) > 0.25
 
 
 def _weak_directions(names: list[str], evals: np.ndarray, evecs: np.ndarray
@@ -229,6 +258,81 @@ def misfit_floor_pct(jac: np.ndarray, residuals: list[np.ndarray], sigma: float,
     return 1.96 * 100.0 * std, r_s
 
 
+def _median_variance(var: np.ndarray, extra: dict[float, np.ndarray], sigma: float
+                     ) -> np.ndarray:
+    """The median of the variances at the three steps: one step that lands on a jump (too
+    tight) or on a plateau between jumps (too wide) does not decide; a column whose size
+    changes with the step is flagged (:func:`_rough`) and never reported pinned down."""
+    return np.median(np.vstack([var] + [np.where(n_x, 0.0, v_x) for v_x, n_x in
+                                        (_white_variance(jx, sigma) for jx in extra.values())]),
+                     axis=0)
+
+
+def _rough(names: list[str], jac: np.ndarray, extra: dict[float, np.ndarray],
+           notes: list[str]) -> list[str]:
+    """Parameters whose sensitivity changes by more than _ROUGH_RATIO with the step (a
+    note each is added to ``notes``)."""
+    rough = []
+    for j, n in enumerate(names):
+        rms = [float(np.sqrt(np.mean(jx[:, j] ** 2))) for jx in (jac, *extra.values())]
+        if min(rms) > 0.0 and max(rms) > _ROUGH_RATIO * min(rms):
+            rough.append(n)
+            notes_rough = ', '.join(f'{1e3 * r / 100.0:.3g}' for r in rms)
+            notes.append(f'the current is not a smooth function of {PAPER_SYMBOLS.get(n, n)} '
+                         f'here (mA per % at steps of {JACOBIAN_STEP:g}, '
+                         + ', '.join(f'{x:g}' for x in _CHECK_STEPS) + f': {notes_rough}; '
+                         'switching events of the drive electronics move): its interval '
+                         'is the median of the three, and it is not reported pinned down')
+    return rough
+
+
+def _equivalent_gap(names: list[str], params: ValveParameters, rel_std: dict[str, float],
+                    sens: dict[str, float | None], weak: list[dict[str, object]],
+                    notes: list[str]) -> dict[str, object]:
+    """With ``s`` among the free parameters: l_c, mu_r and x_t entered as not identifiable
+    (in ``rel_std``, ``sens``, ``weak``, ``notes``) and ``s`` as a derived entry."""
+    derived: dict[str, object] = {}
+    if GAP not in names:
+        return derived
+    for n in _GAP_GROUP:
+        rel_std[n] = math.inf
+        sens[n] = None
+    weak.insert(0, {'combination': 'l_c, mu_r, x_t at constant s = l_c/mu_r + 2 x_t',
+                    'components': {n: None for n in _GAP_GROUP}, 'rel_std_pct': None})
+    s_std = rel_std[GAP]
+    derived['equivalent_gap'] = {
+        'definition': 's = l_c / mu_r + 2 x_t', 'value_m': equivalent_gap_m(params),
+        'rel_std_pct': s_std if math.isfinite(s_std) else None,
+        'ci95_pct': None}  # set after the floors (the same as ci95_pct[s])
+    notes.append('l_c, mu_r and x_t enter the model only through s = l_c/mu_r + 2 x_t '
+                 '(eq. 4): no current measurement separates them. The search moves s; '
+                 'l_c and x_t are held at their measured values and mu_r follows.')
+    return derived
+
+
+def _floored_intervals(rel_std: dict[str, float], names: list[str], jac: np.ndarray,
+                       residuals: list[np.ndarray], sigma: float, var_white: np.ndarray,
+                       nrmse_pct: float | None, notes: list[str]) -> dict[str, float]:
+    """95 % half-widths [%]: ``1.96 rel_std``, floored by the residual's structure
+    (:func:`misfit_floor_pct`) and, for a model that misses by more than
+    _MISFIT_NRMSE_PCT of the range, by its NRMSE (it cannot pin anything tighter)."""
+    ci95 = {n: 1.96 * v for n, v in rel_std.items()}
+    floor, r_struct = misfit_floor_pct(jac, residuals, sigma, var_white)
+    if r_struct > 0.0:
+        for j, n in enumerate(names):
+            if math.isfinite(ci95[n]) and floor[j] > ci95[n]:
+                ci95[n] = float(floor[j])
+        notes.append(f'the residual holds {1e3 * r_struct:.3g} mA RMS of structure beyond '
+                     'the noise: no interval is narrower than the parameter change that '
+                     'moves the current by that much (a misfit of that size can hide a '
+                     'bias of that size; see misfit_floor_pct)')
+    if nrmse_pct is not None and math.isfinite(nrmse_pct) and nrmse_pct > _MISFIT_NRMSE_PCT:
+        ci95 = {n: max(v, nrmse_pct) for n, v in ci95.items()}
+        notes.append(f'NRMSE {nrmse_pct:.3g} % > {_MISFIT_NRMSE_PCT:g} %: every interval is '
+                     'at least the NRMSE')
+    return ci95
+
+
 def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParameters,
                         *, at_bound: list[str] | tuple[str, ...] = (),
                         nrmse_pct: float | None = None) -> SensitivityReport:
@@ -249,12 +353,12 @@ def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParam
         Entries for every search coordinate; when the space uses ``equivalent_gap_m``,
         also l_c, mu_r and x_t, reported as not identifiable on their own.
     """
-    jac = _jacobian(space, data, params)
+    jac = current_jacobian(space, data, params)
     # The current through the drive electronics is not a smooth function of the
     # parameters (a chopper edge or the end of the boost moves by whole switching events),
     # so one finite-difference step can see a jump and claim a tight interval: the
     # Jacobian is also taken at a third and at three times that step.
-    extra = {step: _jacobian(space, data, params, step) for step in _CHECK_STEPS}
+    extra = {step: current_jacobian(space, data, params, step) for step in _CHECK_STEPS}
     residuals = data.residuals(params)
     sig = [noise_std(r) for r in residuals]
     sigma = float(np.nanmedian(sig)) if sig else math.nan
@@ -265,54 +369,19 @@ def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParam
     if not math.isfinite(sigma) or sigma <= 0.0:
         sigma = 1e-3
         notes.append('noise could not be estimated from the residual; 1 mA assumed')
-    fim = jac.T @ jac / sigma ** 2
-    evals, evecs = np.linalg.eigh(fim)
-    evals = np.maximum(evals, 0.0)
-    std_dir = np.where(evals > 0, 100.0 / np.sqrt(np.maximum(evals, 1e-300)), np.inf)
-    null = std_dir > _NULL_STD_PCT
-    keep = ~null
-    var = (evecs[:, keep] ** 2) @ (1.0 / evals[keep]) if keep.any() else np.zeros(len(names))
-    # the median of the three variances: one step that lands on a jump (too tight) or on
-    # a plateau between jumps (too wide) does not decide; a column whose size changes with
-    # the step is flagged below and never reported pinned down
-    var = np.median(np.vstack([var] + [np.where(n_x, 0.0, v_x) for v_x, n_x in
-                                       (_white_variance(jx, sigma) for jx in extra.values())]),
-                    axis=0)
-    rough = []
-    for j, n in enumerate(names):
-        rms = [float(np.sqrt(np.mean(jx[:, j] ** 2))) for jx in (jac, *extra.values())]
-        if min(rms) > 0.0 and max(rms) > _ROUGH_RATIO * min(rms):
-            rough.append(n)
-            notes_rough = ', '.join(f'{1e3 * r / 100.0:.3g}' for r in rms)
-            notes.append(f'the current is not a smooth function of {PAPER_SYMBOLS.get(n, n)} '
-                         f'here (mA per % at steps of {_REL_STEP:g}, '
-                         + ', '.join(f'{x:g}' for x in _CHECK_STEPS) + f': {notes_rough}; '
-                         'switching events of the drive electronics move): its interval '
-                         'is the median of the three, and it is not reported pinned down')
+    info = _information(jac, sigma)
+    var = _median_variance(info.var, extra, sigma)
+    rough = _rough(names, jac, extra, notes)
     # Structured/correlated residual: widen every interval (block of correlated samples
     # and misfit count as error), see residual_inflation.
     infl, infl_parts = residual_inflation(residuals, sigma)
     var = var * infl ** 2
-    null_weight = (evecs[:, null] ** 2).sum(axis=1) if null.any() else np.zeros(len(names))
+    null_weight = _null_weight(info)
     rel_std = {n: (math.inf if null_weight[j] > 0.25 else 100.0 * math.sqrt(var[j]))
                for j, n in enumerate(names)}
-    weak = _weak_directions(names, evals, evecs)
-    derived: dict[str, object] = {}
-    if GAP in names:
-        for n in _GAP_GROUP:
-            rel_std[n] = math.inf
-            sens[n] = None
-        weak.insert(0, {'combination': 'l_c, mu_r, x_t at constant s = l_c/mu_r + 2 x_t',
-                        'components': {n: None for n in _GAP_GROUP}, 'rel_std_pct': None})
-        s_std = rel_std[GAP]
-        derived['equivalent_gap'] = {
-            'definition': 's = l_c / mu_r + 2 x_t', 'value_m': equivalent_gap_m(params),
-            'rel_std_pct': s_std if math.isfinite(s_std) else None,
-            'ci95_pct': None}  # set below, after the floors (the same as ci95_pct[s])
-        notes.append('l_c, mu_r and x_t enter the model only through s = l_c/mu_r + 2 x_t '
-                     '(eq. 4): no current measurement separates them. The search moves s; '
-                     'l_c and x_t are held at their measured values and mu_r follows.')
-    if null.any():
+    weak = _weak_directions(names, info.evals, info.evecs)
+    derived = _equivalent_gap(names, params, rel_std, sens, weak, notes)
+    if info.null.any():
         notes.append('parameters with weight in a direction the data cannot see are '
                      'reported without an error (not identifiable)')
     notes.append('confidence intervals are local (linearised), widened for the '
@@ -320,22 +389,8 @@ def analyse_sensitivity(space: ParameterSpace, data: FitData, params: ValveParam
     notes.append(f'intervals widened by {infl:.3g} for the residual (size '
                  f'{infl_parts["size"]:.3g} x correlation {infl_parts["correlation"]:.3g}, '
                  'see residual_inflation)')
-    ci95 = {n: 1.96 * v for n, v in rel_std.items()}
-    floor, r_struct = misfit_floor_pct(jac, residuals, sigma, var / infl ** 2)
-    if r_struct > 0.0:
-        for j, n in enumerate(names):
-            if math.isfinite(ci95[n]) and floor[j] > ci95[n]:
-                ci95[n] = float(floor[j])
-        notes.append(f'the residual holds {1e3 * r_struct:.3g} mA RMS of structure beyond '
-                     'the noise: no interval is narrower than the parameter change that '
-                     'moves the current by that much (a misfit of that size can hide a '
-                     'bias of that size; see misfit_floor_pct)')
-    if nrmse_pct is not None and math.isfinite(nrmse_pct) and nrmse_pct > _MISFIT_NRMSE_PCT:
-        # A model that misses by more than 5 % of the range cannot pin anything tighter
-        # than its miss: the intervals are floored at the NRMSE.
-        ci95 = {n: max(v, nrmse_pct) for n, v in ci95.items()}
-        notes.append(f'NRMSE {nrmse_pct:.3g} % > {_MISFIT_NRMSE_PCT:g} %: every interval is '
-                     'at least the NRMSE')
+    ci95 = _floored_intervals(rel_std, names, jac, residuals, sigma, var / infl ** 2,
+                              nrmse_pct, notes)
     for n in at_bound:
         if n in ci95:
             notes.append(f'{PAPER_SYMBOLS.get(n, n)} sits at its search bound: a sign of '

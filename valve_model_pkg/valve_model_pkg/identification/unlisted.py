@@ -44,7 +44,7 @@ coefficients go to ``report.json`` under ``unlisted`` and the augmented model's 
 stay the baseline's. Records through the drive electronics are not offered this search
 (the chopper regulates the current, so an extra voltage does not show in it as the
 linearised bare-coil response says); neither is a baseline with parameters at a search
-bound that the data determine (its misfit is not read as a missing effect, issue 12).
+bound that the data determine (its misfit is not read as a missing effect).
 """
 from __future__ import annotations
 
@@ -56,10 +56,11 @@ import numpy as np
 
 from ..model.magnetics import inductance, inductance_slope
 from ..model.parameters import ValveParameters
-from .diagnosis import (DBIC_THRESHOLD, MIN_EXPLAINED, MIN_VALIDATION_GAIN, Diagnosis,
-                        _dbic, _effective_counts, _floors, _noise_per_file)
+from .criteria import (DBIC_THRESHOLD, MIN_EXPLAINED, MIN_VALIDATION_GAIN, delta_bic,
+                       effective_counts, noise_per_file, resolution_floors, structured_energy_of)
+from .diagnosis import Diagnosis
 from .problem import IDENTIFIED_FIELDS, FitData, ParameterSpace, baseline_space
-from .sensitivity import _perturbed_values
+from .sensitivity import file_jacobians
 
 __all__ = ['LIBRARY', 'MAX_TERMS', 'SparseModel', 'UnlistedResult', 'library',
            'responses', 'stlsq_path', 'search_unlisted', 'offer_unlisted']
@@ -256,31 +257,25 @@ class UnlistedResult:
         }
 
 
-def _simulate(data: FitData, raw: np.ndarray, names: list[str]
-              ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
-    """Per file: model current, residual, and the library's current responses."""
+@dataclass
+class _Simulated:
+    """Per file: the model's residual and the library's current responses."""
+
+    residual: list[np.ndarray]
+    responses: list[np.ndarray]
+
+
+def _simulate(data: FitData, raw: np.ndarray, names: list[str]) -> _Simulated:
+    """Residual of the model ``raw`` and the current responses of the terms ``names``."""
     params = ValveParameters.from_vector(raw)
     sims = data.simulate(raw[None, :])
-    base, res, cols = [], [], []
+    res, cols = [], []
     for m, v, (c, x) in zip(data.measurements, data.valid, sims):
         cur, pos = c[0], x[0]
         traj = _trajectory(m, cur, pos)
-        base.append(cur)
         res.append(np.where(v, m.current_a - cur, np.nan))
         cols.append(responses(params, traj, library(traj, names)))
-    return base, res, cols
-
-
-def _jacobian(space: ParameterSpace, data: FitData, params: ValveParameters
-              ) -> list[np.ndarray]:
-    """d(current)/d(ln value) of the baseline parameters, per file (n_samples, n)."""
-    rows, denom = _perturbed_values(space, params, 0.01)
-    raw = space.raw_from_values(rows)
-    ok = space.feasible(raw)
-    raw[~ok] = params.to_vector()   # an infeasible step becomes a zero column
-    n = space.size
-    return [np.column_stack([(c[2 * j] - c[2 * j + 1]) / denom[j] for j in range(n)])
-            for c, _ in data.simulate(raw)]
+    return _Simulated(res, cols)
 
 
 def _project_out(J: np.ndarray, A: np.ndarray, b: np.ndarray
@@ -324,32 +319,32 @@ def _stack(data: FitData, arrays: list[np.ndarray]) -> np.ndarray:
     return np.concatenate(out)
 
 
-def _apply(cols: list[np.ndarray], res: list[np.ndarray], support: tuple[int, ...],
-           coef: np.ndarray, columns: list[int]) -> list[np.ndarray]:
+def _apply(sim: _Simulated, coef: np.ndarray, columns: list[int]) -> list[np.ndarray]:
     """Residuals after the term: measured - (model + sum xi_k response_k)."""
-    del support
-    return [r - c[:, columns] @ coef for r, c in zip(res, cols)]
-
-
-def _structured(res: list[np.ndarray], noise: list[float]) -> float:
-    """Mean over files of the residual energy beyond the (baseline's) noise [A^2]."""
-    vals = []
-    for r, s in zip(res, noise):
-        ok = np.isfinite(r)
-        vals.append(max(float(np.mean(r[ok] ** 2)) - s ** 2, 0.0))
-    return float(np.mean(vals))
+    return [r - c[:, columns] @ coef for r, c in zip(sim.residual, sim.responses)]
 
 
 #: Largest change of a baseline parameter the joint (linearised) step may make, in ln.
 _MAX_LOG_STEP = 0.5
 
 
+@dataclass
+class _Evaluated:
+    """One support's augmented model: the moved baseline parameters (raw vector), the
+    term's coefficients, and its simulations on the fit and validation data."""
+
+    raw: np.ndarray
+    coef: np.ndarray
+    fit: _Simulated
+    val: _Simulated
+
+
 def _evaluate(space: ParameterSpace, fit: FitData, val: FitData, params: ValveParameters,
               names: list[str], support: tuple[int, ...], dlog: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, tuple, tuple] | None:
+              ) -> _Evaluated | None:
     """The augmented model of one support, simulated: baseline parameters moved by
     ``dlog`` (the kernel), the term's coefficients refitted on the fit data along the new
-    trajectory. Returns (raw parameters, coefficients, fit sims, validation sims)."""
+    trajectory. None when the moved parameters are infeasible."""
     vals = space.values_of(params) * np.exp(np.clip(dlog, -_MAX_LOG_STEP, _MAX_LOG_STEP))
     raw = space.raw_from_values(vals[None, :])
     if not space.feasible(raw)[0]:
@@ -358,10 +353,84 @@ def _evaluate(space: ParameterSpace, fit: FitData, val: FitData, params: ValvePa
     sim_f = _simulate(fit, raw, names)
     sim_v = _simulate(val, raw, names)
     cols = list(support)
-    A = _stack(fit, [c[:, cols] for c in sim_f[2]])
-    b = _stack(fit, [np.where(np.isfinite(r), r, 0.0) for r in sim_f[1]])
+    A = _stack(fit, [c[:, cols] for c in sim_f.responses])
+    b = _stack(fit, [np.where(np.isfinite(r), r, 0.0) for r in sim_f.residual])
     coef, *_ = np.linalg.lstsq(A, b, rcond=None)
-    return raw, coef, sim_f, sim_v
+    return _Evaluated(raw, coef, sim_f, sim_v)
+
+
+@dataclass
+class _Reference:
+    """The baseline on the fit and validation data, as the supports are judged."""
+
+    fit: FitData
+    val: FitData
+    res_f: list[np.ndarray]
+    res_v: list[np.ndarray]
+    counts_f: dict[str, float]
+    counts_v: dict[str, float]
+    floors_f: dict[str, float]
+    floors_v: dict[str, float]
+    mae_f: dict[str, float]
+    mae_v: dict[str, float]
+
+
+@dataclass
+class _Offer:
+    """A judged support: its model and what it leaves (residuals after the term)."""
+
+    model: SparseModel
+    raw: np.ndarray
+    after_f: list[np.ndarray]
+    after_v: list[np.ndarray]
+
+
+def _judge_support(support: tuple[int, ...], ev: _Evaluated, names: list[str],
+                   ref: _Reference) -> _Offer:
+    """Errors, dBICs and the keep rule (:mod:`.criteria`) of one evaluated support."""
+    m = SparseModel([names[k] for k in support],
+                    {names[k]: float(c) for k, c in zip(support, ev.coef)})
+    after_f = _apply(ev.fit, ev.coef, list(support))
+    after_v = _apply(ev.val, ev.coef, list(support))
+    m.fit_mae, m.val_mae = _mae(ref.fit, after_f), _mae(ref.val, after_v)
+    p = len(support)
+    m.dbic_fit = delta_bic(ref.mae_f, m.fit_mae, ref.counts_f, p, ref.floors_f)
+    m.dbic_val = delta_bic(ref.mae_v, m.val_mae, ref.counts_v, p, ref.floors_v)
+    m.fit_gain = 1.0 - sum(m.fit_mae.values()) / sum(ref.mae_f.values())
+    m.val_gain = 1.0 - sum(m.val_mae.values()) / sum(ref.mae_v.values())
+    why = []
+    if not m.dbic_fit < DBIC_THRESHOLD:
+        why.append(f'fit dBIC {m.dbic_fit:.1f} not below {DBIC_THRESHOLD:g}')
+    if not m.dbic_val < DBIC_THRESHOLD:
+        why.append(f'validation dBIC {m.dbic_val:.1f} not below {DBIC_THRESHOLD:g}')
+    if not m.val_gain >= MIN_VALIDATION_GAIN:
+        why.append(f'validation error falls {100 * m.val_gain:.2f} %, less than '
+                   f'{100 * MIN_VALIDATION_GAIN:g} %')
+    m.passes = not why
+    m.reason = 'pays for its terms on fit and validation data' if m.passes else \
+        '; '.join(why)
+    return _Offer(m, ev.raw, after_f, after_v)
+
+
+def _describe_pick(out: UnlistedResult, pick: _Offer, ref: _Reference,
+                   params: ValveParameters) -> None:
+    """The picked support's moved parameters, errors, structure explained, confidence and
+    currents, set on ``out``."""
+    fit, val = ref.fit, ref.val
+    moved = ValveParameters.from_vector(pick.raw)
+    out.baseline_parameters = {n: float(getattr(moved, n)) for n in IDENTIFIED_FIELDS}
+    out.errors = {'baseline_fit': _figures(fit, ref.res_f), 'baseline_validation':
+                  _figures(val, ref.res_v), 'augmented_fit': _figures(fit, pick.after_f),
+                  'augmented_validation': _figures(val, pick.after_v)}
+    noise = noise_per_file(val, params)
+    before = structured_energy_of(ref.res_v, noise)
+    out.structure_explained = (1.0 - structured_energy_of(pick.after_v, noise) / before
+                               if before > 0 else 0.0)
+    out.confidence = 'medium' if out.structure_explained >= MIN_EXPLAINED else 'low'
+    out.currents = {'fit': [m.current_a - r for m, r in zip(fit.measurements, pick.after_f)],
+                    'validation': [m.current_a - r
+                                   for m, r in zip(val.measurements, pick.after_v)]}
+    out.reason = pick.model.reason
 
 
 def search_unlisted(fit: FitData, val: FitData | None, params: ValveParameters
@@ -396,71 +465,34 @@ def search_unlisted(fit: FitData, val: FitData | None, params: ValveParameters
                               'sparse term is selected on the hold-out data', equation)
     space = baseline_space(params)
     raw0 = params.to_vector()
-    base_f, res_f, cols_f = _simulate(fit, raw0, names)
-    _, res_v, _ = _simulate(val, raw0, names)
-    J = _stack(fit, _jacobian(space, fit, params))
+    sim_f0, sim_v0 = _simulate(fit, raw0, names), _simulate(val, raw0, names)
+    J = _stack(fit, file_jacobians(space, fit, params))
     jn = np.linalg.norm(J, axis=0)
     jn = np.where(jn > 0, jn, 1.0)
-    A = _stack(fit, cols_f)
-    b = _stack(fit, [np.where(np.isfinite(r), r, 0.0) for r in res_f])
+    A = _stack(fit, sim_f0.responses)
+    b = _stack(fit, [np.where(np.isfinite(r), r, 0.0) for r in sim_f0.residual])
     Ap, bp = _project_out(J / jn, A, b)
     supports = stlsq_path(Ap, bp)
-    counts_f = _effective_counts(fit, params)
-    counts_v = _effective_counts(val, params)
-    floors_f, floors_v = _floors(fit), _floors(val)
-    mae_f0, mae_v0 = _mae(fit, res_f), _mae(val, res_v)
-    path: list[tuple[SparseModel, tuple]] = []
+    ref = _Reference(fit, val, sim_f0.residual, sim_v0.residual,
+                     effective_counts(fit, params), effective_counts(val, params),
+                     resolution_floors(fit), resolution_floors(val),
+                     _mae(fit, sim_f0.residual), _mae(val, sim_v0.residual))
+    path: list[_Offer] = []
     for s in supports:
         joint = np.column_stack([J / jn, A[:, list(s)]])
         z, *_ = np.linalg.lstsq(joint, b, rcond=1e-8)
         ev = _evaluate(space, fit, val, params, names, s, z[:J.shape[1]] / jn)
-        if ev is None:
-            continue
-        raw, coef, sim_f, sim_v = ev
-        m = SparseModel([names[k] for k in s], {names[k]: float(c) for k, c in zip(s, coef)})
-        after_f = _apply(sim_f[2], sim_f[1], tuple(range(len(s))), coef, list(s))
-        after_v = _apply(sim_v[2], sim_v[1], tuple(range(len(s))), coef, list(s))
-        m.fit_mae, m.val_mae = _mae(fit, after_f), _mae(val, after_v)
-        p = len(s)
-        m.dbic_fit = _dbic(mae_f0, m.fit_mae, counts_f, p, floors_f)
-        m.dbic_val = _dbic(mae_v0, m.val_mae, counts_v, p, floors_v)
-        m.fit_gain = 1.0 - sum(m.fit_mae.values()) / sum(mae_f0.values())
-        m.val_gain = 1.0 - sum(m.val_mae.values()) / sum(mae_v0.values())
-        why = []
-        if not m.dbic_fit < DBIC_THRESHOLD:
-            why.append(f'fit dBIC {m.dbic_fit:.1f} not below {DBIC_THRESHOLD:g}')
-        if not m.dbic_val < DBIC_THRESHOLD:
-            why.append(f'validation dBIC {m.dbic_val:.1f} not below {DBIC_THRESHOLD:g}')
-        if not m.val_gain >= MIN_VALIDATION_GAIN:
-            why.append(f'validation error falls {100 * m.val_gain:.2f} %, less than '
-                       f'{100 * MIN_VALIDATION_GAIN:g} %')
-        m.passes = not why
-        m.reason = 'pays for its terms on fit and validation data' if m.passes else \
-            '; '.join(why)
-        path.append((m, (raw, coef, sim_f, sim_v, after_f, after_v)))
-    path.sort(key=lambda e: e[0].dbic_val if math.isfinite(e[0].dbic_val) else math.inf)
-    passing = [e for e in path if e[0].passes]
+        if ev is not None:
+            path.append(_judge_support(s, ev, names, ref))
+    path.sort(key=lambda e: e.model.dbic_val if math.isfinite(e.model.dbic_val) else math.inf)
+    passing = [e for e in path if e.model.passes]
     pick = passing[0] if passing else (path[0] if path else None)
-    out = UnlistedResult(True, bool(passing), '', equation, pick[0] if pick else None,
-                         [e[0] for e in path])
+    out = UnlistedResult(True, bool(passing), '', equation, pick.model if pick else None,
+                         [e.model for e in path])
     if pick is None:
         out.reason = 'no usable library column'
         return out
-    best, (raw, coef, sim_f, sim_v, after_f, after_v) = pick
-    moved = ValveParameters.from_vector(raw)
-    out.baseline_parameters = {n: float(getattr(moved, n)) for n in IDENTIFIED_FIELDS}
-    out.errors = {'baseline_fit': _figures(fit, res_f), 'baseline_validation':
-                  _figures(val, res_v), 'augmented_fit': _figures(fit, after_f),
-                  'augmented_validation': _figures(val, after_v)}
-    noise = _noise_per_file(val, params)
-    before = _structured(res_v, noise)
-    out.structure_explained = 1.0 - _structured(after_v, noise) / before if before > 0 \
-        else 0.0
-    out.confidence = 'medium' if out.structure_explained >= MIN_EXPLAINED else 'low'
-    out.currents = {'fit': [m.current_a - r for m, r in zip(fit.measurements, after_f)],
-                    'validation': [m.current_a - r
-                                   for m, r in zip(val.measurements, after_v)]}
-    out.reason = best.reason
+    _describe_pick(out, pick, ref, params)
     return out
 
 
@@ -489,7 +521,7 @@ def offer_unlisted(diag: Diagnosis, fit: FitData, val: FitData | None,
     misfit = list(diag.numbers.get('baseline_at_search_bound') or [])
     res = search_unlisted(fit, val, params)
     if res.tried and misfit and res.claimed:
-        # Issue 12: the misfit of a baseline at a bound is not read as a missing effect.
+        # The misfit of a baseline at a bound is not read as a missing effect.
         res.claimed = False
         res.reason = ('a sparse term pays, but the baseline has parameters at a search bound '
                       '(' + ', '.join(misfit) + '): its residual is a misfit, not read as an '
