@@ -44,6 +44,11 @@ VARIANTS = (
     Variant('sim', 'make demo', ('--backend', 'sim')),
     Variant('can', 'make demo BACKEND=can', ('--backend', 'can')),
     Variant('double', 'make demo CYLINDER=double', ('--backend', 'sim', '--cylinder', 'double')),
+    Variant('canopen', 'make demo BACKEND=can PROTOCOL=canopen',
+            ('--backend', 'can', '--protocol', 'canopen')),
+    Variant('j1939', 'make demo BACKEND=can PROTOCOL=j1939',
+            ('--backend', 'can', '--protocol', 'j1939')),
+    Variant('dbc', 'make demo BACKEND=can PROTOCOL=dbc', ('--backend', 'can', '--protocol', 'dbc')),
 )
 
 #: report.json's fields the page shows; a run keeps only these.
