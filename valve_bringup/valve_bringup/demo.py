@@ -44,7 +44,8 @@ from typing import NamedTuple
 from valve_bringup.backend import (DEVICE_STATE_PERIOD_S, can_backend_processes,
                                    device_backend_processes)
 from valve_bringup.supervisor import ChildExited, ProcessSpec, Supervisor
-from valve_bringup.watcher import DemoWatcher, valve_topic
+from valve_bringup.watcher import (DISCOVERY_WAIT_S, DemoWatcher, suite_topics_in_use,
+                                   valve_topic)
 from valve_model_pkg.analysis import write_run_report
 from valve_model_pkg.interface import (SUITE_TOPICS, TOPIC_CLOCK, TOPIC_DUTY_COMMAND,
                                        TOPIC_FLOW_COMMAND, TOPIC_JOINT_STATES,
@@ -97,6 +98,9 @@ class DemoConfig:
     plant_params_file: Path | None = None
     #: The can backend's device: suite (the emulator) | canopen | j1939 | dbc (stand-ins).
     protocol: str = 'suite'
+    #: Discovery time for another suite on this ROS domain before the run starts [s]
+    #: (found: the run is refused); 0 skips the check.
+    domain_check_s: float = DISCOVERY_WAIT_S
 
     @property
     def lockstep(self) -> bool:
@@ -395,6 +399,14 @@ def run(cfg: DemoConfig, out_given: bool = True) -> int:
         print(f'valve_demo: error: {run_dir} already holds a run ({run_dir / "report"}); '
               'give another --out, or none for a new directory per run', file=sys.stderr)
         return 2
+    busy = suite_topics_in_use(cfg.domain_check_s)
+    if busy:
+        print(f'valve_demo: error: ROS_DOMAIN_ID {os.environ.get("ROS_DOMAIN_ID", "0")} '
+              f'already carries the suite\'s topics ({", ".join(busy[:3])}'
+              f'{", ..." if busy[3:] else ""})'
+              '; another demo or suite runs on this domain: stop it, or run this one with '
+              'its own ROS_DOMAIN_ID=N', file=sys.stderr)
+        return 2
     run_dir.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime('%Y%m%d-%H%M%S')
     bag = run_dir / f'bag_{cfg.backend}_{stamp}'
@@ -504,6 +516,10 @@ def main(argv: list[str] | None = None) -> int:
                         'effect, which the nominal model lacks')
     parser.add_argument('--quick', action='store_true',
                         help='shorter goal sequence (for tests)')
+    parser.add_argument('--domain-check', type=float, default=DISCOVERY_WAIT_S, metavar='S',
+                        help='listen this long for another suite on this ROS_DOMAIN_ID and '
+                        f'refuse to start beside it (default {DISCOVERY_WAIT_S:g} s; 0: no '
+                        'check)')
     args = parser.parse_args(argv)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     effect_args = tuple(a for name in args.effect for a in ('--effect', name))
@@ -515,6 +531,8 @@ def main(argv: list[str] | None = None) -> int:
                      '--clock lockstep)')
     if args.hold is not None and not 0.1 <= args.hold <= 600.0:
         parser.error(f'--hold {args.hold!r}: expected 0.1 .. 600 s')
+    if not 0.0 <= args.domain_check <= 60.0:
+        parser.error(f'--domain-check {args.domain_check!r}: expected 0 .. 60 s')
     if not 1 <= args.live_port <= 65535:
         parser.error(f'--live-port {args.live_port!r}: expected 1 .. 65535')
     goals = demo_goals(args.quick, args.hold)
@@ -530,7 +548,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = DemoConfig(args.backend, args.out or Path('demo_output'), args.rate, effect_args,
                      goals, clock=args.clock, protocol=args.protocol,
                      real_time_factor_max=0.0 if args.as_fast_as_possible else 1.0,
-                     cylinder=args.cylinder, live=args.live, live_port=args.live_port)
+                     cylinder=args.cylinder, live=args.live, live_port=args.live_port,
+                     domain_check_s=args.domain_check)
     return run(cfg, out_given=args.out is not None)
 
 

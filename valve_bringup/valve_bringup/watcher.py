@@ -22,7 +22,53 @@ from valve_model_pkg.interface import (TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_DUT
 from valve_model_pkg.interface.ros import (CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS,
                                            JOINT_STATES_QOS, PRESSURE_QOS, STATE_QOS)
 
-__all__ = ['DemoWatcher', 'valve_topic']
+__all__ = ['DISCOVERY_WAIT_S', 'DemoWatcher', 'suite_topics_in_use', 'valve_topic']
+
+
+#: How long a probe listens for other participants before it judges the domain free [s].
+#: Discovery on the loopback profile completes within a few hundred milliseconds; a
+#: participant found later is still caught by the run's own checks (sequence gaps).
+DISCOVERY_WAIT_S = 1.5
+
+
+def suite_topics_in_use(wait_s: float = DISCOVERY_WAIT_S) -> list[str]:
+    """Topics of the suite's message package that already have a publisher on this domain.
+
+    A second demo (or a suite already running) on the same ``ROS_DOMAIN_ID`` would mix its
+    valve state and commands with this run's; the caller refuses to start instead.
+
+    Parameters
+    ----------
+    wait_s : float
+        Discovery time granted to the other participants [s]; the probe returns as soon
+        as it finds one. 0 skips the check.
+
+    Returns
+    -------
+    list of str
+        ``topic (type)`` of each ``valve_msgs`` topic with at least one publisher, sorted.
+    """
+    if wait_s <= 0.0:
+        return []
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        node = rclpy.create_node('valve_demo_domain_probe', context=context)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        deadline = time.monotonic() + wait_s
+        found: list[str] = []
+        while not found and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+            found = [f'{name} ({", ".join(types)})'
+                     for name, types in node.get_topic_names_and_types()
+                     if any(t.startswith('valve_msgs/') for t in types)
+                     and node.count_publishers(name) > 0]
+        executor.shutdown()
+        node.destroy_node()
+        return sorted(found)
+    finally:
+        rclpy.try_shutdown(context=context)
 
 
 def valve_topic(ns: str, topic: str) -> str:
