@@ -20,13 +20,19 @@ def test_a_second_demo_on_a_busy_domain_is_refused_in_one_line(start_node, ros, 
     lines = [ln for ln in demo.output.splitlines() if ln.strip()]
     assert len(lines) == 1, demo.output
     assert lines[0].startswith('valve_demo: error: ROS_DOMAIN_ID ')
-    assert '(valve_msgs/msg/' in lines[0]    # names a topic of the running suite
+    assert 'valve state of another suite (/valve/state)' in lines[0]
     assert 'own ROS_DOMAIN_ID' in lines[0]
     assert not run_dir.exists()   # nothing started, nothing written
     assert sim.alive()            # the running suite is left alone
 
 
-def test_the_domain_check_finds_nothing_on_a_quiet_domain(ros) -> None:
+def test_a_killed_suite_does_not_hold_the_domain(start_node, ros) -> None:
+    # A SIGKILLed node stays in discovery until its lease ends; it sends nothing.
     from valve_bringup.watcher import suite_topics_in_use
-    assert suite_topics_in_use(0.5) == []
+    sim = start_node('valve_simulator', '--ros-args', '-p', 'publish_rate_hz:=200.0')
+    probe = ros.add(StateProbe('test_probe'))
+    ros.wait_for(lambda: probe.count > 0, 30.0, 'the simulator\'s valve/state')
+    assert suite_topics_in_use(30.0) == ['/valve/state']
+    sim.kill()
+    assert suite_topics_in_use(1.5) == []
     assert suite_topics_in_use(0.0) == []

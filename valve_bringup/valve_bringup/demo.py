@@ -402,7 +402,7 @@ def run(cfg: DemoConfig, out_given: bool = True) -> int:
     busy = suite_topics_in_use(cfg.domain_check_s)
     if busy:
         print(f'valve_demo: error: ROS_DOMAIN_ID {os.environ.get("ROS_DOMAIN_ID", "0")} '
-              f'already carries the suite\'s topics ({", ".join(busy[:3])}'
+              f'already carries the valve state of another suite ({", ".join(busy[:3])}'
               f'{", ..." if busy[3:] else ""})'
               '; another demo or suite runs on this domain: stop it, or run this one with '
               'its own ROS_DOMAIN_ID=N', file=sys.stderr)

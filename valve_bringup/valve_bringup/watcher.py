@@ -8,6 +8,7 @@ import time
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64
@@ -25,6 +26,9 @@ from valve_model_pkg.interface.ros import (CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_Q
 __all__ = ['DISCOVERY_WAIT_S', 'DemoWatcher', 'suite_topics_in_use', 'valve_topic']
 
 
+#: Best effort matches reliable and best-effort publishers alike.
+_ANY_PUBLISHER_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+
 #: How long a probe listens for other participants before it judges the domain free [s].
 #: Discovery on the loopback profile completes within a few hundred milliseconds; a
 #: participant found later is still caught by the run's own checks (sequence gaps).
@@ -32,21 +36,23 @@ DISCOVERY_WAIT_S = 1.5
 
 
 def suite_topics_in_use(wait_s: float = DISCOVERY_WAIT_S) -> list[str]:
-    """Topics of the suite's message package that already have a publisher on this domain.
+    """Valve state topics on which another suite is publishing on this ROS domain.
 
     A second demo (or a suite already running) on the same ``ROS_DOMAIN_ID`` would mix its
-    valve state and commands with this run's; the caller refuses to start instead.
+    valve state and commands with this run's; the caller refuses to start instead. A topic
+    counts only when a ``ValveState`` message arrives on it: a process that was killed
+    stays in the discovery graph until its lease ends, but sends nothing.
 
     Parameters
     ----------
     wait_s : float
-        Discovery time granted to the other participants [s]; the probe returns as soon
-        as it finds one. 0 skips the check.
+        Time granted to discovery and the first message [s]; the probe returns as soon as
+        a message arrives. 0 skips the check.
 
     Returns
     -------
     list of str
-        ``topic (type)`` of each ``valve_msgs`` topic with at least one publisher, sorted.
+        The topics on which a ``ValveState`` arrived, sorted.
     """
     if wait_s <= 0.0:
         return []
@@ -56,17 +62,20 @@ def suite_topics_in_use(wait_s: float = DISCOVERY_WAIT_S) -> list[str]:
         node = rclpy.create_node('valve_demo_domain_probe', context=context)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
+        heard: set[str] = set()
+        watched: set[str] = set()
         deadline = time.monotonic() + wait_s
-        found: list[str] = []
-        while not found and time.monotonic() < deadline:
+        while not heard and time.monotonic() < deadline:
+            for name, types in node.get_topic_names_and_types():
+                if name not in watched and 'valve_msgs/msg/ValveState' in types:
+                    watched.add(name)
+                    node.create_subscription(ValveState, name,
+                                             lambda _msg, n=name: heard.add(n),
+                                             _ANY_PUBLISHER_QOS)
             executor.spin_once(timeout_sec=0.05)
-            found = [f'{name} ({", ".join(types)})'
-                     for name, types in node.get_topic_names_and_types()
-                     if any(t.startswith('valve_msgs/') for t in types)
-                     and node.count_publishers(name) > 0]
         executor.shutdown()
         node.destroy_node()
-        return sorted(found)
+        return sorted(heard)
     finally:
         rclpy.try_shutdown(context=context)
 
