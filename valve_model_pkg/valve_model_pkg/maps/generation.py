@@ -360,178 +360,234 @@ def generate_map(params, electronics=None, grid: MapGrid = PAPER_GRID, *,
             sim.close()
 
 
-def _generate(sim: MapSimulator, grid: MapGrid, refine_edges: bool, edge_tolerance: float,
-              refinement: Refinement | None, stop_tolerance: float,
-              progress: ProgressCallback | None, generator: dict | None,
-              t_start: float) -> tuple[DutyMap, GenerationStats]:
-    params, electronics, criterion = sim.params, sim.electronics, sim.criterion
-    supply_voltage_v = sim.supply_voltage_v
-    stats = sim.stats
-    stats.extra['startup_s'] = time.perf_counter() - t_start
+@dataclass
+class _Curves:
+    """The map's curves while they are generated: grid values and the extra points."""
+
+    duty: np.ndarray                 # (n_d,) grid duties [1]
+    press: np.ndarray                # (n_p,) supply pressures, gauge [Pa]
+    freqs: np.ndarray                # (n_f,) PWM frequencies [Hz]
+    x: np.ndarray                    # (n_f, n_p, n_d) x_avg / x_max, NaN: not returned
+    periods: np.ndarray              # (n_f, n_p, n_d) periods simulated
+    converged: np.ndarray            # (n_f, n_p, n_d) steady-state criterion met
+    cycles: np.ndarray               # (n_f, n_p, n_d) periods of the settled cycle
+    extra: list[dict[float, float]]  # per curve (i * n_p + j): duty -> value off the grid
+
+    def indices(self) -> list[tuple[int, int]]:
+        """(frequency, pressure) index of every curve, frequency major."""
+        return [(i, j) for i in range(self.freqs.size) for j in range(self.press.size)]
+
+    def extra_at(self, i: int, j: int) -> dict[float, float]:
+        return self.extra[i * self.press.size + j]
+
+
+def _clipped(value: float) -> float:
+    """A steady opening clipped to [0, 1]; NaN (the model did not return) stays NaN."""
+    return min(max(value, 0.0), 1.0) if not math.isnan(value) else math.nan
+
+
+def _grid_stage(sim: MapSimulator, grid: MapGrid, stop_tolerance: float,
+                progress: ProgressCallback | None) -> _Curves:
+    """Every grid point at periodic steady state, in one request to the workers (they
+    share out the whole grid at once, with no wait for the slowest point of each curve)."""
     duty = np.asarray(grid.duty, dtype=float)
     press = np.asarray(grid.supply_pressures_pa, dtype=float)
     freqs = np.asarray(grid.pwm_frequencies_hz, dtype=float)
     n_f, n_p, n_d = freqs.size, press.size, duty.size
-    x = np.zeros((n_f, n_p, n_d))
-    periods = np.zeros((n_f, n_p, n_d), dtype=int)
-    converged = np.zeros((n_f, n_p, n_d), dtype=bool)
-    cycles = np.zeros((n_f, n_p, n_d), dtype=int)
-    extra: list[dict[float, float]] = [{} for _ in range(n_f * n_p)]
-    # progress counts grid points, then one unit per refinement batch point (estimated)
-    total = grid.n_points
-    done = 0
+    c = _Curves(duty, press, freqs, np.zeros((n_f, n_p, n_d)),
+                np.zeros((n_f, n_p, n_d), dtype=int), np.zeros((n_f, n_p, n_d), dtype=bool),
+                np.zeros((n_f, n_p, n_d), dtype=int), [{} for _ in range(n_f * n_p)])
     t0 = time.perf_counter()
-    # every grid point in one request: the workers share out the whole grid at once
-    # (no wait for the slowest point of each curve) and run their points as one bank
     all_states = sim.steady(np.tile(duty, n_f * n_p), np.repeat(freqs, n_p * n_d),
                             np.tile(np.repeat(press, n_d), n_f), grid.output_pressure_pa)
-    for i, f in enumerate(freqs):
-        for j, p in enumerate(press):
-            start = (i * n_p + j) * n_d
-            states = all_states[start:start + n_d]
-            for k, s in enumerate(states):
-                x[i, j, k] = min(max(s.value, 0.0), 1.0) if not math.isnan(s.value) \
-                    else math.nan
-                periods[i, j, k] = s.periods
-                converged[i, j, k] = s.converged
-                cycles[i, j, k] = s.cycle
-            stats.grid_periods_s += float(np.sum(periods[i, j]) / f)
-            done += n_d
-            if progress:
-                feat = curve_features(duty, x[i, j], stop_tolerance)
-                progress(done, total, f'{f:g} Hz, {p / 1e5:g} bar: dead band '
-                                      f'{feat.dead_band_duty:.0%}, saturation '
-                                      f'{feat.saturation_duty:.0%}, '
-                                      f'max {periods[i, j].max()} periods')
-    stats.grid_wall_s = time.perf_counter() - t0
+    done = 0
+    for i, j in c.indices():
+        start = (i * n_p + j) * n_d
+        for k, st in enumerate(all_states[start:start + n_d]):
+            c.x[i, j, k] = _clipped(st.value)
+            c.periods[i, j, k] = st.periods
+            c.converged[i, j, k] = st.converged
+            c.cycles[i, j, k] = st.cycle
+        sim.stats.grid_periods_s += float(np.sum(c.periods[i, j]) / freqs[i])
+        done += n_d
+        if progress:
+            feat = curve_features(duty, c.x[i, j], stop_tolerance)
+            progress(done, grid.n_points, f'{freqs[i]:g} Hz, {press[j] / 1e5:g} bar: dead band '
+                                          f'{feat.dead_band_duty:.0%}, saturation '
+                                          f'{feat.saturation_duty:.0%}, '
+                                          f'max {c.periods[i, j].max()} periods')
+    sim.stats.grid_wall_s = time.perf_counter() - t0
+    return c
 
-    notes_extra: list[str] = []
 
-    def run_extra(ij: list[tuple[int, int]], dq: np.ndarray) -> np.ndarray:
-        fq = np.array([freqs[i] for i, _ in ij])
-        pr = np.array([press[j] for _, j in ij])
-        states = sim.steady(dq, fq, pr, grid.output_pressure_pa)
-        v = np.array([min(max(s.value, 0.0), 1.0) if not math.isnan(s.value) else math.nan
-                      for s in states])
-        for (i, j), dd, vv, s in zip(ij, dq, v, states):
-            if not math.isnan(vv):
-                extra[i * n_p + j][float(dd)] = float(vv)
-            stats.unconverged += int(not s.converged)
-        return v
+def _run_extra(sim: MapSimulator, grid: MapGrid, c: _Curves, ij: list[tuple[int, int]],
+               dq: np.ndarray) -> np.ndarray:
+    """Steady openings at duties ``dq`` of the curves ``ij``, kept as the curves' extra
+    points; NaN where the model did not return."""
+    fq = np.array([c.freqs[i] for i, _ in ij])
+    pr = np.array([c.press[j] for _, j in ij])
+    states = sim.steady(dq, fq, pr, grid.output_pressure_pa)
+    v = np.array([_clipped(st.value) for st in states])
+    for (i, j), dd, vv, st in zip(ij, dq, v, states):
+        if not math.isnan(vv):
+            c.extra_at(i, j)[float(dd)] = float(vv)
+        sim.stats.unconverged += int(not st.converged)
+    return v
 
+
+def _edge_brackets(c: _Curves, stop_tolerance: float
+                   ) -> tuple[list[tuple[int, int]], np.ndarray, np.ndarray, np.ndarray]:
+    """Per curve, the grid bracket of the dead band edge (kind 0) and of the saturation
+    edge (kind 1); dead-band brackets first: ``sim.steady`` deals points out to the
+    workers alternately, and a closed valve costs a few periods where a moving spool costs
+    many, so interleaving the kinds would load one worker with every expensive point."""
+    ij: list[tuple[int, int]] = []
+    lo_l, hi_l, kind_l = [], [], []
+    for i, j in c.indices():
+        feat = curve_features(c.duty, c.x[i, j], stop_tolerance)
+        if feat.opens and feat.dead_band_duty < feat.opening_duty:
+            ij.append((i, j))
+            lo_l.append(feat.dead_band_duty)
+            hi_l.append(feat.opening_duty)
+            kind_l.append(0)
+        if not math.isnan(feat.saturation_duty):
+            k = int(np.searchsorted(c.duty, feat.saturation_duty))
+            if k > 0:
+                ij.append((i, j))
+                lo_l.append(c.duty[k - 1])
+                hi_l.append(c.duty[k])
+                kind_l.append(1)
+    perm = np.argsort(np.array(kind_l, dtype=int), kind='stable')
+    return ([ij[n] for n in perm], np.array(lo_l)[perm], np.array(hi_l)[perm],
+            np.array(kind_l, dtype=int)[perm])
+
+
+def _edges_stage(sim: MapSimulator, grid: MapGrid, c: _Curves, edge_tolerance: float,
+                 stop_tolerance: float, progress: ProgressCallback | None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Dead band and saturation edges of every curve by bisection (NaN: the curve has
+    none); every bracket of a step runs in one batch."""
+    n_f, n_p = c.freqs.size, c.press.size
     db_edges = np.full((n_f, n_p), math.nan)
     sat_edges = np.full((n_f, n_p), math.nan)
-    t1 = time.perf_counter()
-    if refine_edges:
-        ij: list[tuple[int, int]] = []
-        lo_l, hi_l, kind_l = [], [], []
-        for i in range(n_f):
-            for j in range(n_p):
-                feat = curve_features(duty, x[i, j], stop_tolerance)
-                if feat.opens and feat.dead_band_duty < feat.opening_duty:
-                    ij.append((i, j))
-                    lo_l.append(feat.dead_band_duty)
-                    hi_l.append(feat.opening_duty)
-                    kind_l.append(0)
-                if not math.isnan(feat.saturation_duty):
-                    k = int(np.searchsorted(duty, feat.saturation_duty))
-                    if k > 0:
-                        ij.append((i, j))
-                        lo_l.append(duty[k - 1])
-                        hi_l.append(duty[k])
-                        kind_l.append(1)
-        if ij:
-            # dead-band brackets first, then saturation ones: sim.steady deals the points
-            # out to the workers alternately, and the interleaved list gave one worker every
-            # dead-band point (a closed valve, a few cheap periods) and the other every
-            # saturation point (many periods of a moving spool): edges 0.19 s instead of
-            # 0.12 s of CPU on the slower worker (docs/maps.md, "Generation and speed")
-            perm = np.argsort(np.array(kind_l), kind='stable')
-            ij = [ij[n] for n in perm]
-            lo_c, hi_c, kind = (np.array(lo_l)[perm], np.array(hi_l)[perm],
-                                np.array(kind_l)[perm])
-            step = 0
-            # dead band: "hi" = opens; saturation: "hi" = stays open; same batches
-            while np.max(hi_c - lo_c) > edge_tolerance:
-                mid = np.round(0.5 * (lo_c + hi_c), 6)
-                v = run_extra(ij, mid)
-                # a point the model never returned for (NaN) counts as "not hi"
-                flags = np.where(kind == 0, v > stop_tolerance, v >= 1.0 - stop_tolerance)
-                hi_c = np.where(flags, mid, hi_c)
-                lo_c = np.where(flags, lo_c, mid)
-                step += 1
-                if progress:
-                    progress(done, total, f'edge bisection step {step}: bracket '
-                                          f'{np.max(hi_c - lo_c):.2%}')
-            for n, (i, j) in enumerate(ij):
-                (db_edges if kind[n] == 0 else sat_edges)[i, j] = 0.5 * (lo_c[n] + hi_c[n])
-    if refinement is not None:
-        segs: list[tuple[int, int, float, float]] = []
-        for i in range(n_f):
-            for j in range(n_p):
-                dmap_pts = _merged(duty, x[i, j], extra[i * n_p + j])
-                for a, b in sorted(_initial_segments(*dmap_pts, refinement)):
-                    segs.append((i, j, a, b))
-        level = 0
-        while segs and level < refinement.max_levels:
-            level += 1
-            ij = [(i, j) for i, j, _, _ in segs]
-            # midpoints on a 1e-6 duty lattice: short numbers in the file
-            mids = np.array([round(0.5 * (a + b), 6) for _, _, a, b in segs])
-            v = run_extra(ij, mids)
-            nxt = []
-            for (i, j, a, b), m, vm in zip(segs, mids, v):
-                pts = extra[i * n_p + j]
-                va = _value_at(duty, x[i, j], pts, a)
-                vb = _value_at(duty, x[i, j], pts, b)
-                if math.isnan(vm):
-                    continue
-                curved = abs(vm - 0.5 * (va + vb)) > refinement.interp_tolerance
-                steep = abs(vb - va) > refinement.max_rise
-                if (curved or steep) and 0.5 * (b - a) > refinement.min_spacing * 1.0001:
-                    m = float(m)
-                    for c0, c1, w0, w1 in ((a, m, va, vm), (m, b, vm, vb)):
-                        if abs(w1 - w0) > refinement.interp_tolerance:
-                            nxt.append((i, j, c0, c1))
-            segs = nxt
-            if progress:
-                progress(done, total, f'adaptive refinement level {level}: {len(mids)} points, '
-                                      f'{len(segs)} segments left')
-    stats.refine_wall_s = time.perf_counter() - t1
-    stats.wall_s = time.perf_counter() - t_start
-    # a grid point the model never returned for: interpolated from its neighbours
-    for i in range(n_f):
-        for j in range(n_p):
-            bad = np.isnan(x[i, j])
-            if bad.any():
-                x[i, j, bad] = np.interp(duty[bad], duty[~bad], x[i, j, ~bad])
-                notes_extra.append(f'{int(bad.sum())} grid point(s) at {freqs[i]:g} Hz, '
-                                   f'{press[j]:g} Pa interpolated from neighbours (model '
-                                   'did not return)')
-    stats.unconverged += int(np.sum(~converged))
-    stats.subharmonic = int(np.sum(cycles > 1))
-    notes = notes_extra + sim.incidents
+    ij, lo_c, hi_c, kind = _edge_brackets(c, stop_tolerance)
+    if not ij:
+        return db_edges, sat_edges
+    step = 0
+    # dead band: "hi" = opens; saturation: "hi" = stays open; same batches
+    while np.max(hi_c - lo_c) > edge_tolerance:
+        mid = np.round(0.5 * (lo_c + hi_c), 6)
+        v = _run_extra(sim, grid, c, ij, mid)
+        # a point the model never returned for (NaN) counts as "not hi"
+        flags = np.where(kind == 0, v > stop_tolerance, v >= 1.0 - stop_tolerance)
+        hi_c = np.where(flags, mid, hi_c)
+        lo_c = np.where(flags, lo_c, mid)
+        step += 1
+        if progress:
+            progress(grid.n_points, grid.n_points, f'edge bisection step {step}: bracket '
+                                                   f'{np.max(hi_c - lo_c):.2%}')
+    for n, (i, j) in enumerate(ij):
+        (db_edges if kind[n] == 0 else sat_edges)[i, j] = 0.5 * (lo_c[n] + hi_c[n])
+    return db_edges, sat_edges
+
+
+def _refine_stage(sim: MapSimulator, grid: MapGrid, c: _Curves, refinement: Refinement,
+                  progress: ProgressCallback | None) -> None:
+    """Adaptive refinement: a segment whose midpoint leaves the chord by more than the
+    tolerance, or that rises too steeply, is halved, level by level, down to the minimum
+    spacing; each level's midpoints run in one batch."""
+    segs: list[tuple[int, int, float, float]] = []
+    for i, j in c.indices():
+        dmap_pts = _merged(c.duty, c.x[i, j], c.extra_at(i, j))
+        for a, b in sorted(_initial_segments(*dmap_pts, refinement)):
+            segs.append((i, j, a, b))
+    level = 0
+    while segs and level < refinement.max_levels:
+        level += 1
+        ij = [(i, j) for i, j, _, _ in segs]
+        # midpoints on a 1e-6 duty lattice: short numbers in the file
+        mids = np.array([round(0.5 * (a + b), 6) for _, _, a, b in segs])
+        v = _run_extra(sim, grid, c, ij, mids)
+        nxt = []
+        for (i, j, a, b), m, vm in zip(segs, mids, v):
+            pts = c.extra_at(i, j)
+            va = _value_at(c.duty, c.x[i, j], pts, a)
+            vb = _value_at(c.duty, c.x[i, j], pts, b)
+            if math.isnan(vm):
+                continue
+            curved = abs(vm - 0.5 * (va + vb)) > refinement.interp_tolerance
+            steep = abs(vb - va) > refinement.max_rise
+            if (curved or steep) and 0.5 * (b - a) > refinement.min_spacing * 1.0001:
+                m = float(m)
+                for c0, c1, w0, w1 in ((a, m, va, vm), (m, b, vm, vb)):
+                    if abs(w1 - w0) > refinement.interp_tolerance:
+                        nxt.append((i, j, c0, c1))
+        segs = nxt
+        if progress:
+            progress(grid.n_points, grid.n_points,
+                     f'adaptive refinement level {level}: {len(mids)} points, '
+                     f'{len(segs)} segments left')
+
+
+def _fill_and_notes(sim: MapSimulator, c: _Curves) -> list[str]:
+    """Grid points the model never returned for, interpolated from their neighbours; the
+    notes the file carries (these, the workers' incidents, unconverged and sub-harmonic
+    points)."""
+    stats = sim.stats
+    notes: list[str] = []
+    for i, j in c.indices():
+        bad = np.isnan(c.x[i, j])
+        if bad.any():
+            c.x[i, j, bad] = np.interp(c.duty[bad], c.duty[~bad], c.x[i, j, ~bad])
+            notes.append(f'{int(bad.sum())} grid point(s) at {c.freqs[i]:g} Hz, '
+                         f'{c.press[j]:g} Pa interpolated from neighbours (model '
+                         'did not return)')
+    stats.unconverged += int(np.sum(~c.converged))
+    stats.subharmonic = int(np.sum(c.cycles > 1))
+    notes += sim.incidents
     if stats.unconverged:
         notes.append(f'{stats.unconverged} simulated point(s) did not meet the steady-state '
-                     f'criterion within {criterion.max_periods} periods (value = mean over the '
-                     'second half of the periods)')
+                     f'criterion within {sim.criterion.max_periods} periods (value = mean '
+                     'over the second half of the periods)')
     if stats.subharmonic:
         notes.append(f'{stats.subharmonic} grid point(s) settled to a sub-harmonic cycle '
                      '(value = average over the whole cycle)')
+    return notes
+
+
+def _generate(sim: MapSimulator, grid: MapGrid, refine_edges: bool, edge_tolerance: float,
+              refinement: Refinement | None, stop_tolerance: float,
+              progress: ProgressCallback | None, generator: dict | None,
+              t_start: float) -> tuple[DutyMap, GenerationStats]:
+    """The stages: grid, edges, adaptive refinement, then the map with its provenance."""
+    stats = sim.stats
+    stats.extra['startup_s'] = time.perf_counter() - t_start
+    c = _grid_stage(sim, grid, stop_tolerance, progress)
+    t1 = time.perf_counter()
+    db_edges = sat_edges = None
+    if refine_edges:
+        db_edges, sat_edges = _edges_stage(sim, grid, c, edge_tolerance, stop_tolerance,
+                                           progress)
+    if refinement is not None:
+        _refine_stage(sim, grid, c, refinement, progress)
+    stats.refine_wall_s = time.perf_counter() - t1
+    stats.wall_s = time.perf_counter() - t_start
+    notes = _fill_and_notes(sim, c)
     gen = {'program': 'valve_model_pkg.maps.generate_map', 'wall_s': round(stats.wall_s, 3),
            'runs': stats.runs, 'simulated_s': round(stats.simulated_s, 3),
            'threads': stats.threads, 'refine_edges': refine_edges,
            'edge_tolerance': edge_tolerance}
     gen.update(generator or {})
-    extra_points = [(np.array(sorted(e)), np.array([e[k] for k in sorted(e)])) for e in extra]
-    dmap = DutyMap(duty=duty, supply_pressures_pa=press, pwm_frequencies_hz=freqs,
-                   position_fraction=x, parameters=params.to_dict(),
-                   electronics=electronics.to_dict(), supply_voltage_v=supply_voltage_v,
+    extra_points = [(np.array(sorted(e)), np.array([e[k] for k in sorted(e)]))
+                    for e in c.extra]
+    dmap = DutyMap(duty=c.duty, supply_pressures_pa=c.press, pwm_frequencies_hz=c.freqs,
+                   position_fraction=c.x, parameters=sim.params.to_dict(),
+                   electronics=sim.electronics.to_dict(), supply_voltage_v=sim.supply_voltage_v,
                    output_pressure_pa=grid.output_pressure_pa,
-                   steady_state=criterion.as_dict(), periods=periods, converged=converged,
-                   cycles=cycles, dead_band_edges=db_edges if refine_edges else None,
-                   saturation_edges=sat_edges if refine_edges else None,
-                   stop_tolerance=stop_tolerance, extra_points=extra_points,
+                   steady_state=sim.criterion.as_dict(), periods=c.periods,
+                   converged=c.converged, cycles=c.cycles, dead_band_edges=db_edges,
+                   saturation_edges=sat_edges, stop_tolerance=stop_tolerance,
+                   extra_points=extra_points,
                    refinement=refinement.as_dict() if refinement is not None else {},
                    created_utc=_dt.datetime.now(_dt.timezone.utc).strftime(
                        '%Y-%m-%dT%H:%M:%SZ'),
