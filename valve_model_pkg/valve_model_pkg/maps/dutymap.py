@@ -43,7 +43,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -436,105 +436,9 @@ class DutyMap:
         def fail(reason: str) -> MapFormatError:
             return MapFormatError(path, reason)
 
-        if not isinstance(data, dict):
-            raise fail(f'not a duty map: top level is {type(data).__name__}, not an object')
-        if data.get('format') != FORMAT_NAME:
-            raise fail(f'not a duty map: format is {data.get("format")!r}, '
-                       f'expected {FORMAT_NAME!r}')
-        version = data.get('format_version')
-        if version != FORMAT_VERSION:
-            raise fail(f'unsupported format_version {version!r} (this reader knows '
-                       f'{FORMAT_VERSION})')
-        for key in ('parameters_sha256', 'parameters', 'electronics', 'grid', 'curves'):
-            if key not in data:
-                raise fail(f'missing key {key!r}')
-        try:
-            params = canonical_parameters(data['parameters'])
-        except (ValueError, TypeError) as err:
-            raise fail(f'invalid parameter set: {err}') from err
-        if parameters_hash(params) != data['parameters_sha256']:
-            raise fail('parameters_sha256 does not match the parameter set stored in the '
-                       'file (edited or corrupted)')
-        grid = data['grid']
-        if not isinstance(grid, dict):
-            raise fail('grid must be an object')
-        duty = _array(grid, 'duty', fail, 'grid')
-        press = _array(grid, 'supply_pressure_pa', fail, 'grid')
-        freq = _array(grid, 'pwm_frequency_hz', fail, 'grid')
-        try:
-            _check_grid(duty, press, freq)
-        except ValueError as err:
-            raise fail(f'grid: {err}') from err
-        curves = data['curves']
-        n_f, n_p, n_d = freq.size, press.size, duty.size
-        if not isinstance(curves, list) or len(curves) != n_f * n_p:
-            raise fail(f'curves must be a list of {n_f * n_p} curves (frequencies x pressures), '
-                       f'got {len(curves) if isinstance(curves, list) else type(curves).__name__}')
-        x = np.empty((n_f, n_p, n_d))
-        periods = np.zeros((n_f, n_p, n_d), dtype=int)
-        have_periods = True
-        converged = np.ones((n_f, n_p, n_d), dtype=bool)
-        cycles = np.ones((n_f, n_p, n_d), dtype=int)
-        db_edges = np.full((n_f, n_p), math.nan)
-        sat_edges = np.full((n_f, n_p), math.nan)
-        extra: list[tuple[np.ndarray, np.ndarray]] | None = [] if curves and all(
-            isinstance(c, dict) and 'extra_points' in c for c in curves) else None
-        for n, c in enumerate(curves):
-            i, j = divmod(n, n_p)
-            where = f'curves[{n}]'
-            if not isinstance(c, dict):
-                raise fail(f'{where} must be an object')
-            for key, expect in (('pwm_frequency_hz', freq[i]), ('supply_pressure_pa', press[j])):
-                got = c.get(key)
-                if not isinstance(got, (int, float)) or not math.isclose(
-                        float(got), expect, rel_tol=1e-9, abs_tol=1e-9):
-                    raise fail(f'{where}.{key} is {got!r}, expected {expect:g} '
-                               '(curves are frequency-major, then pressure)')
-            values = _array(c, 'position_fraction', fail, where)
-            if values.size != n_d:
-                raise fail(f'{where}.position_fraction has {values.size} values, the duty grid '
-                           f'{n_d}')
-            if values.min() < -_RANGE_SLACK or values.max() > 1.0 + _RANGE_SLACK:
-                raise fail(f'{where}.position_fraction outside [0, 1]: '
-                           f'[{values.min():.6g}, {values.max():.6g}]')
-            x[i, j] = values
-            if 'periods' in c:
-                pv = _array(c, 'periods', fail, where)
-                if pv.size != n_d:
-                    raise fail(f'{where}.periods has {pv.size} values, the duty grid {n_d}')
-                periods[i, j] = pv.astype(int)
-            else:
-                have_periods = False
-            for d in c.get('unconverged_duties') or []:
-                k = int(np.argmin(np.abs(duty - float(d))))
-                converged[i, j, k] = False
-                cycles[i, j, k] = 0
-            for item in c.get('subharmonic_cycles') or []:
-                if not (isinstance(item, list) and len(item) == 2
-                        and all(isinstance(v, (int, float)) for v in item)):
-                    raise fail(f'{where}.subharmonic_cycles entries must be [duty, periods]')
-                k = int(np.argmin(np.abs(duty - float(item[0]))))
-                cycles[i, j, k] = int(item[1])
-            for key, arr in (('dead_band_edge', db_edges), ('saturation_edge', sat_edges)):
-                v = c.get(key)
-                if v is not None:
-                    if not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
-                        raise fail(f'{where}.{key} must be a duty in [0, 1] or null, got {v!r}')
-                    arr[i, j] = float(v)
-            if extra is not None:
-                pts = c['extra_points']
-                if not isinstance(pts, list) or not all(
-                        isinstance(pt, list) and len(pt) == 2
-                        and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                for v in pt) for pt in pts):
-                    raise fail(f'{where}.extra_points must be a list of [duty, fraction]')
-                arr2 = np.asarray(pts, dtype=float).reshape(-1, 2)
-                if not np.all(np.isfinite(arr2)) or (arr2.size and (
-                        arr2[:, 0].min() < 0.0 or arr2[:, 0].max() > 1.0
-                        or arr2[:, 1].min() < -_RANGE_SLACK
-                        or arr2[:, 1].max() > 1.0 + _RANGE_SLACK)):
-                    raise fail(f'{where}.extra_points outside [0, 1]')
-                extra.append((arr2[:, 0], arr2[:, 1]))
+        params = _checked_header(data, fail)
+        duty, press, freq = _checked_grid(data['grid'], fail)
+        c = _read_curves(data['curves'], duty, press, freq, fail)
         refinement = data.get('refinement') or {}
         if not isinstance(refinement, dict):
             raise fail('refinement must be an object')
@@ -545,14 +449,14 @@ class DutyMap:
         except (TypeError, ValueError) as err:
             raise fail(f'bad scalar field: {err}') from err
         return cls(duty=duty, supply_pressures_pa=press, pwm_frequencies_hz=freq,
-                   position_fraction=x, parameters=params,
+                   position_fraction=c.x, parameters=params,
                    electronics=dict(data['electronics'] or {}), supply_voltage_v=supply_v,
                    output_pressure_pa=output_pa,
                    steady_state=dict(data.get('steady_state') or {}),
-                   periods=periods if have_periods else None, converged=converged,
-                   cycles=cycles,
-                   dead_band_edges=db_edges, saturation_edges=sat_edges,
-                   stop_tolerance=stop_tol, extra_points=extra, refinement=dict(refinement),
+                   periods=c.periods if c.have_periods else None, converged=c.converged,
+                   cycles=c.cycles,
+                   dead_band_edges=c.db_edges, saturation_edges=c.sat_edges,
+                   stop_tolerance=stop_tol, extra_points=c.extra, refinement=dict(refinement),
                    created_utc=str(data.get('created_utc', '')),
                    generator=dict(data.get('generator') or {}),
                    notes=list(data.get('notes') or []))
@@ -634,3 +538,142 @@ def _check_grid(d: np.ndarray, p: np.ndarray, f: np.ndarray) -> None:
         raise ValueError(f'supply pressure below vacuum: {p[0]:g} Pa gauge')
     if f[0] <= 0.0:
         raise ValueError(f'PWM frequencies must be positive, got {f[0]:g} Hz')
+
+
+_Fail = Callable[[str], MapFormatError]
+
+
+def _checked_header(data: Any, fail: _Fail) -> dict:
+    """The format, version and required keys; the parameter set, checked against its hash."""
+    if not isinstance(data, dict):
+        raise fail(f'not a duty map: top level is {type(data).__name__}, not an object')
+    if data.get('format') != FORMAT_NAME:
+        raise fail(f'not a duty map: format is {data.get("format")!r}, '
+                   f'expected {FORMAT_NAME!r}')
+    version = data.get('format_version')
+    if version != FORMAT_VERSION:
+        raise fail(f'unsupported format_version {version!r} (this reader knows '
+                   f'{FORMAT_VERSION})')
+    for key in ('parameters_sha256', 'parameters', 'electronics', 'grid', 'curves'):
+        if key not in data:
+            raise fail(f'missing key {key!r}')
+    try:
+        params = canonical_parameters(data['parameters'])
+    except (ValueError, TypeError) as err:
+        raise fail(f'invalid parameter set: {err}') from err
+    if parameters_hash(params) != data['parameters_sha256']:
+        raise fail('parameters_sha256 does not match the parameter set stored in the '
+                   'file (edited or corrupted)')
+    return params
+
+
+def _checked_grid(grid: Any, fail: _Fail) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Duties [1], supply pressures [Pa] and PWM frequencies [Hz] of the grid."""
+    if not isinstance(grid, dict):
+        raise fail('grid must be an object')
+    duty = _array(grid, 'duty', fail, 'grid')
+    press = _array(grid, 'supply_pressure_pa', fail, 'grid')
+    freq = _array(grid, 'pwm_frequency_hz', fail, 'grid')
+    try:
+        _check_grid(duty, press, freq)
+    except ValueError as err:
+        raise fail(f'grid: {err}') from err
+    return duty, press, freq
+
+
+@dataclass
+class _ReadCurves:
+    """The curves of a file, as arrays over (frequency, pressure[, duty])."""
+
+    x: np.ndarray
+    periods: np.ndarray
+    have_periods: bool
+    converged: np.ndarray
+    cycles: np.ndarray
+    db_edges: np.ndarray
+    sat_edges: np.ndarray
+    extra: list[tuple[np.ndarray, np.ndarray]] | None
+
+
+def _read_curves(curves: Any, duty: np.ndarray, press: np.ndarray, freq: np.ndarray,
+                 fail: _Fail) -> _ReadCurves:
+    """Every curve, frequency-major then pressure, each checked by :func:`_read_curve`."""
+    n_f, n_p, n_d = freq.size, press.size, duty.size
+    if not isinstance(curves, list) or len(curves) != n_f * n_p:
+        raise fail(f'curves must be a list of {n_f * n_p} curves (frequencies x pressures), '
+                   f'got {len(curves) if isinstance(curves, list) else type(curves).__name__}')
+    out = _ReadCurves(
+        x=np.empty((n_f, n_p, n_d)), periods=np.zeros((n_f, n_p, n_d), dtype=int),
+        have_periods=True, converged=np.ones((n_f, n_p, n_d), dtype=bool),
+        cycles=np.ones((n_f, n_p, n_d), dtype=int), db_edges=np.full((n_f, n_p), math.nan),
+        sat_edges=np.full((n_f, n_p), math.nan),
+        extra=[] if curves and all(isinstance(c, dict) and 'extra_points' in c
+                                   for c in curves) else None)
+    for n, c in enumerate(curves):
+        _read_curve(c, n, duty, press, freq, out, fail)
+    return out
+
+
+def _read_curve(c: Any, n: int, duty: np.ndarray, press: np.ndarray, freq: np.ndarray,
+                out: _ReadCurves, fail: _Fail) -> None:
+    """Curve ``n`` into ``out``: its operating point, values, periods, marks and edges."""
+    i, j = divmod(n, press.size)
+    n_d = duty.size
+    where = f'curves[{n}]'
+    if not isinstance(c, dict):
+        raise fail(f'{where} must be an object')
+    for key, expect in (('pwm_frequency_hz', freq[i]), ('supply_pressure_pa', press[j])):
+        got = c.get(key)
+        if not isinstance(got, (int, float)) or not math.isclose(
+                float(got), expect, rel_tol=1e-9, abs_tol=1e-9):
+            raise fail(f'{where}.{key} is {got!r}, expected {expect:g} '
+                       '(curves are frequency-major, then pressure)')
+    values = _array(c, 'position_fraction', fail, where)
+    if values.size != n_d:
+        raise fail(f'{where}.position_fraction has {values.size} values, the duty grid '
+                   f'{n_d}')
+    if values.min() < -_RANGE_SLACK or values.max() > 1.0 + _RANGE_SLACK:
+        raise fail(f'{where}.position_fraction outside [0, 1]: '
+                   f'[{values.min():.6g}, {values.max():.6g}]')
+    out.x[i, j] = values
+    if 'periods' in c:
+        pv = _array(c, 'periods', fail, where)
+        if pv.size != n_d:
+            raise fail(f'{where}.periods has {pv.size} values, the duty grid {n_d}')
+        out.periods[i, j] = pv.astype(int)
+    else:
+        out.have_periods = False
+    for d in c.get('unconverged_duties') or []:
+        k = int(np.argmin(np.abs(duty - float(d))))
+        out.converged[i, j, k] = False
+        out.cycles[i, j, k] = 0
+    for item in c.get('subharmonic_cycles') or []:
+        if not (isinstance(item, list) and len(item) == 2
+                and all(isinstance(v, (int, float)) for v in item)):
+            raise fail(f'{where}.subharmonic_cycles entries must be [duty, periods]')
+        k = int(np.argmin(np.abs(duty - float(item[0]))))
+        out.cycles[i, j, k] = int(item[1])
+    for key, arr in (('dead_band_edge', out.db_edges), ('saturation_edge', out.sat_edges)):
+        v = c.get(key)
+        if v is not None:
+            if not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
+                raise fail(f'{where}.{key} must be a duty in [0, 1] or null, got {v!r}')
+            arr[i, j] = float(v)
+    if out.extra is not None:
+        out.extra.append(_extra_points(c['extra_points'], where, fail))
+
+
+def _extra_points(pts: Any, where: str, fail: _Fail) -> tuple[np.ndarray, np.ndarray]:
+    """A curve's ``extra_points`` as (duties, fractions), each within [0, 1]."""
+    if not isinstance(pts, list) or not all(
+            isinstance(pt, list) and len(pt) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in pt)
+            for pt in pts):
+        raise fail(f'{where}.extra_points must be a list of [duty, fraction]')
+    arr2 = np.asarray(pts, dtype=float).reshape(-1, 2)
+    if not np.all(np.isfinite(arr2)) or (arr2.size and (
+            arr2[:, 0].min() < 0.0 or arr2[:, 0].max() > 1.0
+            or arr2[:, 1].min() < -_RANGE_SLACK
+            or arr2[:, 1].max() > 1.0 + _RANGE_SLACK)):
+        raise fail(f'{where}.extra_points outside [0, 1]')
+    return arr2[:, 0], arr2[:, 1]
