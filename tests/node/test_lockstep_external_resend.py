@@ -23,7 +23,7 @@ from valve_model_pkg.interface import (TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_DUT
                                        TOPIC_JOINT_STATES, TOPIC_OUTPUT_PRESSURE,
                                        TOPIC_RUN_UNTIL, TOPIC_STATE)
 from valve_model_pkg.interface.ros import (CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS,
-                                           JOINT_STATES_QOS, PRESSURE_QOS, STATE_QOS)
+                                           JOINT_STATES_QOS, PRESSURE_QOS, STATE_DURABLE_QOS)
 
 pytestmark = pytest.mark.node
 
@@ -49,7 +49,8 @@ class _ValveSide:
         self.values: dict[str, str] = {}
         self.sequence = 0        # of the duty commands
         self.state_sequence = 0
-        self.state_pub = node.create_publisher(ValveState, TOPIC_STATE, STATE_QOS)
+        # as the CAN driver publishes (the simulation reads an external valve durably)
+        self.state_pub = node.create_publisher(ValveState, TOPIC_STATE, STATE_DURABLE_QOS)
         self.duty_pub = node.create_publisher(DutyCommand, TOPIC_DUTY_COMMAND, COMMAND_QOS)
         self.run_until = node.create_publisher(Float64, TOPIC_RUN_UNTIL, COMMAND_QOS)
         node.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS)

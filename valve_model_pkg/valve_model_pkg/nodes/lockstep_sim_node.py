@@ -34,6 +34,8 @@ is held). Before the first step it waits for one ``valve/state`` per valve
 at t = 0 (the start handshake, :class:`~valve_model_pkg.pneumatics.lockstep.StartHandshake`:
 the emulator sends its t = 0 frames once the driver is on the bus), re-publishing
 ``/clock`` = 0 meanwhile; only then is the first step's state sure to find the chain up.
+It reads an external valve's states with ``STATE_DURABLE_QOS`` (the driver's writer
+keeps them for a reader it matches late), so that one t = 0 state is never lost.
 
 A duty command that is not finite or has an impossible frequency is rejected and counted
 (the last valid command stays); a duty outside [0, 1] is clamped and counted.
@@ -60,7 +62,8 @@ from valve_model_pkg.interface import (ATMOSPHERIC_PRESSURE_PA, MAX_PWM_FREQUENC
                                        TOPIC_RUN_UNTIL, TOPIC_STATE)
 from valve_model_pkg.interface.ros import (CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS,
                                            JOINT_STATES_QOS,
-                                           PRESSURE_QOS, STATE_QOS, state_message)
+                                           PRESSURE_QOS, STATE_DURABLE_QOS, STATE_QOS,
+                                           state_message)
 from valve_model_pkg.model import ElectronicsConfig, default_parameters_path, load_parameters
 from valve_model_pkg.nodes.common import (DiagnosticLevel, declare_bool, declare_float,
                                           declare_string, key_values, run_node)
@@ -77,9 +80,6 @@ _BUDGET_S = 0.02
 #: published before its DDS writer matched a reader is lost for that reader; the resends
 #: carry the same data, so when they come changes nothing but the wall time.
 _RESEND_S = 0.25
-#: Wall time between this node's valve/state reader matching a writer and the start
-#: handshake's first /clock: the writer's side of the match may come later [s].
-_MATCH_SETTLE_S = 0.5
 
 
 def _stamp(ns: int) -> TimeMsg:
@@ -169,7 +169,6 @@ class LockstepSimulationNode(Node):
         # External valve: no first step before its t = 0 state came (protocol: the module
         # docstring of pneumatics/lockstep).
         self._handshake = StartHandshake(self._names, timeout) if self._external else None
-        self._chain_matched_s: float | None = None   # when valve/state first had a writer
         self._pacer = Pacer(rtf_max)
         self._rtf = RealTimeFactor()
         self._run_until_ns: int | None = 0 if self._start_paused else None
@@ -186,9 +185,11 @@ class LockstepSimulationNode(Node):
         self._state_pubs = {} if self._external else {
             n: self.create_publisher(ValveState, valve_topic(n, TOPIC_STATE), STATE_QOS)
             for n in self._names}
+        # An external valve's states: durable, so the one t = 0 state of the start
+        # handshake reaches this reader however late the driver's writer matches it.
         self._state_subs = {n: self.create_subscription(
             ValveState, valve_topic(n, TOPIC_STATE), lambda msg, n=n: self._on_state(n, msg),
-            STATE_QOS) for n in self._names} if self._external else {}
+            STATE_DURABLE_QOS) for n in self._names} if self._external else {}
         self._pressure_pubs = {n: self.create_publisher(
             FluidPressure, valve_topic(n, TOPIC_OUTPUT_PRESSURE), PRESSURE_QOS)
             for n in self._names}
@@ -420,28 +421,13 @@ class LockstepSimulationNode(Node):
         self._publish_clock(t_ns)
 
     def _publish_clock(self, t_ns: int) -> None:
-        """``/clock`` = ``t_ns``; during the start handshake only once the valve chain shows.
+        """``/clock`` = ``t_ns``.
 
-        The emulator sends its t = 0 frames once: on the first ``/clock`` after the driver
-        is on the bus. Held back until this node's ``valve/state`` subscription has matched
-        a publisher (the driver's, made when it is configured), they are not published
-        before the driver's publisher can reach this node, so the one t = 0 state is
-        not lost on the way.
+        During the start handshake too, whether or not the driver is up: the emulator
+        sends its t = 0 frames once, on the first ``/clock`` after the driver is on the
+        bus, and the driver's ``valve/state`` writer keeps that state for this node's
+        reader however late the two match (``STATE_DURABLE_QOS``).
         """
-        handshake = self._handshake
-        if handshake is not None and not handshake.ready:
-            if not all(sub.get_publisher_count() > 0 for sub in self._state_subs.values()):
-                self._chain_matched_s = None
-                return
-            # This reader has matched the writer; the writer's side of the match (its
-            # discovery of this reader) can come later, and a state it publishes before
-            # then is lost (fresh-clone CI, under load: 1.8 s after the driver came up).
-            # Settle a moment, as valve_demo does after its subscription counts.
-            now = time.monotonic()
-            if self._chain_matched_s is None:
-                self._chain_matched_s = now
-            if now - self._chain_matched_s < _MATCH_SETTLE_S:
-                return
         self._clock_pub.publish(ClockMsg(clock=_stamp(t_ns)))
 
     # --- diagnostics ----------------------------------------------------------------------
