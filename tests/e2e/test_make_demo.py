@@ -17,6 +17,11 @@ def _setpoints_mm(goals) -> list[int]:  # noqa: ANN001 - a goal sequence
     return [round(g * 1e3) for g, _ in goals]
 
 
+def _lockstep_lines(text: str) -> list[str]:
+    """What every node logged of the lockstep (timeouts, start handshake), for a failure."""
+    return [line for line in text.splitlines() if 'lockstep' in line or 'handshake' in line]
+
+
 # One worker at a time: each `make demo` runs `make setup` (pip, colcon) in this tree.
 @pytest.mark.xdist_group('make_demo')
 @pytest.mark.parametrize('backend', ['sim', 'can'])
@@ -27,6 +32,7 @@ def test_make_demo_runs_records_reports_and_leaves_nothing(tmp_path, backend, ma
     goals = demo_goals(hold_s=1.5)
     text = make_demo(f'BACKEND={backend}',
                      demo_args=f'--out {tmp_path} --hold 1.5 --as-fast-as-possible')
+    (tmp_path / 'demo_output.txt').write_text(text)  # kept with the run: every node's log
     assert 'the suite is up' in text
     assert f'moving the piston to {max(_setpoints_mm(goals))} mm' in text
     assert 'stopped:' in text
@@ -46,7 +52,8 @@ def test_make_demo_runs_records_reports_and_leaves_nothing(tmp_path, backend, ma
     assert [round(s['setpoint_mm']) for s in summary['steps']] == _setpoints_mm(goals)
     assert summary['goals'] == [{'position_mm': g * 1e3, 'hold_s': h} for g, h in goals]
     assert summary['clock'] == 'simulation (lockstep)'
-    assert summary['lockstep_timeouts'] == 0
+    assert summary['lockstep_timeouts'] == 0, (summary.get('last_lockstep_timeout'),
+                                               _lockstep_lines(text))
     # valve/state at the configured rate (1 kHz of simulation time), through the driver
     # with the CAN backend
     assert summary['valve_state']['rate_hz'] == pytest.approx(1000.0, rel=0.01)
@@ -79,7 +86,8 @@ def test_make_demo_double_cylinder_moves_both_valves(tmp_path, make_demo):
     assert 'flow_to_duty_cap exit 0' in text and 'flow_to_duty_rod exit 0' in text
     summary = json.loads((tmp_path / 'report' / 'report.json').read_text())
     assert summary['cylinder'] == 'double'
-    assert summary['lockstep_timeouts'] == 0
+    assert summary['lockstep_timeouts'] == 0, (summary.get('last_lockstep_timeout'),
+                                               _lockstep_lines(text))
     assert [round(s['setpoint_mm']) for s in summary['steps']] == \
         _setpoints_mm(demo_goals(quick=True))
     for step in summary['steps']:

@@ -307,6 +307,29 @@ def test_watchdog_commands_duty_zero() -> None:
         rig.close()
 
 
+def test_watchdog_on_the_nodes_clock_counts_its_time_not_the_wall() -> None:
+    # A driver on simulation time: a held simulation sends no commands because no time
+    # passes; however long the hold lasts on the wall clock, it is no silence.
+    from valve_driver_pkg.driver.diagnostics import Tally
+    from valve_driver_pkg.driver.host_command import HostCommand
+    lock = threading.Condition(threading.RLock())
+    host = HostCommand(DriverConfig(command_timeout_s=2.0), lock, Tally(), 1.0, 1000.0)
+    sim_s = [10.0]
+    host.watchdog_clock = lambda: sim_s[0]
+    with lock:
+        host.activate()
+    assert host.set_command(0.6, 50.0).accepted
+    assert not host.check_watchdog(time.monotonic() + 3600.0)   # an hour of wall time
+    sim_s[0] = 11.9
+    assert not host.check_watchdog(time.monotonic())
+    assert host.command == (0.6, 50.0)
+    sim_s[0] = 12.1                                  # 2.1 s of simulation time, no command
+    assert host.check_watchdog(time.monotonic())
+    assert host.command == (0.0, 50.0)
+    host.set_command(0.4, 50.0)                      # a command releases it
+    assert host.command == (0.4, 50.0)
+
+
 def test_deactivate_commands_duty_zero_and_disables(live) -> None:
     live.core.set_command(0.7, 50.0)
     wait_until(lambda: live.emu.output_duty == pytest.approx(0.7), what='duty at controller')

@@ -8,6 +8,7 @@ from valve_driver_pkg.emulator.lockstep import LockstepGateState
 
 def test_steps_past_a_tick_only_with_its_command_on_the_bus() -> None:
     gate = LockstepGateState(control_period_ns=5_000_000, timeout_s=2.0)
+    gate.tick_output_pa[5_000_000] = gate.bus_output_pa = 0.0   # the pressure is there
     assert gate.may_step(0, 0.0)                 # t = 0: duty 0 until the first tick
     assert gate.may_step(4_000_000, 0.0)
     assert not gate.may_step(5_000_000, 0.0)     # tick 5 ms: no command known yet
@@ -19,6 +20,20 @@ def test_steps_past_a_tick_only_with_its_command_on_the_bus() -> None:
     gate.forget_before(10_000_000)
     assert gate.tick_duty == {}
     assert gate.timeouts == 0
+
+
+def test_a_tick_needs_its_pressure_stamped_on_ros_too() -> None:
+    # The bus carrying the previous tick's pressure is no proof: the tick's own pressure
+    # must have come on ROS (a message lost before a DDS match is sent again by the
+    # simulation, so waiting for it is safe).
+    gate = LockstepGateState(control_period_ns=5_000_000, timeout_s=2.0)
+    gate.tick_duty[5_000_000] = gate.bus_duty = 0.25
+    gate.bus_output_pa = 0.0
+    assert not gate.may_step(5_000_000, 0.0)
+    assert 'output pressure (none stamped' in gate.missing(5_000_000)
+    gate.tick_output_pa[5_000_000] = 10.0        # within the frame's resolution of 0 Pa
+    assert gate.missing(5_000_000) is None
+    assert gate.may_step(5_000_000, 0.1)
 
 
 def test_a_missing_command_times_out_and_is_counted() -> None:

@@ -7,6 +7,9 @@ a duty outside [0, 1] and a frequency outside the protocol's limits are clamped,
 frequency 0 keeps the one in force; all are counted and the last problem kept as a note.
 Gaps in the commands' sequence numbers, per source, are ``commands_lost``. No duty
 command for ``command_timeout_s`` trips the watchdog: duty 0 until the next command.
+The watchdog counts wall time, or the time of :attr:`HostCommand.watchdog_clock` where one
+is given (a node on simulation time gives its ROS clock: a held simulation sends no
+commands because no time passes, which is no silence).
 
 The suite's protocol (:class:`~valve_driver_pkg.driver.transmit.TransmitScheduler`) and
 the device protocols (:class:`~valve_driver_pkg.devices.commands.CommandState`) extend it
@@ -18,6 +21,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from valve_driver_pkg.driver.config import DriverConfig
@@ -68,8 +72,10 @@ class HostCommand:
         self.watchdog_tripped = False
         self.disable_pending = False     # deactivate(): one "disable" frame still to send
         self.last_command_note = ''
-        self._last_command_mono: float | None = None
+        self._last_command_t: float | None = None   # on the watchdog's clock [s]
         self._sequences: dict[str, int] = {}
+        #: The watchdog's time base [s]; None = the wall clock (monotonic).
+        self.watchdog_clock: Callable[[], float] | None = None
 
     # --- what the subclasses add -------------------------------------------------------------
     def _command_changed(self) -> None:
@@ -97,7 +103,7 @@ class HostCommand:
     def activate(self) -> None:
         """Start commanding; duty 0 until a command arrives. Lock held."""
         self.duty = 0.0
-        self._last_command_mono = None
+        self._last_command_t = None
         self.watchdog_tripped = False
         self.disable_pending = False
         self.active = True
@@ -155,7 +161,7 @@ class HostCommand:
                 self._tally.mark('command_clamped', now)
                 self.last_command_note = '; '.join(notes)
             self.duty, self.pwm_hz = duty, freq
-            self._last_command_mono = now
+            self._last_command_t = now if self.watchdog_clock is None else self.watchdog_clock()
             self._accepted(now, float(age_s) if math.isfinite(age_s) and 0.0 <= age_s < 3600.0
                            else 0.0)
             if self.watchdog_tripped:
@@ -209,12 +215,18 @@ class HostCommand:
 
     # --- I/O thread --------------------------------------------------------------------------
     def check_watchdog(self, now: float) -> bool:
-        """Trip the duty watchdog if commands stopped; True if it tripped now."""
+        """Trip the duty watchdog if commands stopped; True if it tripped now.
+
+        ``now`` is the wall clock (monotonic) [s]; with a :attr:`watchdog_clock` its time
+        counts instead.
+        """
         limit = self._config.command_timeout_s
         with self._lock:
+            if self.watchdog_clock is not None:
+                now = self.watchdog_clock()
             if not (self.active and limit > 0.0 and not self.watchdog_tripped
-                    and self._last_command_mono is not None
-                    and now - self._last_command_mono > limit):
+                    and self._last_command_t is not None
+                    and now - self._last_command_t > limit):
                 return False
             self.watchdog_tripped = True
             self._tally.count('watchdog_trips')

@@ -20,27 +20,33 @@ of the wall clock:
    ``/clock`` race; this wait makes the run the same whichever comes first.
 5. The same holds for the chamber (output) pressure the simulation publishes at tick T:
    the driver forwards it in a ``ValvePressure`` frame, and the model does not advance
-   past T until that frame's pressure is the one stamped T. Without this the pressure
-   reached the valve one or two steps early or late depending on the computer's load
-   (step settling times of the CAN demo varied by up to 30 ms between runs).
+   past T until the bridge has seen the pressure stamped T on ROS and that frame's
+   pressure is the one stamped T. Without this the pressure reached the valve one or two
+   steps early or late depending on the computer's load.
+6. Nothing here waits for a message that may never come: a duty command or pressure
+   published before its DDS writer matched the bridge's (or the driver's) reader is lost
+   for it, and the simulation, whose step then waits for its ``valve/state``, publishes
+   tick T's pressure and joint states again (the controller and ``flow_to_duty`` answer
+   them again with the same commands) until the step's state comes. A wait ends when
+   what the tick needs arrives, however long the computer took; only one of more than
+   ``timeout_s`` is a timeout.
 
 Start handshake. The emulator sends its t = 0 frames (the valve at rest) not when it
 starts but once, when the whole chain can carry them: an enabling ``ValveCommand`` or a
 ``ValvePressure`` from the host (the CAN driver sends these only while active, so it is on
 the bus and publishes what it receives; an inactive one may send ``Enable`` 0 frames,
-which do not count) and then a ``/clock`` from the simulation (which publishes it
-only once its ``valve/state`` subscription has matched the driver's publisher) arrived. The
-model does not advance before that. The simulation in turn does not ask for the first step
-until that t = 0 ``valve/state`` has reached it (``valve_lockstep_sim``,
-:class:`valve_model_pkg.pneumatics.lockstep.StartHandshake`). Before this, the first step's
-telemetry frame could reach a driver still compiling or opening its bus (the demo saw
-"the suite is up" before the driver was): the frame was lost, ``/clock`` re-sends could not
-bring it back (the model had already advanced to that time), and the run waited the
-10 s lockstep timeout at t = 0.001 s. The t = 0 frames are sent exactly once, so
+which do not count) and then a ``/clock`` from the simulation arrived. The model does not
+advance before that. The simulation in turn does not ask for the first step until that
+t = 0 ``valve/state`` has reached it (``valve_lockstep_sim``,
+:class:`valve_model_pkg.pneumatics.lockstep.StartHandshake`); the driver's state writer
+keeps it for the simulation's reader however late the two match (``STATE_DURABLE_QOS``).
+A telemetry frame sent before the driver is on the bus reaches nobody and cannot be sent
+again (the model has advanced past its time); the t = 0 frames are sent exactly once, so
 no state the simulation did not ask for can arrive once it asked for a step.
 
-A tick whose command does not arrive within ``timeout_s`` of wall time is a *lockstep
-timeout*: the model goes on with the command in force, the bridge logs it and counts it
+A tick whose command or pressure does not arrive within ``timeout_s`` of wall time is a
+*lockstep timeout*: the model goes on with the command in force, the bridge logs it (what
+was missing: the ROS message, or the frame on the bus) and counts it
 (``stats['lockstep_timeouts']``). The emulator has no overruns in this mode: model time
 never runs ahead of what it has computed (``max_burst`` 0: every telemetry instant is sent).
 """
@@ -81,6 +87,7 @@ class LockstepGateState:
         self.tick_output_pa: dict[int, float] = {}  # pressure stamp [ns] -> gauge [Pa]
         self.bus_output_pa: float | None = None  # the last ValvePressure output (gauge)
         self.waiting_since: float | None = None
+        self.released_tick: int | None = None   # the last tick a timeout let go
         self.timeouts = 0
         self.last_timeout = ''
         self.host_seen = False    # an enabling ValveCommand or a ValvePressure: driver active
@@ -105,13 +112,18 @@ class LockstepGateState:
         return model_ns // self.control_ns * self.control_ns
 
     def may_step(self, model_ns: int, wall_s: float) -> bool:
-        """Whether the model may advance one step from ``model_ns`` now."""
+        """Whether the model may advance one step from ``model_ns`` now.
+
+        Past a control tick T only with T's duty command and T's output pressure (both
+        stamped T on ROS) on the bus; a wait of more than ``timeout_s`` of wall time
+        releases the tick with what the bus carries, counted and described in
+        ``last_timeout``.
+        """
         tick = self.tick_of(model_ns)
-        if tick == 0:
+        if tick == 0 or tick == self.released_tick:
             return True  # the simulation does not wait at t = 0 either: duty 0 until 5 ms
-        duty = self.tick_duty.get(tick)
-        if duty is not None and self.bus_duty is not None \
-                and abs(duty - self.bus_duty) <= _DUTY_RESOLUTION and self._pressure_in(tick):
+        missing = self.missing(tick)
+        if missing is None:
             self.waiting_since = None
             return True
         if self.waiting_since is None:
@@ -119,21 +131,33 @@ class LockstepGateState:
             return False
         if wall_s - self.waiting_since > self.timeout_s:
             self.timeouts += 1
-            what = 'duty command' if duty is None or self.bus_duty is None or abs(
-                duty - self.bus_duty) > _DUTY_RESOLUTION else 'output pressure'
-            self.last_timeout = (f'no {what} for tick t = {tick * 1e-9:.3f} s reached '
+            self.last_timeout = (f'no {missing} for tick t = {tick * 1e-9:.3f} s reached '
                                  f'the emulator within {self.timeout_s:g} s')
-            self.tick_output_pa.pop(tick, None)
-            self.tick_duty[tick] = self.bus_duty if self.bus_duty is not None else 0.0
+            self.released_tick = tick   # its remaining steps go on with the bus's values
             self.waiting_since = None
             return True
         return False
 
-    def _pressure_in(self, tick: int) -> bool:
-        """Whether the bus carries tick ``tick``'s output pressure (True if none known)."""
+    def missing(self, tick: int) -> str | None:
+        """What tick ``tick`` still lacks on the bus, in words; None if nothing.
+
+        Says whether the tick's value never came on ROS or the bus carries another one
+        (a lost ROS message and a CAN frame not yet sent are different faults).
+        """
+        duty = self.tick_duty.get(tick)
+        if duty is None:
+            return 'duty command (none stamped with the tick came on ROS)'
+        if self.bus_duty is None or abs(duty - self.bus_duty) > _DUTY_RESOLUTION:
+            bus = 'none' if self.bus_duty is None else f'{self.bus_duty:.4f}'
+            return f'duty command (the tick\'s is {duty:.4f}, the bus carries {bus})'
         want = self.tick_output_pa.get(tick)
-        return want is None or (self.bus_output_pa is not None and
-                                abs(want - self.bus_output_pa) <= _PRESSURE_RESOLUTION_PA)
+        if want is None:
+            return 'output pressure (none stamped with the tick came on ROS)'
+        if self.bus_output_pa is None or \
+                abs(want - self.bus_output_pa) > _PRESSURE_RESOLUTION_PA:
+            bus = 'none' if self.bus_output_pa is None else f'{self.bus_output_pa:.0f} Pa'
+            return f'output pressure (the tick\'s is {want:.0f} Pa, the bus carries {bus})'
+        return None
 
     def forget_before(self, tick_ns: int) -> None:
         """Drop the commands and pressures of ticks before ``tick_ns`` (bounded memory)."""
@@ -211,7 +235,7 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
                     gate.bus_duty = float(signals['Duty']) if signals['Enable'] else 0.0
                     # Only an enabling command shows an active driver: an inactive one
                     # sends ClearFaults frames (Enable 0) too, and would drop the t = 0
-                    # telemetry the start handshake sends once (CI run 12: lost twice).
+                    # telemetry the start handshake sends once.
                     if signals['Enable']:
                         gate.host_seen = True
                     advance()

@@ -8,7 +8,9 @@ apart):
   absolute Pa); until one arrives the parameters ``supply_pressure_pa`` /
   ``output_pressure_pa`` (gauge) are used; the driver forwards them to the controller;
 - publishes ``valve/state`` (valve_msgs/ValveState, ``source = SOURCE_CAN``), one message per
-  valid telemetry frame (1 kHz with the default controller), while active;
+  valid telemetry frame (1 kHz with the default controller), while active; the writer keeps
+  its last states for a reader that asks for them (``STATE_DURABLE_QOS``: the lockstep
+  simulation, which must not lose one because the match came late);
 - publishes ``/diagnostics`` (diagnostic_msgs/DiagnosticArray): four statuses (CAN bus,
   telemetry, commands, controller) every ``diagnostics_period_s`` and at once on every
   level change (from configure to cleanup), named ``<namespace/node name> node <id>:
@@ -31,7 +33,10 @@ apart):
 Duty commands are counted (received, rejected, on the bus, superseded, lost by their
 ``sequence`` per ``header.frame_id``, stale: older than ``stale_command_s`` from their
 ``header.stamp`` when their frame goes out). The subscription's depth
-(``COMMAND_QUEUE_DEPTH``) holds 50 ms of commands at the documented 1 kHz.
+(``COMMAND_QUEUE_DEPTH``) holds 50 ms of commands at the documented 1 kHz. The command
+watchdog (``command_timeout_s``) counts the node's time: with ``use_sim_time`` simulation
+time, so a simulation held in lockstep (no commands because no time passes) does not
+trip it.
 
 Lifecycle: configure opens the bus and starts receiving; activate starts sending commands
 (duty 0 until a command arrives); deactivate commands duty 0 with the output disabled and
@@ -71,7 +76,7 @@ from valve_driver_pkg.errors import ValveDriverError
 from valve_model_pkg.interface import (TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
                                        TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
                                        TOPIC_SUPPLY_PRESSURE, gauge_from_absolute)
-from valve_model_pkg.interface.ros import (COMMAND_QOS, PRESSURE_QOS, STATE_QOS,
+from valve_model_pkg.interface.ros import (COMMAND_QOS, PRESSURE_QOS, STATE_DURABLE_QOS,
                                            forward_logging, state_message)
 from valve_model_pkg.model.sample import ValveSample
 
@@ -190,8 +195,10 @@ class CanDriverNode(Node):
                 self._hardware_id = f'{config.interface}:{config.channel} {core.protocol.label}'
             self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
             self._state_pub = self.create_lifecycle_publisher(ValveState, TOPIC_STATE,
-                                                              STATE_QOS)
+                                                              STATE_DURABLE_QOS)
             self._core = core
+            if self.get_parameter('use_sim_time').value:
+                core.host_command.watchdog_clock = self._ros_time_s
             core.open()
         except (ValveDriverError, OSError, ValueError, ImportError) as err:
             self.get_logger().error(f'configure failed: {err}')
@@ -214,6 +221,10 @@ class CanDriverNode(Node):
         self.get_logger().info(f'configured: {self._hardware_id}, {what}')
         self._publish_diagnostics()
         return TransitionCallbackReturn.SUCCESS
+
+    def _ros_time_s(self) -> float:
+        """The node's clock [s]: the command watchdog's with ``use_sim_time``."""
+        return self.get_clock().now().nanoseconds * 1e-9
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         if self._core is None or not self._core.is_open:

@@ -16,7 +16,8 @@ from valve_model_pkg.interface import (COMMAND_QUEUE_DEPTH, DIAGNOSTICS_QUEUE_DE
                                        JOINT_STATES_QUEUE_DEPTH, STATE_QUEUE_DEPTH)
 from valve_model_pkg.model.sample import ValveSample
 
-__all__ = ['STATE_QOS', 'COMMAND_QOS', 'PRESSURE_QOS', 'JOINT_STATES_QOS', 'DIAGNOSTICS_QOS',
+__all__ = ['STATE_QOS', 'STATE_DURABLE_QOS', 'COMMAND_QOS', 'PRESSURE_QOS', 'JOINT_STATES_QOS',
+           'DIAGNOSTICS_QOS',
            'CLOCK_QOS', 'RELAY_QOS',
            'state_message', 'RosLogHandler', 'forward_logging']
 
@@ -25,6 +26,14 @@ __all__ = ['STATE_QOS', 'COMMAND_QOS', 'PRESSURE_QOS', 'JOINT_STATES_QOS', 'DIAG
 STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=STATE_QUEUE_DEPTH,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
+#: valve/state of a backend stepped one state at a time (the CAN driver, in lockstep with
+#: the emulator on /clock): the writer keeps its last states for a reader that matches it
+#: late, and the simulation's external-valve reader asks for them, so a state published
+#: before the writer's side of the match is not lost (the start handshake's one t = 0
+#: state). Readers with STATE_QOS (volatile) match this writer and get no history.
+STATE_DURABLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=STATE_QUEUE_DEPTH,
+                               reliability=ReliabilityPolicy.RELIABLE,
+                               durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Commands: reliable; only the latest matters but a few are kept for a recorder.
 COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=COMMAND_QUEUE_DEPTH,
                          reliability=ReliabilityPolicy.RELIABLE,

@@ -25,12 +25,17 @@ With ``valve_source:=external`` the valve runs elsewhere (the CAN backend: the c
 emulator on the simulation clock, ``valve_controller_emulator --clock sim``, read through
 the CAN driver): every step the node publishes ``/clock`` = the end of the step, waits for
 one ``valve/state`` (the valve advanced to that time), and integrates the cylinder over
-the step with its spool position; it publishes no ``valve/state`` itself. A step whose
-valve state does not come within ``lockstep_timeout_s`` is a lockstep timeout too (the
-last opening is held). Before the first step it waits for one ``valve/state`` per valve
+the step with its spool position; it publishes no ``valve/state`` itself. While it waits
+for a step's state it publishes the tick's pressures and joint states again every 0.25 s
+(the valve's side needs the tick's duty command and pressure, and one lost before a DDS
+match would never come otherwise) with the step's ``/clock``. A step whose valve state
+does not come within ``lockstep_timeout_s`` is a lockstep timeout too (the last opening
+is held). Before the first step it waits for one ``valve/state`` per valve
 at t = 0 (the start handshake, :class:`~valve_model_pkg.pneumatics.lockstep.StartHandshake`:
 the emulator sends its t = 0 frames once the driver is on the bus), re-publishing
 ``/clock`` = 0 meanwhile; only then is the first step's state sure to find the chain up.
+It reads an external valve's states with ``STATE_DURABLE_QOS`` (the driver's writer
+keeps them for a reader it matches late), so that one t = 0 state is never lost.
 
 A duty command that is not finite or has an impossible frequency is rejected and counted
 (the last valid command stays); a duty outside [0, 1] is clamped and counted.
@@ -57,7 +62,8 @@ from valve_model_pkg.interface import (ATMOSPHERIC_PRESSURE_PA, MAX_PWM_FREQUENC
                                        TOPIC_RUN_UNTIL, TOPIC_STATE)
 from valve_model_pkg.interface.ros import (CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS,
                                            JOINT_STATES_QOS,
-                                           PRESSURE_QOS, STATE_QOS, state_message)
+                                           PRESSURE_QOS, STATE_DURABLE_QOS, STATE_QOS,
+                                           state_message)
 from valve_model_pkg.model import ElectronicsConfig, default_parameters_path, load_parameters
 from valve_model_pkg.nodes.common import (DiagnosticLevel, declare_bool, declare_float,
                                           declare_string, key_values, run_node)
@@ -69,9 +75,11 @@ from valve_model_pkg.pneumatics.lockstep import (LockstepGate, Pacer, RealTimeFa
 
 #: Longest a timer callback keeps stepping before the executor gets its turn [s].
 _BUDGET_S = 0.02
-#: Wall time between this node's valve/state reader matching a writer and the start
-#: handshake's first /clock: the writer's side of the match may come later [s].
-_MATCH_SETTLE_S = 0.5
+#: Wall time a wait (for a tick's answers, an external valve's state, the start
+#: handshake) lasts before this node publishes what the wait needs again [s]. A message
+#: published before its DDS writer matched a reader is lost for that reader; the resends
+#: carry the same data, so when they come changes nothing but the wall time.
+_RESEND_S = 0.25
 
 
 def _stamp(ns: int) -> TimeMsg:
@@ -161,7 +169,6 @@ class LockstepSimulationNode(Node):
         # External valve: no first step before its t = 0 state came (protocol: the module
         # docstring of pneumatics/lockstep).
         self._handshake = StartHandshake(self._names, timeout) if self._external else None
-        self._chain_matched_s: float | None = None   # when valve/state first had a writer
         self._pacer = Pacer(rtf_max)
         self._rtf = RealTimeFactor()
         self._run_until_ns: int | None = 0 if self._start_paused else None
@@ -170,14 +177,19 @@ class LockstepSimulationNode(Node):
         self._commands = {n: SequenceTracker() for n in self._names}
         self._sequence = {n: 0 for n in self._names}
         self._last_resend = 0.0
+        # The last tick's messages, as published (sent again while a step waits for them)
+        self._tick_pressures: dict[str, FluidPressure] = {}
+        self._tick_joint: JointState | None = None
 
         self._clock_pub = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS)
         self._state_pubs = {} if self._external else {
             n: self.create_publisher(ValveState, valve_topic(n, TOPIC_STATE), STATE_QOS)
             for n in self._names}
+        # An external valve's states: durable, so the one t = 0 state of the start
+        # handshake reaches this reader however late the driver's writer matches it.
         self._state_subs = {n: self.create_subscription(
             ValveState, valve_topic(n, TOPIC_STATE), lambda msg, n=n: self._on_state(n, msg),
-            STATE_QOS) for n in self._names} if self._external else {}
+            STATE_DURABLE_QOS) for n in self._names} if self._external else {}
         self._pressure_pubs = {n: self.create_publisher(
             FluidPressure, valve_topic(n, TOPIC_OUTPUT_PRESSURE), PRESSURE_QOS)
             for n in self._names}
@@ -262,10 +274,10 @@ class LockstepSimulationNode(Node):
                                               throttle_duration_sec=1.0)
                     self._finish_step()
                     continue
-                if wall - self._last_resend > 0.25 and wall - self._step_requested_s > 0.25:
+                if wall - self._last_resend > _RESEND_S and \
+                        wall - self._step_requested_s > _RESEND_S:
                     self._last_resend = wall
-                    self._clock_pub.publish(ClockMsg(clock=_stamp(self._axis.t_ns
-                                                                  + self._step_ns)))
+                    self._resend_step_request()
                 return
             if self._gate.waiting:
                 if self._gate.check_timeout(wall):
@@ -275,13 +287,14 @@ class LockstepSimulationNode(Node):
                         throttle_duration_sec=1.0)
                     self._pacer.restart(wall, self._axis.t_ns)
                     continue
-                if wall - self._last_resend > 0.25 and wall - self._gate.waiting_since_s > 0.25:
+                if wall - self._last_resend > _RESEND_S and \
+                        wall - self._gate.waiting_since_s > _RESEND_S:
                     self._last_resend = wall
                     self._publish_tick()  # for a node that started late
                 return
             if self._run_until_ns is not None and self._axis.t_ns >= self._run_until_ns:
                 self._holding = True
-                if wall - self._last_resend > 0.25:
+                if wall - self._last_resend > _RESEND_S:
                     # the clock of the hold, for a node that started (or matched) late
                     self._last_resend = wall
                     self._publish_clock(self._axis.t_ns)
@@ -294,7 +307,7 @@ class LockstepSimulationNode(Node):
                                               'asking for the first step anyway')
                     self._pacer.restart(wall, self._axis.t_ns)
                     continue
-                if wall - self._last_resend > 0.25:
+                if wall - self._last_resend > _RESEND_S:
                     # the t = 0 clock, for an emulator that started (or matched) late
                     self._last_resend = wall
                     self._publish_clock(self._axis.t_ns)
@@ -337,6 +350,22 @@ class LockstepSimulationNode(Node):
         self._axis.step_with_openings(openings)
         self._after_step(publish_states=False)
 
+    def _resend_step_request(self) -> None:
+        """External valve, its step's state overdue: ask again, with what the step needs.
+
+        The valve's side advances past a control tick only with that tick's duty command
+        and output pressure (:mod:`valve_driver_pkg.emulator.lockstep`); one lost on its
+        way there (published before a DDS match) would stall the step. So the tick's
+        pressures and joint states go out again (the controller answers a tick again with
+        the same flow command, ``flow_to_duty`` with the same duty command), and the
+        step's ``/clock``. The tick's ``/clock`` does not: the clock never goes back.
+        """
+        for n, msg in self._tick_pressures.items():
+            self._pressure_pubs[n].publish(msg)
+        if self._tick_joint is not None:
+            self._joint_pub.publish(self._tick_joint)
+        self._clock_pub.publish(ClockMsg(clock=_stamp(self._axis.t_ns + self._step_ns)))
+
     def _step(self) -> None:
         if self._external:
             # Ask the valve to advance to the end of the step (protocol: emulator/lockstep)
@@ -365,12 +394,14 @@ class LockstepSimulationNode(Node):
         """Pressures, joint states, then /clock, stamped with the tick (protocol step 1)."""
         t_ns = self._axis.t_ns
         stamp = _stamp(t_ns)
+        self._tick_pressures = {}
         for n in self._names:
             p = FluidPressure()
             p.header.stamp = stamp
             p.header.frame_id = f'{n}_chamber' if n else 'cylinder_chamber'
             p.fluid_pressure = self._axis.chamber_gauge_pressure_pa(n) + ATMOSPHERIC_PRESSURE_PA
             self._pressure_pubs[n].publish(p)
+            self._tick_pressures[n] = p
         cyl = self._axis.cylinder
         state = cyl.state
         joint = JointState()
@@ -386,31 +417,17 @@ class LockstepSimulationNode(Node):
                 joint.velocity.append(0.0)
                 joint.effort.append(0.0)
         self._joint_pub.publish(joint)
+        self._tick_joint = joint
         self._publish_clock(t_ns)
 
     def _publish_clock(self, t_ns: int) -> None:
-        """``/clock`` = ``t_ns``; during the start handshake only once the valve chain shows.
+        """``/clock`` = ``t_ns``.
 
-        The emulator sends its t = 0 frames once: on the first ``/clock`` after the driver
-        is on the bus. Held back until this node's ``valve/state`` subscription has matched
-        a publisher (the driver's, made when it is configured), they are not published
-        before the driver's publisher can reach this node, so the one t = 0 state is
-        not lost on the way.
+        During the start handshake too, whether or not the driver is up: the emulator
+        sends its t = 0 frames once, on the first ``/clock`` after the driver is on the
+        bus, and the driver's ``valve/state`` writer keeps that state for this node's
+        reader however late the two match (``STATE_DURABLE_QOS``).
         """
-        handshake = self._handshake
-        if handshake is not None and not handshake.ready:
-            if not all(sub.get_publisher_count() > 0 for sub in self._state_subs.values()):
-                self._chain_matched_s = None
-                return
-            # This reader has matched the writer; the writer's side of the match (its
-            # discovery of this reader) can come later, and a state it publishes before
-            # then is lost (fresh-clone CI, under load: 1.8 s after the driver came up).
-            # Settle a moment, as valve_demo does after its subscription counts.
-            now = time.monotonic()
-            if self._chain_matched_s is None:
-                self._chain_matched_s = now
-            if now - self._chain_matched_s < _MATCH_SETTLE_S:
-                return
         self._clock_pub.publish(ClockMsg(clock=_stamp(t_ns)))
 
     # --- diagnostics ----------------------------------------------------------------------
@@ -423,7 +440,7 @@ class LockstepSimulationNode(Node):
             text = f'held at t = {self._axis.t_ns * 1e-9:.3f} s'
         elif self._handshake is not None and not self._handshake.ready:
             text = 'waiting for valve/state at t = 0 (start handshake)'
-        elif self._gate.waiting and wall - self._gate.waiting_since_s > 0.25:
+        elif self._gate.waiting and wall - self._gate.waiting_since_s > _RESEND_S:
             text = (f'waiting {wall - self._gate.waiting_since_s:.1f} s for the duty '
                     f'command(s) of t = {self._gate.tick_ns * 1e-9:.3f} s')
         problems = []

@@ -17,7 +17,14 @@ protocol over topics, for a step of ``step_ns`` and a control tick every
    with the command in force and counts a *lockstep timeout* (diagnostics, report): the
    run is then no longer deterministic, and says so.
 4. While it waits longer than ``resend_s`` it publishes tick T's messages again (a node
-   that started late gets them; the controller ignores a tick it already answered).
+   that started late, or whose reader matched the publisher late, gets them; the
+   controller answers a tick it already answered again with the same flow command, and
+   ``flow_to_duty`` that with the same duty command, so a lost answer comes again and an
+   answer that was not lost changes nothing). With an external valve the same holds for
+   a step whose ``valve/state`` is overdue: the valve's side waits for tick T's duty
+   command and output pressure before it advances past T, so T's pressures and joint
+   states go out again, with the step's ``/clock`` (never T's: the clock never goes
+   back).
 
 With an external valve (``valve_source:=external``: the CAN controller emulator on the
 simulation clock, read through the CAN driver) the simulation first holds a *start
