@@ -292,10 +292,16 @@ def test_commands_are_clamped_or_rejected_never_sent_raw(live, duty, freq, accep
 
 
 def test_watchdog_commands_duty_zero() -> None:
-    rig = LiveRig(command_timeout_s=0.1)
+    # The watchdog on a clock the test moves (as a node on simulation time has it): the
+    # duty is seen at the controller before the silence begins, however loaded the machine.
+    rig = LiveRig(command_timeout_s=0.5)
+    clock_s = [100.0]
+    rig.core.host_command.watchdog_clock = lambda: clock_s[0]
     try:
         rig.core.set_command(0.6, 50.0)
         wait_until(lambda: rig.emu.output_duty == pytest.approx(0.6), what='duty at controller')
+        assert rig.level('commands') is not Level.WARN
+        clock_s[0] += 0.6                                # silence beyond the timeout
         wait_until(lambda: rig.level('commands') is Level.WARN, what='watchdog')
         assert rig.core.command == (0.0, 50.0)
         assert 'watchdog' in rig.status('commands').message
