@@ -1,4 +1,4 @@
-"""The example position controller settles every demo step (issue 14, item 3), through the
+"""The example position controller settles every demo step, through the
 real valve model, drive electronics and static duty map (ROS-free closed loop, the same
 plant code valve_lockstep_sim runs), also with 20 ms of extra transport delay."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The double-acting example (issue 14, item 4): one 3/2 valve per chamber, one controller
+"""The double-acting example: one 3/2 valve per chamber, one controller
 commanding both, settles every demo step through the real valve model, drive electronics
 and static duty map (ROS-free, the plant code valve_lockstep_sim runs with
 cylinder:=double), also with 20 ms of extra transport delay."""

@@ -1,4 +1,4 @@
-"""Issue item 5, the round trip: flow -> duty -> simulated steady average flow.
+"""The round trip: flow -> duty -> simulated steady average flow.
 
 For flows across the reachable range (from the smallest flow the valve delivers above its
 dead band to the flow at 100 % duty) at several supply pressures, on and between the map's

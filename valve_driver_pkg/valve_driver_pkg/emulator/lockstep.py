@@ -32,12 +32,12 @@ which do not count) and then a ``/clock`` from the simulation (which publishes i
 only once its ``valve/state`` subscription has matched the driver's publisher) arrived. The
 model does not advance before that. The simulation in turn does not ask for the first step
 until that t = 0 ``valve/state`` has reached it (``valve_lockstep_sim``,
-:class:`valve_model_pkg.pneumatics.lockstep.StartHandshake`). Before this, the first step's
-telemetry frame could reach a driver still compiling or opening its bus (the demo saw
-"the suite is up" before the driver was): the frame was lost, ``/clock`` re-sends could not
-bring it back (the model had already advanced to that time), and the run waited the
-10 s lockstep timeout at t = 0.001 s. The t = 0 frames are sent exactly once, so
-no state the simulation did not ask for can arrive once it asked for a step.
+:class:`valve_model_pkg.pneumatics.lockstep.StartHandshake`). Without it, the first step's
+telemetry frame could reach a driver still compiling or opening its bus: the frame would be
+lost, ``/clock`` re-sends could not bring it back (the model has already advanced to that
+time), and the run would wait the 10 s lockstep timeout at t = 0.001 s. The t = 0 frames
+are sent exactly once, so no state the simulation did not ask for can arrive once it asked
+for a step.
 
 A tick whose command does not arrive within ``timeout_s`` of wall time is a *lockstep
 timeout*: the model goes on with the command in force, the bridge logs it and counts it
@@ -211,7 +211,7 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
                     gate.bus_duty = float(signals['Duty']) if signals['Enable'] else 0.0
                     # Only an enabling command shows an active driver: an inactive one
                     # sends ClearFaults frames (Enable 0) too, and would drop the t = 0
-                    # telemetry the start handshake sends once (CI run 12: lost twice).
+                    # telemetry the start handshake sends once.
                     if signals['Enable']:
                         gate.host_seen = True
                     advance()

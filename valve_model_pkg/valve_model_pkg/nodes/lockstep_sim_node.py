@@ -404,7 +404,7 @@ class LockstepSimulationNode(Node):
                 return
             # This reader has matched the writer; the writer's side of the match (its
             # discovery of this reader) can come later, and a state it publishes before
-            # then is lost (fresh-clone CI, under load: 1.8 s after the driver came up).
+            # then is lost (under load, seconds after the driver came up).
             # Settle a moment, as valve_demo does after its subscription counts.
             now = time.monotonic()
             if self._chain_matched_s is None:
