@@ -1,4 +1,4 @@
-"""Benchmark many valves per machine (issue 15): CPU and memory of the simulator nodes.
+"""Benchmark many valves per machine: CPU and memory of the simulator nodes.
 
 Each node process runs at 1 kHz per valve; its CPU (utime + stime from /proc, as a fraction
 of one core) and peak resident memory (VmHWM) are measured over a window after start-up.

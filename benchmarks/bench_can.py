@@ -1,4 +1,4 @@
-"""Benchmark the CAN driver's latencies (issue 6, item 7).
+"""Benchmark the CAN driver's latencies.
 
 * command-to-frame: ``CanDriverCore.set_command`` (what the node's duty-command callback
   calls) until the ``ValveCommand`` frame is received by the controller's side of the bus;
@@ -12,7 +12,7 @@ python-can's virtual bus; the same over the tcp_loopback hub (the bus of the dem
 information. The process runs as the driver program does (0.5 ms GIL switch interval, GC
 frozen after start-up). Target: p99 within one telemetry period (1 ms at 1 kHz).
 
-Under load (issue 11): command-to-frame p50, p99 and max on the virtual bus idle and beside
+Under load: command-to-frame p50, p99 and max on the virtual bus idle and beside
 two CPU-bound processes (``python3 -c 'while True: pass'``), with the driver's bus threads
 at ``io_nice`` -10 (the default, when permitted) and at 0 (unchanged), so the effect of the
 priority is measured, not assumed. Writes benchmarks/results/can.json.

@@ -1,4 +1,4 @@
-"""Fleet identification benchmark (issue 15 item 4): scaling from 1 to 2 local workers.
+"""Fleet identification benchmark: scaling from 1 to 2 local workers.
 
 Writes benchmarks/results/fleet.json (records: name, value, unit, reference_name,
 reference_value, ratio, target, passed, notes).

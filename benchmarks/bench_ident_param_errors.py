@@ -1,4 +1,4 @@
-"""Error in each parameter identified from operational records with known truth (issue 12.6).
+"""Error in each parameter identified from operational records with known truth.
 
 Writes benchmarks/results/ident_param_errors.json (records: name, value, unit,
 reference_name, reference_value, ratio, target, passed, notes).

@@ -1,4 +1,4 @@
-"""Identification benchmarks (issue 5): speed of the fit and of the whole loop, accuracy.
+"""Identification benchmarks: speed of the fit and of the whole loop, accuracy.
 
 Writes benchmarks/results/identify.json (records: name, value, unit, reference_name,
 reference_value, ratio, target, passed, notes).
@@ -11,7 +11,7 @@ reference_value, ratio, target, passed, notes).
    parameter after (1), target <= 5 %.
 4. ``close_the_loop_diagnosis_correct``: how many of the generated cases (none, six
    effects, one outside the list) the loop answers right (informative).
-5. ``identify_operation_10s_1khz`` (issue 12): baseline and drive electronics from a 10 s
+5. ``identify_operation_10s_1khz``: baseline and drive electronics from a 10 s
    operational record at 1 kHz, target <= 60 s on 2 cores.
 6. ``close_the_loop_60ms_pair_plus_3s_record``: the whole loop on a 60 ms step pair plus a
    3 s operational record, target <= 60 s on 2 cores.
@@ -81,7 +81,7 @@ def _write_operation(path: Path, params, duration_s: float, noise_a: float, seed
 
 
 def _operation_records(tmp: str, base, load: str) -> list[dict]:
-    """Issue 12: a 10 s operational record, the close-the-loop run on a 60 ms step pair
+    """A 10 s operational record, the close-the-loop run on a 60 ms step pair
     plus a 3 s record, and the per-parameter error on records with known truth."""
     import numpy as np
     from valve_model_pkg.identification.readers import read_measurements

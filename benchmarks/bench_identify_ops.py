@@ -1,4 +1,4 @@
-"""Operational identification speed (issue 12 item 6, issue 13 item 5).
+"""Operational identification speed.
 
 Writes benchmarks/results/identify_ops.json (records: name, value, unit, reference_name,
 reference_value, ratio, target, passed, notes).

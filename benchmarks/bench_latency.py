@@ -1,6 +1,6 @@
 """Benchmark the command path: a duty command's publication to the duty in force.
 
-Issue 11 item 5. For the simulator backend (``valve_simulator``) and the CAN backend
+For the simulator backend (``valve_simulator``) and the CAN backend
 (``valve_controller_emulator`` + ``valve_can_driver`` as ``valve_bringup.backend`` starts
 them), idle and beside two CPU hogs (``python3 -c 'while True: pass'``, killed after), this
 process publishes ``valve/duty_command`` and measures, on its own monotonic clock, the time

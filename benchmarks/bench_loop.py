@@ -1,4 +1,4 @@
-"""The whole loop, both modes, as a user runs it (issue 13, item 5).
+"""The whole loop, both modes, as a user runs it.
 
 Writes benchmarks/results/loop.json (records: name, value, unit, reference_name,
 reference_value, ratio, target, passed, notes, measured_at, load_average).
@@ -33,7 +33,7 @@ sys.path.insert(0, str(HERE))
 
 from common import load_text, record, write_results  # noqa: E402
 
-#: The test configuration's target [s] (issue 13 item 5).
+#: The test configuration's target [s].
 TARGET_S = 180.0
 
 
@@ -86,7 +86,7 @@ def run_one(mode: str, quick: bool, tmp: Path) -> dict:
 
 def operation_answers(quick: bool, out: Path) -> list[dict]:
     """The operation loop's results as records: tracking and flow error after vs before
-    (issue 13: tracking not worse), the flow area at full opening vs the valve in service."""
+    (tracking not worse), the flow area at full opening vs the valve in service."""
     loop = json.loads((out / 'loop.json').read_text(encoding='utf-8'))
     tag = 'quick' if quick else 'full'
     tr, fl = loop['tracking'], loop['flow']

@@ -1,6 +1,6 @@
-"""Benchmark the static duty map (issue 4, item 6).
+"""Benchmark the static duty map.
 
-1. ``map_full_grid``: ``generate_map`` on the issue's grid (duty 0..100 % in 1 % steps x
+1. ``map_full_grid``: ``generate_map`` on the full grid (duty 0..100 % in 1 % steps x
    0/2/4/6 bar x 20/50/100/200 Hz = 1616 points), drive electronics on, every point to its
    periodic steady state, dead band and saturation edges bisected, in 2 worker processes
    (one per core; start-up of the workers included). Target <= 10 s on 2 cores.
@@ -9,7 +9,7 @@
    exactly the number of periods the batch found that point needed, so the loop does no
    steady-state search at all). The loop runs on every 8th grid point and is extrapolated
    by simulated time. A second record compares with a lean loop (1 kHz output sampling,
-   the least a single-run call can cost). A third (issue 15, target <= 1.2 x) compares with
+   the least a single-run call can cost). A third (target <= 1.2 x) compares with
    the bare kernel over the same simulated spans, side by side in the same run: the
    compiled integrator advancing every grid point straight to the end of the periods it
    needed (no steady-state test, no per-period stop, no worker processes), on THREADS

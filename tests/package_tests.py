@@ -3,8 +3,8 @@
 The suite's tests live here, in ``tests/`` (``unit/``: ROS-free cores and the repository's
 own checks, ``node/``: real node processes, ``e2e/``: what the README tells a user to run).
 ``make test`` runs all of them. ``colcon test`` runs, per ament_python package, that
-package's unit tests listed here: each package's ``test/test_repository_tests.py`` asks
-:func:`unit_tests_of` and runs them from the repository root. Node and end-to-end tests
+package's unit tests listed here: each package's ``test/test_repository_tests.py`` calls
+:func:`check_package`, which runs them from the repository root. Node and end-to-end tests
 need the whole built suite on ``PATH`` (``source ros2_ws/env.bash``), so they run with
 ``make test`` only. ``tests/unit/test_package_tests.py`` checks that every unit test file
 belongs to exactly one package.
@@ -58,3 +58,20 @@ def run_unit_tests_of(package: str) -> tuple[int, str]:
     out = subprocess.run([sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider',
                           *files], cwd=REPO_ROOT, capture_output=True, text=True)
     return out.returncode, out.stdout[-6000:] + out.stderr[-2000:]
+
+
+def check_package(package: str) -> None:
+    """Run ``package``'s unit tests (:func:`run_unit_tests_of`); the test of each package.
+
+    A package's ``test/test_repository_tests.py`` loads this file by its path (a package
+    copied alone into another workspace has no repository around it: it skips) and calls
+    this, so the three packages' ``colcon test`` share one body.
+
+    Raises
+    ------
+    AssertionError
+        The tests failed; the message is the tail of pytest's output.
+    """
+    status, output = run_unit_tests_of(package)
+    if status != 0:
+        raise AssertionError(f'unit tests of {package}: pytest exit {status}\n{output}')

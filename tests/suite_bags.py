@@ -8,6 +8,16 @@ from pathlib import Path
 from typing import Iterable
 
 
+class FakeClock:
+    """A monotonic clock for a BagWriter that the test sets (``clock.t = ...``) [s]."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
 def header(types: dict, ns: int, frame: str = '') -> object:
     """A std_msgs/Header stamped ``ns`` [ns]."""
     return types['std_msgs/msg/Header'](

@@ -185,7 +185,7 @@ def test_lifecycle_commands_and_clamping(start_node, ros) -> None:
         assert all(0.0 <= c['Duty'] <= 1.0 for c in sniffer.commands)
         ros.wait_for(lambda: client.level('commands') == 1, WAIT_S, 'commands WARN')
         # counted; the status message names the most pressing problem, which on a loaded
-        # machine can be a command that reached the bus late (CI, 2026-11-25)
+        # machine can be a command that reached the bus late
         ros.wait_for(lambda: client.value('commands', 'commands_clamped') == '1', WAIT_S,
                      'the clamped command counted')
         message = client.diagnostics['commands'].message
@@ -445,7 +445,7 @@ def test_stale_and_lost_duty_commands_are_counted(start_node, ros) -> None:
 
 def test_drive_mode_parameter_reaches_the_frames_and_is_settable_at_run_time(
         start_node, ros) -> None:
-    """Issue 13 item 2: drive_mode:=bench goes out in every ValveCommand, the controller's
+    """drive_mode:=bench goes out in every ValveCommand, the controller's
     ValveDrive comes back in the diagnostics; a run-time set acts and is logged; a bad
     value is refused (at run time: the set fails; at start-up: exit 2)."""
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue

@@ -23,7 +23,7 @@ from valve_model_pkg.identification.csv_reader import read_csv
 HEAD = ('# experiment: step\n# supply_pressure_pa: 400000\n# sample_rate_hz: 50000\n'
         't,voltage,current\n')
 
-#: The issue's bound for a 1 GB input [bytes].
+#: The memory bound for a 1 GB input [bytes].
 MEMORY_BOUND = 1.5e9
 
 

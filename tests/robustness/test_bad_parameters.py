@@ -1,6 +1,6 @@
 """Bad parameter files: one line naming file, line, key and value; nothing reaches the kernel.
 
-Issue 11 item 7: binary and non-UTF-8 files, duplicate keys, YAML 1.2 numbers, physically
+Binary and non-UTF-8 files, duplicate keys, YAML 1.2 numbers, physically
 implausible values (refused, or accepted with a warning under ``--allow-implausible``).
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The CAN driver's diagnostics mean something under load (issue 11, item 5).
+"""The CAN driver's diagnostics mean something under load.
 
 Driver core and controller emulator run in real time on python-can's virtual bus beside two
 CPU-bound processes (``python3 -c 'while True: pass'``) for 20 s, fault-free: no status
@@ -24,7 +24,7 @@ from valve_model_pkg.model import ElectronicsConfig, ValveStepper, load_paramete
 # serial: its CPU hogs would starve a test beside it, and that test would load it more.
 pytestmark = [pytest.mark.slow, pytest.mark.serial]
 
-RUN_S = float(os.environ.get("VALVE_LOAD_TEST_S", "20"))  # 60 for the issue's figure
+RUN_S = float(os.environ.get("VALVE_LOAD_TEST_S", "20"))  # 60 for the benchmark's figure
 
 
 def cpu_hogs(n: int = 2) -> list[subprocess.Popen]:

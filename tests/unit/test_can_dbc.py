@@ -143,7 +143,7 @@ def test_command_frame_carries_a_host_id() -> None:
 
 
 def test_the_drive_mode_is_a_command_signal_with_a_value_table() -> None:
-    """Issue 13 item 2: the bench mode is a protocol matter, not an emulator flag."""
+    """The bench mode is a protocol matter, not an emulator flag."""
     db = cantools.database.load_file(str(default_dbc_path()), strict=True)
     mode = db.get_message_by_name(COMMAND).get_signal_by_name('DriveMode')
     assert (mode.start, mode.length, mode.minimum, mode.maximum) == (34, 2, 0, 1)

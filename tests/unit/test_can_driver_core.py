@@ -461,7 +461,7 @@ def test_fuzz_receive_path_never_raises_and_counts_every_frame(fuzz_core, frames
         assert report.level in tuple(Level)
 
 
-# --- issue 11: clearing faults, a second host, stale and lost commands --------------------------
+# --- clearing faults, a second host, stale and lost commands ------------------------------------
 def test_clear_faults_clears_an_injected_overcurrent(live) -> None:
     live.core.set_command(0.5, 50.0)
     live.emu.inject(EmulatorFault.OVERCURRENT)

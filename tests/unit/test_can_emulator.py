@@ -385,7 +385,7 @@ def test_program_refuses_bad_arguments() -> None:
     assert main(['--interface', 'virtual', '--channel', 'x', '--fault', 'nope']) == 2
 
 
-# --- issue 13 item 2: the drive mode comes from the frames ---------------------------------------
+# --- the drive mode comes from the frames --------------------------------------------------------
 def _by_name(rig: Rig) -> dict[str, list]:
     """Every frame waiting, decoded and grouped by message name (in sending order)."""
     out: dict[str, list] = {}

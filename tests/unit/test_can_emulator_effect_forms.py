@@ -1,12 +1,12 @@
 """The emulator's effect forms that are not the identification's candidate equations.
 
-Issue 13 item 6: the emulated valve must be able to carry an effect written independently
+The emulated valve must be able to carry an effect written independently
 of the candidate forms the identification adds back, so a loop test that names the effect
 is not circular. ``parameters.EMULATOR_EFFECTS`` holds two such forms (``saturation_tanh``,
 ``eddy_ladder``; docs/effects.md). Checked here:
 
-* off (the default) is bit-identical to the kernel before the forms existed (a digest of
-  simulate_trace_batch outputs recorded with that kernel);
+* off (the default) leaves the kernel bit-identical (a digest of simulate_trace_batch
+  outputs recorded from the kernel without the forms);
 * each form changes the 1 kHz interval-mean current of a 0.8 s, 24 V bench step visibly;
 * each form is not its candidate's equation: the candidate with its best constant (a 1-D
   search over its one parameter) leaves a residual far above the candidate-on-its-own
@@ -33,9 +33,9 @@ STEP = InputTrace.coil_voltage([0.0, 0.01], [0.0, 24.0])
 #: Bench current noise of tests/datagen (0.5 % of a 2.5 A full scale), A.
 NOISE_STD_A = 0.0125
 
-#: SHA-256 of the outputs below computed by the kernel before the emulator forms were
-#: added (same inputs). Off must stay bit-identical; a deliberate change of the kernel's
-#: arithmetic has to regenerate it (run _off_outputs with the old kernel and hash).
+#: SHA-256 of the outputs below computed by a kernel without the emulator forms (same
+#: inputs). Off must stay bit-identical; a deliberate change of the kernel's arithmetic
+#: has to regenerate it (hash _off_outputs of the changed kernel).
 OFF_DIGEST = 'bccc621922f3d9e2feddd5acdc26a8752e50952e7441165e379c9cdd1d8e1fa6'
 
 

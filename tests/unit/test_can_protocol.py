@@ -209,7 +209,7 @@ def test_decoder_fuzz_only_accepts_or_rejects(msg: can.Message) -> None:
     assert all(math.isfinite(v) for v in frame.signals.values())
 
 
-# --- issue 13 item 2: the drive mode and the drive electronics are part of the protocol ----------
+# --- the drive mode and the drive electronics are part of the protocol ---------------------------
 def test_drive_mode_is_encoded_and_defaults_to_normal() -> None:
     from valve_driver_pkg.protocol import DriveMode
 

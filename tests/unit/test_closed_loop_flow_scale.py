@@ -1,4 +1,4 @@
-"""Why the loop in service calibrates the flow scale (issue 13, item 3; docs/loop.md).
+"""Why the loop in service calibrates the flow scale (docs/loop.md).
 
 The ROS-free closed loop (controller -> flow_to_duty's inverter -> valve model -> cylinder)
 on a valve that discharges with C_d = 0.62 where the suite's set says 0.8: with the

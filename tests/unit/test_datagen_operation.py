@@ -183,13 +183,11 @@ def test_simulation_imports_nothing_of_the_suite(tmp_path: Path) -> None:
 def test_identification_of_a_clean_nominal_record(tmp_path_factory) -> None:
     """``valve_identify --fit REC --out DIR --quick`` on 2 s of the paper's valve, no noise.
 
-    Seen (2026-11-23, 21 min on a machine at load 15-20, 2 cores): diagnosis ``none``,
-    confidence low, with the baseline residual called structured (4.5 mA RMS beyond a
-    1.7 mA noise estimate: the generator's hysteresis regulator and capacitor are not the
-    suite's PI chopper); NRMSE 0.49 %; R, x_max, A_e, delta, s within 0.8, 0.8, 1.3, 3.0,
-    1.6 % of the truth; hold current 0.5012 A. With the misfit floor on the intervals
-    (sensitivity.misfit_floor_pct) only R stays pinned down (95 % CI 4.5 %), the others'
-    intervals (5.6-9.5 %) cover the truth.
+    The answer is ``none``; where the baseline residual is structured (the generator's
+    hysteresis regulator and capacitor are not the suite's PI chopper) it says so with a
+    low confidence. The baseline fits within 2 % NRMSE, R is pinned down within 5 % of the
+    truth, and every stated 95 % interval covers the truth: with the misfit floor on the
+    intervals (sensitivity.misfit_floor_pct) a structured residual widens them.
     """
     from valve_model_pkg.cli.identify import main as identify_main
     base = tmp_path_factory.mktemp('ops-ident')
@@ -219,8 +217,7 @@ def test_identification_of_a_clean_nominal_record(tmp_path_factory) -> None:
         if name in true:
             assert base_rep['parameters'][name] == pytest.approx(true[name], rel=0.05), name
     # The intervals are honest: the generator's electronics are not the suite's, the
-    # residual is structured, and every stated 95 % interval covers the truth (before the
-    # misfit floor, x_max, A_e and delta were off by 2-6x their stated intervals).
+    # residual is structured, and every stated 95 % interval covers the truth.
     ci95 = base_rep['sensitivity']['ci95_pct']
     for name, value in true.items():
         if ci95.get(name) is not None:

@@ -1,4 +1,4 @@
-"""The double-acting example (issue 14, item 4): one 3/2 valve per chamber, one controller
+"""The double-acting example: one 3/2 valve per chamber, one controller
 commanding both, settles every demo step through the real valve model, drive electronics
 and static duty map (ROS-free, the plant code valve_lockstep_sim runs with
 cylinder:=double), also with 20 ms of extra transport delay."""
@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from suite_steps import assert_every_step_meets_the_specification
 
-from valve_model_pkg.analysis import step_results
 from valve_model_pkg.model import load_parameters
 from valve_model_pkg.model.constants import ATMOSPHERIC_PRESSURE_PA
 from valve_model_pkg.pneumatics.closed_loop import simulate_closed_loop_double
@@ -23,14 +23,8 @@ DEMO = with_pre_roll(DEMO_GOALS)
 @pytest.mark.parametrize('delay_s', [0.0, 0.020])
 def test_every_demo_step_settles_within_specification(delay_s: float) -> None:
     r = simulate_closed_loop_double(DEMO, feedback_delay_s=delay_s)
-    steps = step_results(r.t_s, r.setpoint_m, r.t_s, r.position_m, band_m=1e-3)
-    assert [round(s.setpoint_m, 3) for s in steps] == [0.02, 0.06, 0.04, 0.08, 0.03]
-    for s in steps:
-        what = f'{s.setpoint_m * 1e3:.0f} mm step with {delay_s * 1e3:.0f} ms delay: {s}'
-        assert s.settled, what
-        assert s.settling_time_s <= 2.0, what
-        assert s.overshoot_m <= 3e-3, what
-        assert abs(s.steady_error_m) <= 0.5e-3, what
+    assert_every_step_meets_the_specification(r.t_s, r.setpoint_m, r.position_m,
+                                              f'{delay_s * 1e3:.0f} ms delay')
     for duty in (r.cap_duty, r.rod_duty):
         assert np.all((duty >= 0.0) & (duty <= 1.0))
     # both valves work: at the end of every hold both chambers are pressurised (a stiff

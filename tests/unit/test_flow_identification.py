@@ -24,11 +24,6 @@ TRUE_RATIO = 1.23          # the bench valve's C_d*C_A over the model's
 
 
 @pytest.fixture(scope='module')
-def shipped():
-    return load_map()
-
-
-@pytest.fixture(scope='module')
 def prior() -> ValveParameters:
     return ValveParameters.from_dict(load_map().parameters)
 

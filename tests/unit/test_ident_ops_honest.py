@@ -19,7 +19,7 @@ from valve_model_pkg.dataformat import read_trace, write_table
 import os
 
 # Every level is a whole close-the-loop run of minutes on 2 cores: `make test` runs 0 and
-# 3 mA; VALVE_FULL_IDENT_TESTS=1 runs all four (the list) within CI's budget only
+# 3 mA; VALVE_FULL_IDENT_TESTS=1 runs all four within CI's budget only
 # on a quiet machine.
 NOISE_MA = ((0.0, 1.0, 3.0, 10.0) if os.environ.get('VALVE_FULL_IDENT_TESTS') == '1'
             else (0.0, 3.0))

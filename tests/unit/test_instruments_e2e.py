@@ -55,11 +55,12 @@ def test_valve_identify_takes_a_tds_pair_directly(tmp_path: Path) -> None:
     assert valve_identify(['--fit', str(ch1), str(ch2), '--validate', str(ch1), str(ch2),
                            '--voltage', 'CH1', '--current', 'CH2',
                            '--supply-pressure-pa', '4e5', '--out', str(out), '--quick',
-                           '--no-plots', '--quiet']) == 0
+                           '--no-diagnosis', '--no-plots', '--quiet']) == 0
     rep = _report(out)
     assert sorted(p.name for p in (out / 'imported').iterdir()) == ['F0000CH1.csv']
-    assert rep['diagnosis']['effect'] == 'none'
-    assert rep['augmented']['validation']['nrmse_pct'] < 3.0
+    # The pair read right (scales, time axis, channels): the valve's own model fits it. The
+    # answer on a clean record through an importer is the Rigol test's.
+    assert rep['baseline']['validation']['nrmse_pct'] < 3.0
 
 
 def test_a_picoscope_v73_capture_with_eddy_currents_names_them(tmp_path: Path) -> None:

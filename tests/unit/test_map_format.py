@@ -109,7 +109,7 @@ def test_shipped_map_loads_and_matches_the_paper_parameters() -> None:
     shipped = load_map()          # default = the shipped file
     shipped.check_parameters(load_parameters())
     assert path.stat().st_size < 120_000
-    # the grid at least: 0..100 % in 1 % steps, 0/2/4/6 bar, 20/50/100/200 Hz
+    # the required grid at least: 0..100 % in 1 % steps, 0/2/4/6 bar, 20/50/100/200 Hz
     assert np.max(np.diff(shipped.duty)) <= 0.01 + 1e-12
     assert {0.0, 2e5, 4e5, 6e5} <= set(shipped.supply_pressures_pa.tolist())
     assert {20.0, 50.0, 100.0, 200.0} <= set(shipped.pwm_frequencies_hz.tolist())

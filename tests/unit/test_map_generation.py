@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pytest
 
-from valve_model_pkg.maps import FlowToDutyInverter, load_map
+from valve_model_pkg.maps import FlowToDutyInverter
 from valve_model_pkg.maps.generation import MapGrid, MapSimulator, generate_map
 from valve_model_pkg.model import load_parameters
 
@@ -26,11 +26,6 @@ PARAMS = load_parameters()
 #: A dip of the curve smaller than this (fraction of x_max) does not matter to the product:
 #: it is the flow accuracy the round trip promises (2 % of the full flow).
 MONOTONE_TOLERANCE = 0.02
-
-
-@pytest.fixture(scope='module')
-def shipped():
-    return load_map()
 
 
 @pytest.fixture(scope='module')

@@ -1,4 +1,4 @@
-"""Issue item 5, the round trip: flow -> duty -> simulated steady average flow.
+"""The round trip: flow -> duty -> simulated steady average flow.
 
 For flows across the reachable range (from the smallest flow the valve delivers above its
 dead band to the flow at 100 % duty) at several supply pressures, on and between the map's
@@ -17,18 +17,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from valve_model_pkg.maps import FlowStatus, FlowToDutyInverter, flow_per_opening, load_map
+from valve_model_pkg.maps import FlowStatus, FlowToDutyInverter, flow_per_opening
 from valve_model_pkg.maps.generation import MapSimulator
 from valve_model_pkg.model import load_parameters
 
 PARAMS = load_parameters()
 TOLERANCE = 0.02          # of the full flow
 N_FLOWS = 40
-
-
-@pytest.fixture(scope='module')
-def shipped():
-    return load_map()
 
 
 @pytest.fixture(scope='module')

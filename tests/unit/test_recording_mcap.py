@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from valve_model_pkg.recording import (BagWriter, QueuedBagWriter, build_typestore,
+from valve_model_pkg.recording import (BagWriter, QueuedBagWriter,
                                        recover_bag, reliable_qos)
 from valve_model_pkg.recording.synthetic import (DUTY_COMMAND, VALVE_STATE, duty_command_cdr,
                                                  valve_state_cdr)
@@ -25,11 +25,6 @@ def _mcap():
     """
     return (pytest.importorskip('mcap.reader').make_reader,
             pytest.importorskip('mcap_ros2.decoder').DecoderFactory)
-
-
-@pytest.fixture(scope='module')
-def store():
-    return build_typestore()
 
 
 def _write(path: Path, store, *, compression: str = 'none', queued: bool = False

@@ -8,17 +8,12 @@ import numpy as np
 import pytest
 
 from valve_model_pkg.recording import arrays as arrays_module
-from valve_model_pkg.recording import (BagFormatError, BagWriter, bag_info, build_typestore,
+from valve_model_pkg.recording import (BagFormatError, BagWriter, bag_info,
                                        load_bag, reliable_qos, sequence_gaps)
 from valve_model_pkg.recording.synthetic import (DUTY_COMMAND, VALVE_STATE, duty_command_cdr,
                                                  valve_state_cdr)
 
 START_NS = 1_700_000_000_000_000_000
-
-
-@pytest.fixture(scope='module')
-def store():
-    return build_typestore()
 
 
 @pytest.fixture

@@ -8,26 +8,14 @@ import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import QosReliability
 
+from suite_bags import FakeClock
 from valve_model_pkg.recording import (BagFormatError, BagWriteError, BagWriter, McapScanner,
-                                       build_typestore, recover_bag, reliable_qos)
+                                       recover_bag, reliable_qos)
 from valve_model_pkg.recording.recovery import McapMessage
 from valve_model_pkg.recording.synthetic import (DUTY_COMMAND, VALVE_STATE, duty_command_cdr,
                                                  valve_state_cdr)
 
 N_STATE = 2500
-
-
-@pytest.fixture(scope='module')
-def store():
-    return build_typestore()
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def _killed_bag(tmp_path: Path, store, compression: str = 'none') -> tuple[Path, Path, int]:

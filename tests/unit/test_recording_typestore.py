@@ -18,11 +18,6 @@ VALVE_TYPES = ['valve_msgs/msg/ValveState', 'valve_msgs/msg/DutyCommand',
 ROSIDL_JSON_DIR = REPO_ROOT / 'ros2_ws' / 'install' / 'valve_msgs' / 'share' / 'valve_msgs' / 'msg'
 
 
-@pytest.fixture(scope='module')
-def store():
-    return build_typestore()
-
-
 def test_the_suites_types_and_the_topics_types_are_known(store) -> None:
     for msgtype in VALVE_TYPES + sorted(set(SUITE_TOPICS.values())):
         assert msgtype in store.fielddefs, msgtype

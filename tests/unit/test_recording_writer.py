@@ -12,24 +12,12 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import MessageDefinitionFormat, QosReliability
 from rosbags.rosbag2.storage_mcap import McapWriter
 
+from suite_bags import FakeClock
 from valve_model_pkg.recording import (BagWriteError, BagWriter, McapScanner, QueuedBagWriter,
-                                       UnknownMessageTypeError, build_typestore, reliable_qos)
+                                       UnknownMessageTypeError, reliable_qos)
 from valve_model_pkg.recording.recovery import McapChannel, McapMessage, McapSchema
 from valve_model_pkg.recording.synthetic import (DUTY_COMMAND, VALVE_STATE, duty_command_cdr,
                                                  valve_state_cdr)
-
-
-@pytest.fixture(scope='module')
-def store():
-    return build_typestore()
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def _write_suite_bag(path: Path, store, n_state: int = 3000, **kwargs) -> tuple[list, list]:

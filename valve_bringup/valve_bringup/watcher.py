@@ -8,7 +8,6 @@ import time
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64
@@ -21,13 +20,11 @@ from valve_model_pkg.interface import (TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_DUT
                                        TOPIC_POSITION_SETPOINT, TOPIC_REAL_TIME_FACTOR,
                                        TOPIC_RUN_UNTIL, TOPIC_STATE, gauge_from_absolute)
 from valve_model_pkg.interface.ros import (CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS,
-                                           JOINT_STATES_QOS, PRESSURE_QOS, STATE_QOS)
+                                           JOINT_STATES_QOS, PRESSURE_QOS, PROBE_QOS,
+                                           STATE_QOS)
 
 __all__ = ['DISCOVERY_WAIT_S', 'DemoWatcher', 'suite_topics_in_use', 'valve_topic']
 
-
-#: Best effort matches reliable and best-effort publishers alike.
-_ANY_PUBLISHER_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 #: How long a probe listens for other participants before it judges the domain free [s].
 #: Discovery on the loopback profile completes within a few hundred milliseconds; a
@@ -71,7 +68,7 @@ def suite_topics_in_use(wait_s: float = DISCOVERY_WAIT_S) -> list[str]:
                     watched.add(name)
                     node.create_subscription(ValveState, name,
                                              lambda _msg, n=name: heard.add(n),
-                                             _ANY_PUBLISHER_QOS)
+                                             PROBE_QOS)
             executor.spin_once(timeout_sec=0.05)
         executor.shutdown()
         node.destroy_node()

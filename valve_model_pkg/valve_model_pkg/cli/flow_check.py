@@ -22,7 +22,7 @@ from flow; C_d is kept from the parameter set and C_A scaled. It writes
   ``valve_map --params DIR/params.yaml`` gives the same curves;
 - ``DIR/comparison.json``: the comparison with the map (what ``--json`` writes).
 
-``-o FILE.json`` (a path ending in ``.json``) keeps the old meaning: the comparison only.
+``-o FILE.json`` (a path ending in ``.json``) writes the comparison only.
 
 With ``--chamber`` the input is a bag of the suite instead (``valve/state``,
 ``valve/output_pressure``, ``cylinder/joint_states``): C_d*C_A is identified from the

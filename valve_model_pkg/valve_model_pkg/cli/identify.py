@@ -30,6 +30,8 @@ import sys
 import time
 from typing import TYPE_CHECKING
 
+from .arguments import positive_int
+
 if TYPE_CHECKING:
     from ..identification import IdentifySettings
 
@@ -89,23 +91,13 @@ def _parser() -> argparse.ArgumentParser:
                    help='smaller search effort (for tests and previews)')
     p.add_argument('--seed', type=int, default=0,
                    help='seed of the baseline search\'s global stage (default 0)')
-    p.add_argument('--threads', type=_positive_int, default=None, metavar='N',
+    p.add_argument('--threads', type=positive_int, default=None, metavar='N',
                    help='threads of the identification (default: one per CPU)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
     p.add_argument('--quiet', action='store_true', help='no progress output')
     from valve_model_pkg.instruments import add_import_options
     add_import_options(p)
     return p
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a whole number') from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'{value} is not at least 1')
-    return value
 
 
 def settings_from_args(args: argparse.Namespace) -> 'IdentifySettings':

@@ -23,19 +23,11 @@ import sys
 import time
 from pathlib import Path
 
+from .arguments import positive_int
+
 __all__ = ['main']
 
 PROG = 'valve_identify_batch'
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a whole number') from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'{value} is not at least 1')
-    return value
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -48,7 +40,7 @@ def _parser() -> argparse.ArgumentParser:
                    help='CSV or YAML list of valves: valve_id, fit, validate, options '
                    '(docs/fleet.md); record paths relative to the manifest')
     p.add_argument('-o', '--out', required=True, metavar='DIR', help='output directory')
-    p.add_argument('--workers', type=_positive_int, default=None, metavar='N',
+    p.add_argument('--workers', type=positive_int, default=None, metavar='N',
                    help='local worker processes (default: one per CPU)')
     p.add_argument('--scheduler', metavar='ADDRESS', default=None,
                    help='run on this Dask scheduler (e.g. tcp://10.0.0.5:8786) instead of '

@@ -36,6 +36,7 @@ from ..model import (
     ValveParameters, default_parameters_path, last_period_mean, load_electronics,
     load_parameters, orifice_mass_flow, simulate_pwm, simulate_step, step_metrics,
 )
+from .arguments import finite_float
 
 __all__ = ['main', 'build_parser', 'write_csv', 'write_png', 'main_pwm_voltage']
 
@@ -48,16 +49,6 @@ class _UsageError(Exception):
     """Bad command-line input found after parsing (reported like argparse errors)."""
 
 
-def _float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'not a number: {text!r}') from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f'must be finite, got {text!r}')
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``valve_simulate``."""
     ap = argparse.ArgumentParser(
@@ -68,23 +59,23 @@ def build_parser() -> argparse.ArgumentParser:
                     help='step: voltage step on the bare coil (Fig. 4/5; through the drive '
                          'given with --electronics); pwm: main PWM '
                          'through the drive electronics (Fig. 6). Default: step.')
-    ap.add_argument('--voltage', type=_float, default=24.0,
+    ap.add_argument('--voltage', type=finite_float, default=24.0,
                     help='step voltage, or the driver supply voltage for pwm, V '
                          '(default 24)')
-    ap.add_argument('--duty', type=_float, default=0.4,
+    ap.add_argument('--duty', type=finite_float, default=0.4,
                     help='main PWM duty cycle in [0, 1] (pwm; default 0.4)')
-    ap.add_argument('--pwm-frequency', type=_float, default=50.0,
+    ap.add_argument('--pwm-frequency', type=finite_float, default=50.0,
                     help='main PWM frequency, Hz (pwm; default 50)')
     pressure = ap.add_mutually_exclusive_group()
-    pressure.add_argument('--supply-pressure', type=_float, default=None,
+    pressure.add_argument('--supply-pressure', type=finite_float, default=None,
                           help='supply pressure, Pa gauge (default 400000 = 4 bar)')
-    pressure.add_argument('--supply-bar', type=_float, default=None,
+    pressure.add_argument('--supply-bar', type=finite_float, default=None,
                           help='supply pressure in bar gauge (alternative)')
-    ap.add_argument('--output-pressure', type=_float, default=0.0,
+    ap.add_argument('--output-pressure', type=finite_float, default=0.0,
                     help='output port pressure, Pa gauge (default 0)')
-    ap.add_argument('--duration', type=_float, default=None,
+    ap.add_argument('--duration', type=finite_float, default=None,
                     help='simulated time, s (default 0.02 for step, 0.1 for pwm)')
-    ap.add_argument('--step-time', type=_float, default=0.0,
+    ap.add_argument('--step-time', type=finite_float, default=0.0,
                     help='time the step voltage is switched on, s (step; default 0)')
     ap.add_argument('--params', type=Path, default=None,
                     help='parameter YAML (default: the packaged config/valve.yaml)')
@@ -100,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help='pwm: switch off the peak and hold phases (current control)')
     ap.add_argument('--no-capacitor', action='store_true',
                     help='pwm: switch off the release voltage (capacitor pulse)')
-    ap.add_argument('--sample-rate', type=_float, default=100e3,
+    ap.add_argument('--sample-rate', type=finite_float, default=100e3,
                     help='output sampling rate, Hz (default 100000)')
     ap.add_argument('-o', '--out', type=Path, default=None,
                     help='CSV file to write (default valve_<experiment>.csv); the PNG is '

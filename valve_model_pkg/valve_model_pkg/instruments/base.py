@@ -8,6 +8,7 @@ from typing import Protocol
 import numpy as np
 
 from .capture import CaptureHeader, ChannelInfo, TimeAxis
+from .text import Columns
 
 __all__ = ['Head', 'Loaded', 'Reader']
 
@@ -54,6 +55,24 @@ class Loaded:
     over_range: dict[str, int] = field(default_factory=dict)
     first_row: int | None = None
     notes: list[str] = field(default_factory=list)
+
+    @classmethod
+    def from_columns(cls, time: TimeAxis, channels: list[ChannelInfo], cols: Columns,
+                     notes: list[str] | None = None) -> 'Loaded':
+        """The samples of ``channels`` from parsed rows whose first column is the time.
+
+        Parameters
+        ----------
+        time : TimeAxis
+        channels : list of ChannelInfo
+            In the order of ``cols.values[1:]``; each scaled by its ``factor``.
+        cols : Columns
+        notes : list of str, optional
+        """
+        values = {c.name: v * c.factor for c, v in zip(channels, cols.values[1:])}
+        over = {c.name: n for c, n in zip(channels, cols.n_over_range[1:])}
+        return cls(time=time, values=values, over_range=over, first_row=cols.first_row,
+                   notes=list(notes or []))
 
 
 class Reader(Protocol):

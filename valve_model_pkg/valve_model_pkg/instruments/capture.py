@@ -21,6 +21,7 @@ __all__ = [
     'UNITS', 'TIME_UNITS', 'OVER_RANGE_ABS', 'ChannelInfo', 'CaptureHeader', 'TimeAxis',
     'Capture', 'unit_factor', 'time_unit_factor', 'normalise_name', 'axis_from_printed',
     'infer_lsb', 'MAX_SAMPLES', 'Resolution', 'parse_number', 'split_unit', 'resolve',
+    'channel_aliases',
 ]
 
 #: Units of a vertical channel as instruments write them -> (SI unit, factor to SI).
@@ -49,6 +50,15 @@ MAX_SAMPLES = 20_000_000
 def normalise_name(name: str) -> str:
     """A channel name as compared: case-folded, spaces collapsed."""
     return ' '.join(name.replace('\u00a0', ' ').split()).casefold()
+
+
+_NUMBERED_CHANNEL = re.compile(r'^(?:ch|channel)\s*(\d+)$', re.IGNORECASE)
+
+
+def channel_aliases(name: str) -> tuple[str, ...]:
+    """Other names of a numbered channel (``CH1`` -> ``1``, ``CH1``, ``Channel 1``)."""
+    m = _NUMBERED_CHANNEL.match(name.strip())
+    return (m.group(1), f'CH{m.group(1)}', f'Channel {m.group(1)}') if m else ()
 
 
 def unit_factor(path: str, line: int | None, unit: str) -> tuple[str, float]:

@@ -15,19 +15,12 @@ from __future__ import annotations
 from ..errors import InstrumentFormatError
 from .base import Head, Loaded
 from .capture import (
-    CaptureHeader, ChannelInfo, axis_from_printed, time_unit_factor, unit_factor,
+    CaptureHeader, ChannelInfo, axis_from_printed, channel_aliases, time_unit_factor,
+    unit_factor,
 )
-from .tektronix import _channel_aliases
-from .text import TextFile, split_fields
+from .text import header_fields, read_columns
 
 __all__ = ['KeysightReader']
-
-
-def _fields(line: str) -> list[str]:
-    fields = split_fields(line, ',')
-    while fields and fields[-1] == '':
-        fields.pop()
-    return fields
 
 
 class KeysightReader:
@@ -39,13 +32,13 @@ class KeysightReader:
     def sniff(self, head: Head) -> bool:
         if len(head.lines) < 2:
             return False
-        first, second = _fields(head.lines[0]), _fields(head.lines[1])
+        first, second = header_fields(head.lines[0], ','), header_fields(head.lines[1], ',')
         return (len(first) >= 2 and first[0].casefold() == 'x-axis' and bool(second)
                 and second[0].casefold() in ('second', 'seconds', 's'))
 
     def open(self, head: Head) -> CaptureHeader:
         path = head.path
-        first, second = _fields(head.lines[0]), _fields(head.lines[1])
+        first, second = header_fields(head.lines[0], ','), header_fields(head.lines[1], ',')
         if len(second) < len(first):
             raise InstrumentFormatError(path, 2, f'row 2 has {len(second)} units for '
                                         f'{len(first)} columns; expected "second,Volt,..."')
@@ -53,8 +46,8 @@ class KeysightReader:
         for j in range(1, len(first)):
             si, factor = unit_factor(path, 2, second[j])
             name = first[j]
-            aliases = _channel_aliases(name) + ((f'CH{name}', f'Channel {name}')
-                                                if name.isdigit() else ())
+            aliases = channel_aliases(name) + ((f'CH{name}', f'Channel {name}')
+                                               if name.isdigit() else ())
             channels.append(ChannelInfo(name=name, aliases=aliases, file_unit=second[j],
                                         si_unit=si, factor=factor, source=path, key=j))
         return CaptureHeader(
@@ -66,14 +59,9 @@ class KeysightReader:
     def load(self, header: CaptureHeader, channels: list[ChannelInfo],
              time_channel: ChannelInfo | None = None) -> Loaded:
         path = header.path
-        with TextFile(path) as f:
-            f.readline()
-            f.readline()
-            cols = f.columns([0] + [c.key for c in channels], delimiter=',',
-                             n_fields=header.extra['n_fields'],
-                             expected=header.extra['expected'])
+        cols = read_columns(path, 2, [0] + [c.key for c in channels], delimiter=',',
+                            n_fields=header.extra['n_fields'],
+                            expected=header.extra['expected'])
         t = cols.values[0] * header.extra['time_factor']
         axis = axis_from_printed(path, t, cols.first_row, stated_dt_s=None, what='')
-        values = {c.name: v * c.factor for c, v in zip(channels, cols.values[1:])}
-        over = {c.name: k for c, k in zip(channels, cols.n_over_range[1:])}
-        return Loaded(time=axis, values=values, over_range=over, first_row=cols.first_row)
+        return Loaded.from_columns(axis, channels, cols)

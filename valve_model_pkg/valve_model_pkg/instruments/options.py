@@ -4,11 +4,11 @@ and the two entries the commands call: :func:`import_export` and :func:`records_
 from __future__ import annotations
 
 import argparse
-import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
 
+from ..cli.arguments import finite_float
 from ..errors import InstrumentFormatError
 from .capture import CaptureHeader
 from .detect import detect, is_suite_record, open_export, read_capture, read_head
@@ -16,16 +16,6 @@ from .record import EXPERIMENTS, ImportedRecord, ImportOptions, build_record, wr
 
 __all__ = ['add_import_options', 'options_from_args', 'import_export', 'records_for',
            'group_captures']
-
-
-def _float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'not a number: {text!r}') from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f'must be finite, got {text!r}')
-    return value
 
 
 def _decimate(text: str) -> int | None:
@@ -63,20 +53,20 @@ def add_import_options(parser: argparse.ArgumentParser, *, required: bool = Fals
     g.add_argument('--time', metavar='COLUMN', default=None,
                    help='time column of a plain CSV (default: the one named t or time), or '
                         'time channel of a TDMS file without waveform properties')
-    g.add_argument('--current-scale', metavar='A_PER_UNIT', type=_float, default=None,
+    g.add_argument('--current-scale', metavar='A_PER_UNIT', type=finite_float, default=None,
                    help='current probe factor, applied after the file\'s units are '
                         'converted (needed when the current channel is in V)')
-    g.add_argument('--voltage-scale', metavar='V_PER_UNIT', type=_float, default=None,
+    g.add_argument('--voltage-scale', metavar='V_PER_UNIT', type=finite_float, default=None,
                    help='voltage probe or divider factor, applied after the file\'s units')
     g.add_argument('--experiment', choices=EXPERIMENTS, default='step',
                    help='what the capture shows (default: step)')
-    g.add_argument('--supply-pressure-pa', metavar='PA', type=_float, default=None,
+    g.add_argument('--supply-pressure-pa', metavar='PA', type=finite_float, default=None,
                    help='supply pressure, gauge [Pa] (identification needs it)')
-    g.add_argument('--output-pressure-pa', metavar='PA', type=_float, default=None,
+    g.add_argument('--output-pressure-pa', metavar='PA', type=finite_float, default=None,
                    help='output port pressure, gauge [Pa] (default 0)')
-    g.add_argument('--start', metavar='S', type=_float, default=None,
+    g.add_argument('--start', metavar='S', type=finite_float, default=None,
                    help='window start in the file\'s time [s] (trigger at 0)')
-    g.add_argument('--stop', metavar='S', type=_float, default=None,
+    g.add_argument('--stop', metavar='S', type=finite_float, default=None,
                    help='window end in the file\'s time [s]')
     g.add_argument('--decimate', metavar='auto|N', type=_decimate, default=None,
                    help='block means of N samples; auto (default) keeps the step\'s '

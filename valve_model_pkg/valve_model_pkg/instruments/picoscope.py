@@ -27,7 +27,7 @@ from .base import Head, Loaded
 from .capture import (
     CaptureHeader, ChannelInfo, TimeAxis, axis_from_printed, time_unit_factor, unit_factor,
 )
-from .text import TextFile, split_fields
+from .text import header_fields, read_columns, split_fields
 
 __all__ = ['PicoCsvReader', 'PicoMatReader', 'mat_version']
 
@@ -52,9 +52,7 @@ def _aliases(name: str) -> tuple[str, ...]:
 
 
 def _units_row(line: str, delimiter: str) -> list[str] | None:
-    fields = [f for f in split_fields(line, delimiter)]
-    while fields and fields[-1] == '':
-        fields.pop()
+    fields = header_fields(line, delimiter)
     if len(fields) < 2 or not all(f.startswith('(') and f.endswith(')') for f in fields):
         return None
     return [f[1:-1].strip() for f in fields]
@@ -76,9 +74,7 @@ class PicoCsvReader:
     def open(self, head: Head) -> CaptureHeader:
         path = head.path
         delimiter = _delimiter(head.lines[0])
-        names = [n for n in split_fields(head.lines[0], delimiter)]
-        while names and names[-1] == '':
-            names.pop()
+        names = header_fields(head.lines[0], delimiter)
         units = _units_row(head.lines[1], delimiter) or []
         if len(units) != len(names):
             raise InstrumentFormatError(path, 2, f'{len(units)} units for {len(names)} '
@@ -99,18 +95,13 @@ class PicoCsvReader:
     def load(self, header: CaptureHeader, channels: list[ChannelInfo],
              time_channel: ChannelInfo | None = None) -> Loaded:
         path = header.path
-        with TextFile(path) as f:
-            for _ in range(header.extra['skip']):
-                f.readline()
-            cols = f.columns([0] + [c.key for c in channels],
-                             delimiter=header.extra['delimiter'],
-                             n_fields=header.extra['n_fields'],
-                             expected=header.extra['expected'])
+        cols = read_columns(path, header.extra['skip'], [0] + [c.key for c in channels],
+                            delimiter=header.extra['delimiter'],
+                            n_fields=header.extra['n_fields'],
+                            expected=header.extra['expected'])
         t = cols.values[0] * header.extra['time_factor']
         axis = axis_from_printed(path, t, cols.first_row, stated_dt_s=None, what='')
-        values = {c.name: v * c.factor for c, v in zip(channels, cols.values[1:])}
-        over = {c.name: k for c, k in zip(channels, cols.n_over_range[1:])}
-        return Loaded(time=axis, values=values, over_range=over, first_row=cols.first_row)
+        return Loaded.from_columns(axis, channels, cols)
 
 
 # --- MATLAB files ---------------------------------------------------------------------------

@@ -14,7 +14,7 @@ from .capture import (
     CaptureHeader, ChannelInfo, axis_from_printed, normalise_name, split_unit,
     time_unit_factor, unit_factor,
 )
-from .text import TextFile, split_fields
+from .text import is_number, read_columns, split_fields
 
 __all__ = ['PlainCsvReader', 'TIME_NAMES']
 
@@ -27,14 +27,6 @@ def _delimiter(line: str) -> str:
     return max(counts, key=counts.get)
 
 
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
 def _header_index(lines: tuple[str, ...]) -> int | None:
     """Index of the header row: the first non-comment row, followed by a numeric row."""
     for i, line in enumerate(lines):
@@ -42,13 +34,13 @@ def _header_index(lines: tuple[str, ...]) -> int | None:
             continue
         delimiter = _delimiter(line)
         names = split_fields(line, delimiter)
-        if len(names) < 2 or all(_is_number(n) for n in names if n):
+        if len(names) < 2 or all(is_number(n) for n in names if n):
             return None
         following = [ln for ln in lines[i + 1:] if ln.strip()]
         if not following:
             return None
         fields = split_fields(following[0], delimiter)
-        return i if len(fields) >= len(names) and all(_is_number(f) for f in fields
+        return i if len(fields) >= len(names) and all(is_number(f) for f in fields
                                                       if f) else None
     return None
 
@@ -96,19 +88,14 @@ class PlainCsvReader:
         if time_channel is None:
             raise InstrumentFormatError(path, header.extra['skip'], 'no time column: name it '
                                         f'with --time (columns: {header.channel_list()})')
-        with TextFile(path) as f:
-            for _ in range(header.extra['skip']):
-                f.readline()
-            cols = f.columns([time_channel.key] + [c.key for c in channels],
-                             delimiter=header.extra['delimiter'],
-                             n_fields=header.extra['n_fields'],
-                             expected=header.extra['expected'])
+        cols = read_columns(path, header.extra['skip'],
+                            [time_channel.key] + [c.key for c in channels],
+                            delimiter=header.extra['delimiter'],
+                            n_fields=header.extra['n_fields'],
+                            expected=header.extra['expected'])
         notes = []
         t = cols.values[0] * time_channel.factor
         if time_channel.file_unit is None:
             notes.append(f'time column {time_channel.name!r} states no unit: taken as seconds')
         axis = axis_from_printed(path, t, cols.first_row, stated_dt_s=None, what='')
-        values = {c.name: v * c.factor for c, v in zip(channels, cols.values[1:])}
-        over = {c.name: k for c, k in zip(channels, cols.n_over_range[1:])}
-        return Loaded(time=axis, values=values, over_range=over, first_row=cols.first_row,
-                      notes=notes)
+        return Loaded.from_columns(axis, channels, cols, notes)

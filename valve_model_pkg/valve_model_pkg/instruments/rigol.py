@@ -16,18 +16,12 @@ import numpy as np
 
 from ..errors import InstrumentFormatError
 from .base import Head, Loaded
-from .capture import CaptureHeader, ChannelInfo, TimeAxis, parse_number, unit_factor
-from .tektronix import _channel_aliases
-from .text import TextFile, split_fields
+from .capture import (
+    CaptureHeader, ChannelInfo, TimeAxis, channel_aliases, parse_number, unit_factor,
+)
+from .text import header_fields, read_columns
 
 __all__ = ['RigolReader']
-
-
-def _fields(line: str) -> list[str]:
-    fields = split_fields(line, ',')
-    while fields and fields[-1] == '':
-        fields.pop()
-    return fields
 
 
 class RigolReader:
@@ -39,7 +33,7 @@ class RigolReader:
     def sniff(self, head: Head) -> bool:
         if len(head.lines) < 2:
             return False
-        first, second = _fields(head.lines[0]), _fields(head.lines[1])
+        first, second = header_fields(head.lines[0], ','), header_fields(head.lines[1], ',')
         lower = [f.casefold() for f in first]
         return (len(first) >= 4 and lower[0] == 'x' and 'start' in lower
                 and 'increment' in lower and bool(second)
@@ -47,7 +41,7 @@ class RigolReader:
 
     def open(self, head: Head) -> CaptureHeader:
         path = head.path
-        first, second = _fields(head.lines[0]), _fields(head.lines[1])
+        first, second = header_fields(head.lines[0], ','), header_fields(head.lines[1], ',')
         lower = [f.casefold() for f in first]
         i_start, i_inc = lower.index('start'), lower.index('increment')
         if len(second) <= max(i_start, i_inc):
@@ -63,7 +57,7 @@ class RigolReader:
             unit = second[j] if j < len(second) else ''
             si, factor = unit_factor(path, 2, unit) if unit else (None, 1.0)
             channels.append(ChannelInfo(
-                name=first[j], aliases=_channel_aliases(first[j]), file_unit=unit or None,
+                name=first[j], aliases=channel_aliases(first[j]), file_unit=unit or None,
                 si_unit=si, factor=factor, source=path, key=j))
         return CaptureHeader(
             path=path, format=self.key, instrument='Rigol', channels=tuple(channels),
@@ -75,12 +69,9 @@ class RigolReader:
     def load(self, header: CaptureHeader, channels: list[ChannelInfo],
              time_channel: ChannelInfo | None = None) -> Loaded:
         path = header.path
-        with TextFile(path) as f:
-            f.readline()
-            f.readline()
-            cols = f.columns([0] + [c.key for c in channels], delimiter=',',
-                             n_fields=header.extra['n_fields'],
-                             expected=header.extra['expected'])
+        cols = read_columns(path, 2, [0] + [c.key for c in channels], delimiter=',',
+                            n_fields=header.extra['n_fields'],
+                            expected=header.extra['expected'])
         seq = cols.values[0]
         n = seq.size
         bad = np.flatnonzero(seq != np.arange(n, dtype=np.float64))
@@ -92,6 +83,4 @@ class RigolReader:
         axis = TimeAxis(n, header.extra['start'], header.sample_interval_s,
                         how=f'Start {header.extra["start"]:.9g} s + n x Increment '
                         f'{header.sample_interval_s:.9g} s')
-        values = {c.name: v * c.factor for c, v in zip(channels, cols.values[1:])}
-        over = {c.name: k for c, k in zip(channels, cols.n_over_range[1:])}
-        return Loaded(time=axis, values=values, over_range=over, first_row=cols.first_row)
+        return Loaded.from_columns(axis, channels, cols)

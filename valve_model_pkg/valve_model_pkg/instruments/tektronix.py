@@ -19,27 +19,19 @@ is used.
 """
 from __future__ import annotations
 
-import re
-
 from ..errors import InstrumentFormatError as InstrumentError
 from .base import Head, Loaded
 from .capture import (
-    CaptureHeader, ChannelInfo, axis_from_printed, parse_number, time_unit_factor,
-    unit_factor,
+    CaptureHeader, ChannelInfo, axis_from_printed, channel_aliases, parse_number,
+    time_unit_factor, unit_factor,
 )
-from .text import TextFile, split_fields
+from .text import TextFile, is_number, split_fields
 
 __all__ = ['TdsReader', 'MsoReader']
 
-_CH = re.compile(r'^(?:ch|channel)\s*(\d+)$', re.IGNORECASE)
 _TDS_KEYS = ('record length', 'sample interval', 'trigger point', 'source')
 #: Metadata rows of a TDS file sit in the first rows; the data goes on below them.
 _TDS_HEADER_ROWS = 40
-
-
-def _channel_aliases(name: str) -> tuple[str, ...]:
-    m = _CH.match(name.strip())
-    return (m.group(1), f'CH{m.group(1)}', f'Channel {m.group(1)}') if m else ()
 
 
 def _vertical(path: str, row: int | None, unit: str | None) -> tuple[str | None, float]:
@@ -59,7 +51,7 @@ class TdsReader:
             return False
         fields = split_fields(head.lines[0], ',')
         return (len(fields) >= 5 and fields[0].casefold() == 'record length'
-                and _is_number(fields[3]) and _is_number(fields[4]))
+                and is_number(fields[3]) and is_number(fields[4]))
 
     def open(self, head: Head) -> CaptureHeader:
         path = head.path
@@ -89,7 +81,7 @@ class TdsReader:
         stated = {k: v for k, (v, _) in meta.items()}
         model = stated.get('model number', '')
         channel = ChannelInfo(
-            name=source, aliases=_channel_aliases(source), file_unit=vunit[0] or None,
+            name=source, aliases=channel_aliases(source), file_unit=vunit[0] or None,
             si_unit=si, factor=vfactor, source=path, key=4,
             stated={k: stated[k] for k in ('vertical scale', 'vertical offset',
                                            'probe atten', 'yzero') if k in stated})
@@ -179,7 +171,7 @@ class MsoReader:
             if label:
                 stated['label'] = label
             channels.append(ChannelInfo(
-                name=name, aliases=_channel_aliases(name) + ((label,) if label else ()),
+                name=name, aliases=channel_aliases(name) + ((label,) if label else ()),
                 file_unit=unit, si_unit=si, factor=vfactor, source=path, key=j,
                 stated=stated))
         model = meta.get('model', ([''], 1))[0]
@@ -208,17 +200,7 @@ class MsoReader:
             raise _short(path, cols.first_row + t.size, t.size, header.n_samples)
         axis = axis_from_printed(path, t, cols.first_row, stated_dt_s=header.sample_interval_s,
                                  what='Sample Interval')
-        values = {c.name: v * c.factor for c, v in zip(channels, cols.values[1:])}
-        over = {c.name: n for c, n in zip(channels, cols.n_over_range[1:])}
-        return Loaded(time=axis, values=values, over_range=over, first_row=cols.first_row)
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
+        return Loaded.from_columns(axis, channels, cols)
 
 
 def _missing(path: str, key: str) -> InstrumentError:

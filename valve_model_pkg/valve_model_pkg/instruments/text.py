@@ -16,7 +16,8 @@ import numpy as np
 from ..errors import InstrumentFormatError
 from .capture import MAX_SAMPLES
 
-__all__ = ['MAX_LINE_CHARS', 'TextFile', 'Columns', 'split_fields']
+__all__ = ['MAX_LINE_CHARS', 'TextFile', 'Columns', 'header_fields', 'is_number',
+           'read_columns', 'split_fields']
 
 #: Longest line read [bytes]; instrument exports have lines of a few dozen characters.
 MAX_LINE_CHARS = 1 << 16
@@ -27,6 +28,47 @@ _INFINITY = re.compile('[-+]?\u221e')
 def split_fields(line: str, delimiter: str) -> list[str]:
     """Fields of a line, stripped (no quoting: instrument exports use none)."""
     return [f.strip().strip('"') for f in line.split(delimiter)]
+
+
+def header_fields(line: str, delimiter: str) -> list[str]:
+    """Fields of a header row without the empty ones at its end (a row ending in the
+    delimiter, as Rigol and Keysight write them)."""
+    fields = split_fields(line, delimiter)
+    while fields and fields[-1] == '':
+        fields.pop()
+    return fields
+
+
+def is_number(text: str) -> bool:
+    """True when ``text`` reads as a float."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def read_columns(path: str, skip: int, usecols: Sequence[int], *, delimiter: str,
+                 n_fields: int, expected: str) -> 'Columns':
+    """The data rows of a text export whose header is its first ``skip`` lines.
+
+    Parameters
+    ----------
+    path : str
+    skip : int
+        Header lines before the first data row.
+    usecols, delimiter, n_fields, expected
+        As :meth:`TextFile.columns`.
+
+    Raises
+    ------
+    InstrumentFormatError
+        As :meth:`TextFile.columns`, naming the row.
+    """
+    with TextFile(path) as f:
+        for _ in range(skip):
+            f.readline()
+        return f.columns(usecols, delimiter=delimiter, n_fields=n_fields, expected=expected)
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from valve_model_pkg.model.sample import ValveSample
 
 __all__ = ['STATE_QOS', 'STATE_DURABLE_QOS', 'COMMAND_QOS', 'PRESSURE_QOS', 'JOINT_STATES_QOS',
            'DIAGNOSTICS_QOS',
-           'CLOCK_QOS', 'RELAY_QOS',
+           'CLOCK_QOS', 'RELAY_QOS', 'PROBE_QOS',
            'state_message', 'RosLogHandler', 'forward_logging']
 
 # State at 1 kHz: reliable so that a recorder loses nothing, a deep queue so a slow
@@ -46,6 +46,9 @@ DIAGNOSTICS_QOS = QoSProfile(depth=DIAGNOSTICS_QUEUE_DEPTH)
 CLOCK_QOS = QoSProfile(depth=1)
 #: The live view's relay subscriptions (any suite topic, rclpy's default policies).
 RELAY_QOS = QoSProfile(depth=100)
+# A probe that only asks whether anything publishes: best effort matches reliable and
+# best-effort writers alike.
+PROBE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 def state_message(sample: ValveSample, stamp, frame_id: str, sequence: int,

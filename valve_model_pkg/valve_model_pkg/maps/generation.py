@@ -80,7 +80,7 @@ class MapGrid:
         return len(self.duty) * len(self.supply_pressures_pa) * len(self.pwm_frequencies_hz)
 
 
-#: The grid the issue asks for: 1 % steps, 0/2/4/6 bar, 20/50/100/200 Hz.
+#: The grid a shipped map covers: 1 % steps, 0/2/4/6 bar, 20/50/100/200 Hz.
 PAPER_GRID = MapGrid()
 
 

@@ -66,11 +66,8 @@ import os
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from .parameters import (
-    ParameterError, _key_lines, _one_line, _ParameterLoader, _read_parameter_text,
-)
+from .parameters import ParameterError, _one_line, _yaml_document
 
 __all__ = ['ElectronicsConfig', 'HOLD_DECAYS', 'HOLD_FORMS', 'PEAK_ENDS', 'RELEASES',
            'load_electronics']
@@ -359,23 +356,7 @@ def load_electronics(path: str | os.PathLike[str]) -> ElectronicsConfig:
         If the file does not exist.
     """
     path = Path(path)
-    text = _read_parameter_text(path)
-    loader = _ParameterLoader(text)
-    try:
-        node = loader.get_single_node()
-        lines = _key_lines(node, str(path))
-        data = loader.construct_document(node) if node is not None else None
-    except yaml.MarkedYAMLError as err:
-        mark = err.problem_mark or err.context_mark
-        where = f'{path}:{mark.line + 1}' if mark is not None else str(path)
-        problem = ' '.join(x for x in (err.context, err.problem) if x)
-        raise ParameterError(f'{where}: not valid YAML: {_one_line(problem)}') from err
-    except yaml.YAMLError as err:
-        raise ParameterError(f'{path}: not valid YAML: {_one_line(err)}') from err
-    except RecursionError as err:
-        raise ParameterError(f'{path}: not an electronics file: nested too deeply') from err
-    finally:
-        loader.dispose()
+    data, lines = _yaml_document(path, 'an electronics file')
     if data is None:
         data = {}
     if isinstance(data, dict) and 'electronics' in data:

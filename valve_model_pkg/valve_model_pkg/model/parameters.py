@@ -586,6 +586,42 @@ def _read_parameter_text(path: Path) -> str:
                              f'at offset {err.start})') from err
 
 
+def _yaml_document(path: Path, what: str) -> tuple[object, dict]:
+    """The YAML document of ``path`` (None when empty) and the line of each top-level key.
+
+    Parameters
+    ----------
+    path : Path
+    what : str
+        What the file should be, for the message of a too deeply nested one
+        (``'a parameter file'``).
+
+    Raises
+    ------
+    ParameterError
+        One line naming the file (and the line when known): binary, not UTF-8, too large,
+        not valid YAML, a duplicate key, nested too deeply.
+    """
+    text = _read_parameter_text(path)
+    loader = _ParameterLoader(text)
+    try:
+        node = loader.get_single_node()
+        lines = _key_lines(node, str(path))
+        data = loader.construct_document(node) if node is not None else None
+    except yaml.MarkedYAMLError as err:
+        mark = err.problem_mark or err.context_mark
+        where = f'{path}:{mark.line + 1}' if mark is not None else str(path)
+        problem = ' '.join(x for x in (err.context, err.problem) if x)
+        raise ParameterError(f'{where}: not valid YAML: {_one_line(problem)}') from err
+    except yaml.YAMLError as err:
+        raise ParameterError(f'{path}: not valid YAML: {_one_line(err)}') from err
+    except RecursionError as err:
+        raise ParameterError(f'{path}: not {what}: nested too deeply') from err
+    finally:
+        loader.dispose()
+    return data, lines
+
+
 def load_parameters(path: str | os.PathLike[str] | None = None, *,
                     allow_implausible: bool = False) -> ValveParameters:
     """Load and validate a parameter YAML file (default: :func:`default_parameters_path`).
@@ -612,23 +648,7 @@ def load_parameters(path: str | os.PathLike[str] | None = None, *,
         If the file does not exist.
     """
     path = Path(path) if path is not None else default_parameters_path()
-    text = _read_parameter_text(path)
-    loader = _ParameterLoader(text)
-    try:
-        node = loader.get_single_node()
-        lines = _key_lines(node, str(path))
-        data = loader.construct_document(node) if node is not None else None
-    except yaml.MarkedYAMLError as err:
-        mark = err.problem_mark or err.context_mark
-        where = f'{path}:{mark.line + 1}' if mark is not None else str(path)
-        problem = ' '.join(x for x in (err.context, err.problem) if x)
-        raise ParameterError(f'{where}: not valid YAML: {_one_line(problem)}') from err
-    except yaml.YAMLError as err:
-        raise ParameterError(f'{path}: not valid YAML: {_one_line(err)}') from err
-    except RecursionError as err:
-        raise ParameterError(f'{path}: not a parameter file: nested too deeply') from err
-    finally:
-        loader.dispose()
+    data, lines = _yaml_document(path, 'a parameter file')
     try:
         params = ValveParameters.from_dict(data if data is not None else {})
         bad = implausible_values(params)

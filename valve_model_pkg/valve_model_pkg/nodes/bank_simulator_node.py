@@ -26,7 +26,6 @@ valve is counted for that valve only.
 """
 from __future__ import annotations
 
-import math
 import re
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -45,13 +44,12 @@ from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, 
                                           STATE_QOS, TOPIC_DIAGNOSTICS, TOPIC_DUTY_COMMAND,
                                           TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
                                           TOPIC_SUPPLY_PRESSURE, DiagnosticLevel,
-                                          StartupRefused, declare_bool, declare_float,
-                                          gauge_from_absolute, run_node)
+                                          StartupRefused, declare_bool, declare_float, run_node)
 from valve_model_pkg.nodes.sim_status import valve_summary, valve_values
 from valve_model_pkg.nodes.simulator_node import declare_electronics
 from valve_model_pkg.nodes.tick_loop import TickLoop
-from valve_model_pkg.nodes.inputs import (InputGuard, SequenceTracker, pressure_reason,
-                                          stamp_reason)
+from valve_model_pkg.nodes.inputs import (InputGuard, SequenceTracker, accept_duty_command,
+                                          accept_pressure)
 
 #: A valve name is one ROS name token: it becomes the first part of the valve's topics.
 _NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
@@ -193,46 +191,16 @@ class ValveBankSimulatorNode(Node):
     def _on_duty(self, v: _Valve, msg: DutyCommand) -> None:
         """A duty command for valve ``v`` (checked as by ``valve_simulator``)."""
         v.commands.update(msg.header.frame_id, msg.sequence)
-        duty, freq = float(msg.duty), float(msg.pwm_frequency)
-        topic = 'duty_command'
-        keep = '; keeping the last valid command'
-        who = f'{v.name}: '
-        if not math.isfinite(duty) or not math.isfinite(freq):
-            v.inputs.reject(topic, 'not_finite',
-                            f'{who}duty command rejected: duty={duty!r}, pwm_frequency='
-                            f'{freq!r} is not finite' + keep)
-            return
-        if freq != 0.0 and not MIN_PWM_FREQUENCY_HZ <= freq <= MAX_PWM_FREQUENCY_HZ:
-            v.inputs.reject(topic, 'frequency_out_of_range',
-                            f'{who}duty command rejected: pwm_frequency={freq!r} Hz outside '
-                            f'[{MIN_PWM_FREQUENCY_HZ:g}, {MAX_PWM_FREQUENCY_HZ:g}] '
-                            '(0 = keep)' + keep)
-            return
-        reason = stamp_reason(msg.header.stamp)
-        if reason is not None:
-            v.inputs.reject(topic, 'bad_stamp', f'{who}duty command rejected: {reason}' + keep)
-            return
-        if freq == 0.0:  # 0 = keep the frequency in force (DutyCommand.msg)
-            freq = self._bank.sample(v.index).pwm_frequency_hz
-        if not 0.0 <= duty <= 1.0:
-            clamped = min(max(duty, 0.0), 1.0)
-            v.inputs.reject(topic, 'duty_clamped',
-                            f'{who}duty {duty!r} outside [0, 1]; clamped to {clamped:g}')
-            duty = clamped
-        self._bank.set_command(v.index, duty, freq)
+        accepted = accept_duty_command(msg, v.inputs,
+                                       lambda: self._bank.sample(v.index).pwm_frequency_hz,
+                                       who=f'{v.name}: ')
+        if accepted is not None:
+            self._bank.set_command(v.index, *accepted)
 
     def _on_pressure(self, v: _Valve, msg: FluidPressure, port: str) -> None:
-        reason = pressure_reason(float(msg.fluid_pressure))
-        if reason is None:
-            reason = stamp_reason(msg.header.stamp)
-        if reason is not None:
-            kind = 'not_finite' if 'not finite' in reason else (
-                'bad_stamp' if 'stamp' in reason else 'out_of_range')
-            v.inputs.reject(f'{port}_pressure', kind,
-                            f'{v.name}: {port} pressure rejected: {reason}; keeping the last '
-                            'valid value')
+        gauge = accept_pressure(msg, v.inputs, port, who=f'{v.name}: ')
+        if gauge is None:
             return
-        gauge = gauge_from_absolute(float(msg.fluid_pressure))
         s = self._bank.sample(v.index)
         supply, output = (gauge, s.output_pressure_pa) if port == 'supply' \
             else (s.supply_pressure_pa, gauge)

@@ -18,11 +18,13 @@ from collections import OrderedDict
 from collections.abc import Callable
 from typing import Protocol
 
-from valve_model_pkg.interface import ATMOSPHERIC_PRESSURE_PA, absolute_from_gauge
+from valve_model_pkg.interface import (ATMOSPHERIC_PRESSURE_PA, MAX_PWM_FREQUENCY_HZ,
+                                       MIN_PWM_FREQUENCY_HZ, absolute_from_gauge,
+                                       gauge_from_absolute)
 
 __all__ = ['MAX_PRESSURE_ABSOLUTE_PA', 'MAX_FLOW_COMMAND_KG_S', 'MAX_SEQUENCE_JUMP',
            'WARNING_THROTTLE_S', 'pressure_reason', 'gauge_pressure_reason', 'stamp_reason',
-           'InputGuard', 'SequenceTracker']
+           'InputGuard', 'SequenceTracker', 'accept_duty_command', 'accept_pressure']
 
 #: Highest pressure a message may carry, absolute [Pa]: 100 bar gauge, the highest
 #: pressure any parameter of the suite accepts (flow_to_duty's supply_pressure_pa); a
@@ -121,6 +123,70 @@ class InputGuard:
     def diagnostic_values(self) -> dict[str, int]:
         """``rejected_<input>_<kind>`` -> count, for the diagnostics."""
         return {f'rejected_{k}': n for k, n in sorted(self.counts.items())}
+
+
+def accept_duty_command(msg: object, inputs: InputGuard,
+                        frequency_in_force: Callable[[], float],
+                        who: str = '') -> tuple[float, float] | None:
+    """(duty, pwm_frequency_hz) to apply for a DutyCommand, or None when it is refused.
+
+    Valid: duty and pwm_frequency finite, pwm_frequency 0 (keep the frequency in force,
+    DutyCommand.msg) or within [MIN_PWM_FREQUENCY_HZ, MAX_PWM_FREQUENCY_HZ],
+    header.stamp.nanosec < 10^9. A duty outside [0, 1] is clamped (and counted): the
+    command's intent is plain. Refusals and clamps are counted on ``inputs`` (input
+    ``duty_command``); ``who`` prefixes their messages (``'cap: '`` in a bank).
+
+    Parameters
+    ----------
+    msg : valve_msgs/DutyCommand
+    inputs : InputGuard
+    frequency_in_force : callable returning float
+        The valve's PWM frequency now [Hz], asked only for a command of frequency 0.
+    who : str
+    """
+    duty, freq = float(msg.duty), float(msg.pwm_frequency)
+    topic = 'duty_command'
+    keep = '; keeping the last valid command'
+    if not math.isfinite(duty) or not math.isfinite(freq):
+        inputs.reject(topic, 'not_finite', f'{who}duty command rejected: duty={duty!r}, '
+                      f'pwm_frequency={freq!r} is not finite' + keep)
+        return None
+    if freq != 0.0 and not MIN_PWM_FREQUENCY_HZ <= freq <= MAX_PWM_FREQUENCY_HZ:
+        inputs.reject(topic, 'frequency_out_of_range',
+                      f'{who}duty command rejected: pwm_frequency={freq!r} Hz outside '
+                      f'[{MIN_PWM_FREQUENCY_HZ:g}, {MAX_PWM_FREQUENCY_HZ:g}] (0 = keep)' + keep)
+        return None
+    reason = stamp_reason(msg.header.stamp)
+    if reason is not None:
+        inputs.reject(topic, 'bad_stamp', f'{who}duty command rejected: {reason}' + keep)
+        return None
+    if freq == 0.0:
+        freq = frequency_in_force()
+    if not 0.0 <= duty <= 1.0:
+        clamped = min(max(duty, 0.0), 1.0)
+        inputs.reject(topic, 'duty_clamped',
+                      f'{who}duty {duty!r} outside [0, 1]; clamped to {clamped:g}')
+        duty = clamped
+    return duty, freq
+
+
+def accept_pressure(msg: object, inputs: InputGuard, port: str, who: str = '') -> float | None:
+    """The gauge pressure [Pa] of a FluidPressure message (absolute), or None when refused.
+
+    Refused (and counted on ``inputs`` as ``<port>_pressure``): a pressure that is not
+    finite or outside [0, MAX_PRESSURE_ABSOLUTE_PA], or a bad stamp; the node keeps its
+    last valid value. ``who`` prefixes the message.
+    """
+    reason = pressure_reason(float(msg.fluid_pressure))
+    if reason is None:
+        reason = stamp_reason(msg.header.stamp)
+    if reason is not None:
+        kind = 'not_finite' if 'not finite' in reason else (
+            'bad_stamp' if 'stamp' in reason else 'out_of_range')
+        inputs.reject(f'{port}_pressure', kind,
+                      f'{who}{port} pressure rejected: {reason}; keeping the last valid value')
+        return None
+    return gauge_from_absolute(float(msg.fluid_pressure))
 
 
 class SequenceTracker:

@@ -25,7 +25,6 @@ their ``sequence`` per publisher (``duty_commands_received``, ``duty_commands_lo
 from __future__ import annotations
 
 import dataclasses
-import math
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
@@ -41,14 +40,13 @@ from valve_model_pkg.interface.ros import DIAGNOSTICS_QOS, forward_logging, stat
 from valve_model_pkg.interface import MAX_PWM_FREQUENCY_HZ, MIN_PWM_FREQUENCY_HZ
 from valve_model_pkg.nodes.sim_status import valve_summary, valve_values
 from valve_model_pkg.nodes.tick_loop import TickLoop
-from valve_model_pkg.nodes.inputs import (InputGuard, SequenceTracker, pressure_reason,
-                                          stamp_reason)
+from valve_model_pkg.nodes.inputs import (InputGuard, SequenceTracker, accept_duty_command,
+                                          accept_pressure)
 from valve_model_pkg.nodes.common import (ATMOSPHERIC_PRESSURE_PA, COMMAND_QOS, PRESSURE_QOS,
                                           STATE_QOS, TOPIC_DIAGNOSTICS,
                                           TOPIC_DUTY_COMMAND, TOPIC_OUTPUT_PRESSURE, TOPIC_STATE,
                                           TOPIC_SUPPLY_PRESSURE, declare_bool, declare_float,
-                                          declare_string, DiagnosticLevel, gauge_from_absolute,
-                                          run_node)
+                                          declare_string, DiagnosticLevel, run_node)
 
 
 def declare_electronics(node: Node) -> tuple[ElectronicsConfig, str]:
@@ -163,52 +161,16 @@ class ValveSimulatorNode(Node):
 
     # --- inputs ---------------------------------------------------------------------------
     def _on_duty(self, msg: DutyCommand) -> None:
-        """Apply a duty command; refuse (and count) one the valve cannot take.
-
-        Valid: duty and pwm_frequency finite, pwm_frequency 0 (keep) or within
-        [MIN_PWM_FREQUENCY_HZ, MAX_PWM_FREQUENCY_HZ], header.stamp.nanosec < 10^9. A duty
-        outside [0, 1] is clamped (and counted): the command's intent is plain.
-        """
+        """Apply a duty command; refuse (and count) one the valve cannot take (the rules of
+        :func:`~valve_model_pkg.nodes.inputs.accept_duty_command`)."""
         self._commands.update(msg.header.frame_id, msg.sequence)
-        duty, freq = float(msg.duty), float(msg.pwm_frequency)
-        topic = 'duty_command'
-        keep = '; keeping the last valid command'
-        if not math.isfinite(duty) or not math.isfinite(freq):
-            self._inputs.reject(topic, 'not_finite',
-                                f'duty command rejected: duty={duty!r}, pwm_frequency={freq!r} '
-                                'is not finite' + keep)
-            return
-        if freq != 0.0 and not MIN_PWM_FREQUENCY_HZ <= freq <= MAX_PWM_FREQUENCY_HZ:
-            self._inputs.reject(topic, 'frequency_out_of_range',
-                                f'duty command rejected: pwm_frequency={freq!r} Hz outside '
-                                f'[{MIN_PWM_FREQUENCY_HZ:g}, {MAX_PWM_FREQUENCY_HZ:g}] '
-                                '(0 = keep)' + keep)
-            return
-        reason = stamp_reason(msg.header.stamp)
-        if reason is not None:
-            self._inputs.reject(topic, 'bad_stamp', f'duty command rejected: {reason}' + keep)
-            return
-        if freq == 0.0:  # 0 = keep the frequency in force (DutyCommand.msg)
-            freq = self._stepper.sample().pwm_frequency_hz
-        if not 0.0 <= duty <= 1.0:
-            clamped = min(max(duty, 0.0), 1.0)
-            self._inputs.reject(topic, 'duty_clamped',
-                                f'duty {duty!r} outside [0, 1]; clamped to {clamped:g}')
-            duty = clamped
-        self._stepper.set_command(duty, freq)
+        accepted = accept_duty_command(msg, self._inputs,
+                                       lambda: self._stepper.sample().pwm_frequency_hz)
+        if accepted is not None:
+            self._stepper.set_command(*accepted)
 
     def _pressure_from(self, msg: FluidPressure, port: str) -> float | None:
-        reason = pressure_reason(float(msg.fluid_pressure))
-        if reason is None:
-            reason = stamp_reason(msg.header.stamp)
-        if reason is not None:
-            kind = 'not_finite' if 'not finite' in reason else (
-                'bad_stamp' if 'stamp' in reason else 'out_of_range')
-            self._inputs.reject(f'{port}_pressure', kind,
-                                f'{port} pressure rejected: {reason}; keeping the last valid '
-                                'value')
-            return None
-        return gauge_from_absolute(float(msg.fluid_pressure))
+        return accept_pressure(msg, self._inputs, port)
 
     def _on_supply(self, msg: FluidPressure) -> None:
         gauge = self._pressure_from(msg, 'supply')

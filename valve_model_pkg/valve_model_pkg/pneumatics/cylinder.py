@@ -1,6 +1,6 @@
 """A single-acting pneumatic cylinder with spring return, fed by the PWM valve.
 
-The example plant a higher-level controller moves with the valve (issue 7). The valve
+The example plant a higher-level controller moves with the valve. The valve
 fills the cap-end chamber from the supply; a fixed bleed restrictor vents the chamber to
 atmosphere (with a single normally closed valve, the bleed is what lets the pressure
 fall again); the rod end is open to atmosphere; a spring pushes the piston back.

@@ -1,4 +1,4 @@
-"""A double-acting pneumatic cylinder with one 3/2 valve per chamber (issue 14, item 4).
+"""A double-acting pneumatic cylinder with one 3/2 valve per chamber.
 
 The second example plant. Servo-pneumatic axes with switching valves use two to four
 valves; here each chamber has its own 3/2 valve (valve namespaces ``cap`` and ``rod``):
