@@ -9,7 +9,8 @@ import pytest
 from suite_paths import REPO_ROOT
 
 MSG_DIR = REPO_ROOT / 'valve_msgs' / 'msg'
-FIELD = re.compile(r'^(?P<type>[A-Za-z_][\w/]*(\[\d*\])?)\s+(?P<name>[A-Za-z_]\w*)\s*(?P<rest>.*)$')
+FIELD = re.compile(
+    r"^(?P<type>[A-Za-z_][\w/]*(\[\d*\])?)\s+(?P<name>[A-Za-z_]\w*)\s*(?P<rest>.*)$")
 
 
 def _fields(path: Path) -> dict[str, tuple[str, str]]:

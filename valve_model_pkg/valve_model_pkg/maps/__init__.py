@@ -14,7 +14,7 @@ from .curves import DEFAULT_STOP_TOLERANCE, CurveFeatures, curve_features, monot
 from .dutymap import (DEFAULT_MAP_FILENAME, FORMAT_NAME, FORMAT_VERSION, DutyMap,
                       default_map_path, load_map, parameters_hash)
 from ..errors import (FlowMapFormatError, MapError, MapFormatError, MapGenerationError,
-                     MapParameterMismatchError)
+                      MapParameterMismatchError)
 from .inversion import (ATMOSPHERIC_PRESSURE_PA, FlowStatus, FlowToDutyInverter,
                         FlowToDutyResult, OrificeConstants, flow_per_opening,
                         invalid_flow_reason)
