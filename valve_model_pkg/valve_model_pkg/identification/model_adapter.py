@@ -28,7 +28,8 @@ from ..model import (DEFAULT_H_FREE_S, DEFAULT_H_STOP_S, PARAMETER_FIELDS,
 from ..errors import ModelAdapterError
 from .measurement import Measurement
 
-__all__ = ['TraceSetup', 'prepare_trace', 'simulate_measurement', 'FIELD_INDEX']
+__all__ = ['TraceSetup', 'interval_segments', 'prepare_trace', 'simulate_measurement',
+           'FIELD_INDEX']
 
 #: Column of each ValveParameters field in a raw parameter matrix.
 FIELD_INDEX = {name: i for i, name in enumerate(PARAMETER_FIELDS)}
@@ -104,6 +105,44 @@ def _segments(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t0, levels
 
 
+def interval_segments(t: np.ndarray, v_mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bare coil's input from interval-mean voltages: ``v_mean[k]`` held over
+    ``(t[k-1], t[k]]`` (over ``[0, t[0]]`` for the first), equal neighbours merged.
+
+    Over each interval the held level has the measured integral of the terminal voltage,
+    so the flux linkage the model reaches at every sample time obeys the interval balance
+    ``mean(u) dt = R mean(i) dt + delta psi`` (eq. 1) with the measured ``mean(u)``.
+
+    Returns
+    -------
+    seg_t0_s, seg_v : numpy.ndarray, shape (n_seg,)
+        Segment starts [s] (the first is 0) and levels [V].
+    """
+    starts = np.concatenate(([0.0], t[:-1].astype(float)))
+    v = np.asarray(v_mean, dtype=float)
+    if t[0] <= 0.0:  # the first interval [0, t[0]] is empty
+        starts, v = starts[1:], v[1:]
+    if starts.size == 0:
+        return np.zeros(1), np.asarray(v_mean[:1], dtype=float)
+    change = np.concatenate(([True], v[1:] != v[:-1]))
+    return starts[change], v[change]
+
+
+def _interval_mean_setup(m: Measurement, h_stop_s: float | None,
+                         keep: np.ndarray | None) -> TraceSetup:
+    """The bare coil driven by interval-mean voltages, sampled at the record's own times
+    (as interval means when the current is)."""
+    seg_t0, seg_v = interval_segments(m.t_s, m.voltage_v)
+    t = m.t_s if keep is None else m.t_s[keep]
+    return TraceSetup(seg_t0_s=seg_t0, seg_v=seg_v, t_end_s=float(t[-1]),
+                      grid_t0_s=float(t[0]), grid_dt_s=float(np.median(np.diff(t))),
+                      n_grid=0, index=None, t_s=t,
+                      supply_pressure_pa=float(m.supply_pressure_pa),
+                      output_pressure_pa=float(m.output_pressure_pa),
+                      h_stop_s=float(DEFAULT_H_STOP_S if h_stop_s is None else h_stop_s),
+                      sampling=m.sampling)
+
+
 def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
                   keep: np.ndarray | None = None) -> TraceSetup:
     """Prepare a measurement for :func:`simulate_measurement`.
@@ -143,6 +182,8 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
             drive=InputTrace.pwm_commands(d.t_s, d.duty, d.pwm_frequency_hz,
                                           d.supply_voltage_v),
             sampling=m.sampling)
+    if m.voltage_hold == 'interval_mean':
+        return _interval_mean_setup(m, h_stop_s, keep)
     seg_t0, seg_v = _segments(m.t_s, m.voltage_v)
     t = m.t_s if keep is None else m.t_s[keep]
     dt = float(np.median(np.diff(t)))
@@ -213,7 +254,7 @@ def simulate_measurement(raw: np.ndarray, setup: TraceSetup, *,
     if setup.n_grid == 0:
         res = simulate_trace_batch(
             raw, InputTrace.coil_voltage(setup.seg_t0_s, setup.seg_v), setup.t_s,
-            supply_pressure_pa=setup.supply_pressure_pa,
+            sampling=setup.sampling, supply_pressure_pa=setup.supply_pressure_pa,
             output_pressure_pa=setup.output_pressure_pa, h_free_s=float(h_free_s),
             h_stop_s=setup.h_stop_s, validate=False, parallel=parallel)
         return res.coil_current_a, res.spool_position_m

@@ -333,11 +333,7 @@ def _subset(m: Measurement, keep: np.ndarray) -> Measurement:
     from dataclasses import replace
     note = (f'compared at {keep.sum()} of {keep.size} samples (every '
             f'{int(round(keep.size / keep.sum()))}th): a long record is fitted on its drift')
-    return replace(m, t_s=m.t_s[keep], voltage_v=m.voltage_v[keep],
-                   current_a=m.current_a[keep],
-                   position_m=None if m.position_m is None else m.position_m[keep],
-                   notes=m.notes + (note,),
-                   n_missing_values=int(np.count_nonzero(~np.isfinite(m.current_a[keep]))))
+    return replace(m.samples(keep), notes=m.notes + (note,))
 
 
 class FitData:
