@@ -105,27 +105,71 @@ def _segments(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t0, levels
 
 
-def interval_segments(t: np.ndarray, v_mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The bare coil's input from interval-mean voltages: ``v_mean[k]`` held over
-    ``(t[k-1], t[k]]`` (over ``[0, t[0]]`` for the first), equal neighbours merged.
+#: An interval whose mean lies between its neighbours' means, which differ by more than
+#: this share of the largest |mean|, holds one edge from the level before to the level
+#: after (:func:`interval_segments`).
+EDGE_MIN_SHARE = 0.2
 
-    Over each interval the held level has the measured integral of the terminal voltage,
-    so the flux linkage the model reaches at every sample time obeys the interval balance
-    ``mean(u) dt = R mean(i) dt + delta psi`` (eq. 1) with the measured ``mean(u)``.
+
+def interval_segments(t: np.ndarray, v_mean: np.ndarray, *, place_edges: bool = True
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The bare coil's input from interval-mean voltages over ``(t[k-1], t[k]]`` (over
+    ``[0, t[0]]`` for the first), with the measured integral over every interval.
+
+    Each interval is held at its mean (zero-order hold), except, with ``place_edges``, an
+    interval between a level before and a different level after (the neighbours' means
+    differ by more than :data:`EDGE_MIN_SHARE` of the largest |mean| and its own mean lies
+    between them): the drive switched within it, so it holds the level before for the
+    fraction ``a = (v_after - v_k) / (v_after - v_before)`` of the interval and the level
+    after for the rest. Either way ``a v_before + (1 - a) v_after = v_k``: over every
+    interval the held input has the measured integral of the terminal voltage, so the
+    model's flux linkage obeys the interval balance ``mean(u) dt = R mean(i) dt +
+    delta psi`` (eq. 1) with the measured ``mean(u)``; placing the edge removes most of
+    the zero-order hold's error in the interval's mean current (about ``u dt a (1 - a) /
+    (2 L)``, some 20 mA for 24 V over 1 ms at 0.14 H).
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Interval ends [s], strictly increasing, from t >= 0.
+    v_mean : numpy.ndarray, shape (n,)
+        Mean terminal voltage over each interval [V].
+    place_edges : bool
+        Place one edge in intervals between two levels (else hold every mean).
 
     Returns
     -------
     seg_t0_s, seg_v : numpy.ndarray, shape (n_seg,)
-        Segment starts [s] (the first is 0) and levels [V].
+        Segment starts [s] (the first is 0) and levels [V], equal neighbours merged.
     """
-    starts = np.concatenate(([0.0], t[:-1].astype(float)))
+    t = np.asarray(t, dtype=float)
     v = np.asarray(v_mean, dtype=float)
-    if t[0] <= 0.0:  # the first interval [0, t[0]] is empty
-        starts, v = starts[1:], v[1:]
-    if starts.size == 0:
-        return np.zeros(1), np.asarray(v_mean[:1], dtype=float)
-    change = np.concatenate(([True], v[1:] != v[:-1]))
-    return starts[change], v[change]
+    begin = np.concatenate(([0.0], t[:-1]))
+    starts = [begin]
+    levels = [v]
+    if place_edges and v.size >= 3:
+        before, mid, after = v[:-2], v[1:-1], v[2:]
+        span = after - before
+        big = np.abs(span) > EDGE_MIN_SHARE * max(float(np.max(np.abs(v))), 1e-9)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            a = np.where(big, (after - mid) / np.where(big, span, 1.0), -1.0)
+        k = np.flatnonzero((a > 0.0) & (a < 1.0)) + 1
+        # interval k: the level before from its start, the level after from the edge
+        levels[0] = v.copy()
+        levels[0][k] = v[k - 1]
+        starts.append(begin[k] + a[k - 1] * (t[k] - begin[k]))
+        levels.append(v[k + 1])
+    seg_t = np.concatenate(starts)
+    seg_v = np.concatenate(levels)
+    order = np.argsort(seg_t, kind='stable')
+    seg_t, seg_v = seg_t[order], seg_v[order]
+    # an empty first interval (t[0] = 0) or an edge at an interval start: the later wins
+    keep = np.concatenate((seg_t[1:] > seg_t[:-1], [True]))
+    seg_t, seg_v = seg_t[keep], seg_v[keep]
+    change = np.concatenate(([True], seg_v[1:] != seg_v[:-1]))
+    seg_t, seg_v = seg_t[change], seg_v[change]
+    seg_t[0] = 0.0
+    return seg_t, seg_v
 
 
 def _interval_mean_setup(m: Measurement, h_stop_s: float | None,
