@@ -71,6 +71,7 @@ class Cell:
     structured_ma: float | None = None
     unexplained: bool | None = None
     at_bound: str = ''
+    route: str = ''
     generate_s: float = 0.0
     identify_s: float = 0.0
     exit_code: int | None = None
@@ -147,6 +148,7 @@ def _read_report(cell: Cell, report: Path) -> None:
     bounds = list(rep.get('baseline_at_search_bound') or [])
     bounds += list((rep.get('drive_electronics') or {}).get('at_search_bound') or [])
     cell.at_bound = ', '.join(bounds)
+    cell.route = (rep.get('route') or {}).get('name', '')
 
 
 def _fmt(value: float | None, spec: str) -> str:
@@ -155,7 +157,7 @@ def _fmt(value: float | None, spec: str) -> str:
 
 def _table(cells: list[Cell], pending: list[tuple[str, str, bool]], meta: dict[str, str],
            args: argparse.Namespace) -> str:
-    lines = ['# Identification through drive electronics of other forms: before', '']
+    lines = [f'# {args.title}', '']
     lines += [f'- {k}: {v}' for k, v in meta.items()]
     lines += ['', 'Forms (tests/datagen/electronics.py):', '']
     used = sorted({c.form for c in cells} | {p[0] for p in pending})
@@ -168,9 +170,9 @@ def _table(cells: list[Cell], pending: list[tuple[str, str, bool]], meta: dict[s
               'NRMSE and RMSE on the validation record; "noise" and "structured" are the '
               'report\'s estimates (baseline validation residual).', '',
               '| form | effect | V mean | named | confidence | base NRMSE % | base RMSE mA '
-              '| aug NRMSE % | aug RMSE mA | noise mA | structured mA | at bound | right '
-              '| time s |',
-              '|---|---|---|---|---|---|---|---|---|---|---|---|---|---|']
+              '| aug NRMSE % | aug RMSE mA | noise mA | structured mA | at bound | route '
+              '| right | time s |',
+              '|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|']
     for c in cells:
         right = '' if not c.named else ('yes' if c.named == c.effect else 'NO')
         named = c.named or f'failed ({c.exit_code}): {c.error[-80:]}'
@@ -180,7 +182,7 @@ def _table(cells: list[Cell], pending: list[tuple[str, str, bool]], meta: dict[s
             f'| {conf} | {_fmt(c.base_val_nrmse_pct, ".2f")} '
             f'| {_fmt(c.base_val_rmse_ma, ".2f")} | {_fmt(c.aug_val_nrmse_pct, ".2f")} '
             f'| {_fmt(c.aug_val_rmse_ma, ".2f")} | {_fmt(c.noise_est_ma, ".2f")} '
-            f'| {_fmt(c.structured_ma, ".2f")} | {c.at_bound} | {right} '
+            f'| {_fmt(c.structured_ma, ".2f")} | {c.at_bound} | {c.route} | {right} '
             f'| {c.identify_s:.0f} |')
     done = [c for c in cells if c.named]
     if done:
@@ -215,6 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--effect', action='append', choices=EFFECT_ORDER)
     parser.add_argument('--voltage', choices=('without', 'with', 'both'), default='both')
     parser.add_argument('--noise-ma', type=float, default=3.0)
+    parser.add_argument('--title', default='Identification through drive electronics of '
+                        'other forms: before', help='heading of the table')
     parser.add_argument('--fit-s', type=float, default=2.0)
     parser.add_argument('--validate-s', type=float, default=1.5)
     parser.add_argument('--budget-min', type=float, default=90.0,
