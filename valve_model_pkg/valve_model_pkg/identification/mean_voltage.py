@@ -20,7 +20,8 @@ from dataclasses import dataclass, replace
 from .measurement import Measurement
 
 __all__ = ['ROUTE_BARE_COIL', 'ROUTE_ELECTRONICS', 'ROUTE_MEAN_VOLTAGE', 'ROUTE_TEXT',
-           'Route', 'around_electronics', 'choose_route']
+           'Route', 'VoltageCheck', 'around_electronics', 'check_mean_voltage',
+           'choose_route', 'through_drive_counterparts']
 
 #: Records through the drive electronics, fitted through the mean coil voltage.
 ROUTE_MEAN_VOLTAGE = 'mean_coil_voltage'
@@ -120,3 +121,89 @@ def choose_route(fit: Sequence[Measurement], validation: Sequence[Measurement]) 
                  'coil_voltage_mean is held over each current interval on the bare coil, so '
                  'the interval voltage balance holds with the measured voltage; interval '
                  'means of the current are compared')
+
+
+def through_drive_counterparts(route: Route, prepared: Sequence[Measurement]
+                               ) -> list[Measurement]:
+    """The records as read (through the electronics) over the same span as the prepared
+    records of the mean-voltage route (hold-out and windows applied): what the drive
+    electronics are identified on once the valve is known."""
+    originals = {m.source: m for m in route.through_drive_fit if m.drive is not None}
+    out = []
+    for p in prepared:
+        m = originals.get(p.source)
+        if m is None:
+            continue
+        keep = m.t_s <= p.t_s[-1]
+        out.append(replace(m.samples(keep), exclude_before_s=p.exclude_before_s,
+                           held_out_from_s=p.held_out_from_s))
+    return out
+
+
+@dataclass(frozen=True)
+class VoltageCheck:
+    """How well drive electronics reproduce a record's measured mean coil voltage.
+
+    Attributes
+    ----------
+    rmse_v : float
+        RMS of the measured minus the simulated interval-mean coil voltage [V] over the
+        compared samples of every record.
+    supply_v : float
+        The drive supply voltage [V] (the scale of the error).
+    samples : int
+        Samples compared.
+    """
+
+    rmse_v: float
+    supply_v: float
+    samples: int
+
+    def statement(self) -> str:
+        """The check in words."""
+        return (f'the identified electronics reproduce the measured coil_voltage_mean to '
+                f'{self.rmse_v:.3g} V RMS ({100.0 * self.rmse_v / self.supply_v:.3g} % of the '
+                f'{self.supply_v:g} V supply) over {self.samples} samples')
+
+
+def check_mean_voltage(records: Sequence[Measurement], params: object,
+                       electronics: object) -> VoltageCheck | None:
+    """Simulate ``records`` through ``electronics`` with the valve at ``params`` and
+    compare the interval-mean coil voltage with the measured ``coil_voltage_mean``.
+
+    Parameters
+    ----------
+    records : sequence of Measurement
+        Records through the electronics that carry the mean coil voltage.
+    params : ValveParameters
+        The valve.
+    electronics : ElectronicsConfig
+        The drive electronics.
+
+    Returns
+    -------
+    VoltageCheck or None
+        ``None`` when no record carries the voltage.
+    """
+    import numpy as np
+
+    from ..model import InputTrace, simulate_trace_batch
+    errors, supply = [], 0.0
+    for m in records:
+        if m.drive is None or not m.has_coil_voltage_mean or m.supply_pressure_pa is None:
+            continue
+        d = m.drive
+        res = simulate_trace_batch(
+            params, InputTrace.pwm_commands(d.t_s, d.duty, d.pwm_frequency_hz,
+                                            d.supply_voltage_v),
+            m.t_s, electronics=electronics, sampling='interval_mean',
+            supply_pressure_pa=float(m.supply_pressure_pa),
+            output_pressure_pa=float(m.output_pressure_pa))
+        sim = np.asarray(res.coil_voltage_v).reshape(-1)
+        keep = m.t_s >= m.exclude_before_s
+        errors.append((m.coil_voltage_mean_v - sim)[keep])
+        supply = max(supply, float(np.max(d.supply_voltage_v)))
+    if not errors:
+        return None
+    err = np.concatenate(errors)
+    return VoltageCheck(float(np.sqrt(np.mean(err ** 2))), supply, int(err.size))

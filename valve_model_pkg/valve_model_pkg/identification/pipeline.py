@@ -40,7 +40,8 @@ from .diagnosis import (
     score_signatures, second_effect, select, slow_effect,
 )
 from .drive import DriveReport, fit_drive
-from .mean_voltage import ROUTE_BARE_COIL, choose_route
+from .mean_voltage import (ROUTE_BARE_COIL, ROUTE_MEAN_VOLTAGE, Route, check_mean_voltage,
+                           choose_route, through_drive_counterparts)
 from .measurement import Measurement, hold_out
 from .problem import (
     ErrorFigures, FitData, ParameterSpace, baseline_space, effect_space, start_point,
@@ -335,14 +336,13 @@ def read_inputs(fit: Sequence[Record], validate: Sequence[Record],
     return Inputs(fit_list, val_list, base.replace(**neutral))
 
 
-def route_inputs(inputs: Inputs, say: Say) -> tuple[Inputs, str, str]:
+def route_inputs(inputs: Inputs, say: Say) -> tuple[Inputs, Route]:
     """The records as the valve is fitted: around the drive electronics through their
     measured mean coil voltage when every record through them carries it
-    (:func:`.mean_voltage.choose_route`); returns the inputs, the route's name and its
-    note."""
+    (:func:`.mean_voltage.choose_route`); returns the inputs and the route."""
     route = choose_route(inputs.fit, inputs.validation)
     say(route.note)
-    return Inputs(route.fit, route.validation, inputs.base), route.name, route.note
+    return Inputs(route.fit, route.validation, inputs.base), route
 
 
 def _in_service(m: Measurement) -> bool:
@@ -1128,6 +1128,28 @@ def diagnose(prep: Prepared, baseline: BaselineFit, analysis: BaselineAnalysis,
     return DiagnosisOutcome(diag, augmented)
 
 
+# --- after the valve: the electronics for the simulator ----------------------------------
+
+def electronics_after_valve(route: Route, prep: Prepared, params: ValveParameters,
+                            settings: IdentifySettings, say: Say) -> DriveReport:
+    """The drive electronics of records fitted around them (the mean-voltage route),
+    identified with the valve held at ``params`` on the same fit span, for the simulator
+    and the map; their notes say how well they reproduce the measured mean coil voltage."""
+    records = refine_phases(through_drive_counterparts(route, prep.fit.full), params, say)
+    drive = fit_drive(_fit_data(records, settings), params,
+                      effort=settings.final_drive_effort)
+    drive.notes.insert(0, 'identified after the valve (fitted around the electronics '
+                       'through the measured mean coil voltage), the valve held, for the '
+                       'simulator and the map')
+    check = check_mean_voltage(records, params, drive.electronics)
+    if check is not None:
+        drive.notes.append(check.statement())
+    say('drive electronics (valve held): ' + ', '.join(
+        f'{k} = {v:.4g}' for k, v in drive.values.items())
+        + ('; ' + check.statement() if check is not None else ''))
+    return drive
+
+
 # --- the whole loop ----------------------------------------------------------------------
 
 def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
@@ -1167,10 +1189,9 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
     """
     say = progress or (lambda s: None)
     t_start = time.perf_counter()
-    inputs, route, route_note = route_inputs(read_inputs(fit, validate, settings, base, say),
-                                             say)
+    inputs, route = route_inputs(read_inputs(fit, validate, settings, base, say), say)
     prep = prepare_data(inputs, settings, say)
-    prep.notes.insert(0, route_note)
+    prep.notes.insert(0, route.note)
     timings: dict[str, float] = {'phase_grid': time.perf_counter() - t_start}
     t0 = time.perf_counter()
     res = search_baseline(prep, settings, say)
@@ -1190,9 +1211,14 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
     outcome = None
     if settings.diagnose:
         outcome = diagnose(prep, baseline, analysis, settings, timings, say)
+    augmented = outcome.augmented if outcome else analysis.evaluated
+    drive = analysis.drive
+    if route.name == ROUTE_MEAN_VOLTAGE:
+        t0 = time.perf_counter()
+        drive = electronics_after_valve(route, prep, augmented.stage.params, settings, say)
+        timings['electronics'] = _lap(say, 'drive electronics (valve held)', t0)
     timings['total'] = time.perf_counter() - t_start
     say('time split: ' + ', '.join(f'{k} {v:.1f} s' for k, v in timings.items()))
-    augmented = outcome.augmented if outcome else analysis.evaluated
     fit_d, val_d, search = prep.fit, prep.validation, prep.search
     return Identification(
         fit_files=fit_d.measurements, val_files=val_d.measurements if val_d else [],
@@ -1205,5 +1231,5 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
                  'augmented': augmented.current_fit},
         sim_val={'baseline': analysis.evaluated.current_val,
                  'augmented': augmented.current_val},
-        convergence=baseline.convergence, drive=analysis.drive, at_bound=analysis.at_bound,
-        notes=prep.notes + analysis.notes, route=route)
+        convergence=baseline.convergence, drive=drive, at_bound=analysis.at_bound,
+        notes=prep.notes + analysis.notes, route=route.name)
