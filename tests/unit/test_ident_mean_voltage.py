@@ -87,7 +87,7 @@ def test_missing_and_bad_voltage_values(short_record: Path, tmp_path: Path) -> N
     bad = tmp_path / 'bad.csv'
     line = _with_cell(short_record, bad, 12, 'twelve')
     with pytest.raises(MeasurementFormatError,
-                       match=f':{line}: column .coil_voltage_mean. .*not a number'):
+                       match=f':{line}: column .coil_voltage_mean.: .*not a number'):
         read_csv(bad)
     huge = tmp_path / 'huge.csv'
     _with_cell(short_record, huge, 12, '5e4')

@@ -149,7 +149,10 @@ def read_operation_csv(path: str | Path) -> Measurement:
 
     The model runs the drive electronics from the record's duty and frequency in force
     and ``supply_voltage_v`` (required), and is compared with the current as the record
-    gives it (interval means with ``current_averaging: interval_mean``).
+    gives it (interval means with ``current_averaging: interval_mean``). A
+    ``coil_voltage_mean`` column is kept as ``coil_voltage_mean_v`` (missing values as
+    ``nan``): the identification then fits the valve around the electronics
+    (:mod:`.mean_voltage`).
 
     Raises
     ------

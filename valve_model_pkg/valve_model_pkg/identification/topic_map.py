@@ -11,7 +11,8 @@ a topic of its own is read by naming, for each role, the topic and field that ca
   ``current_mean`` (interval means since the previous message): the drive electronics run
   from the commands in force; the drive supply is ``supply_voltage``, else the largest
   interval-mean coil voltage (``coil_voltage_mean``: the boost applies the supply), else
-  the suite's 24 V.
+  the suite's 24 V. A mapped ``coil_voltage_mean`` is also carried into the measurement,
+  so the valve is fitted around the electronics (:mod:`.mean_voltage`).
 
 ``supply_pressure`` and ``output_pressure`` (gauge, Pa) come from a topic or a number;
 ``pwm_frequency`` and ``supply_voltage`` may be numbers too. The current's messages are
