@@ -318,7 +318,8 @@ LONG_RECORD_RATE_HZ = 1000.0
 
 def _decimation(m: Measurement) -> np.ndarray | None:
     """Samples kept for fitting: all, or every k-th of a long, fast record."""
-    if m.drive is not None and m.sampling == 'interval_mean':
+    if m.sampling == 'interval_mean' and (m.drive is not None
+                                          or m.voltage_hold == 'interval_mean'):
         return None  # interval means are compared over the record's own intervals
     if m.duration_s < LONG_RECORD_S or m.sample_rate_hz <= 1.2 * LONG_RECORD_RATE_HZ:
         return None
