@@ -106,8 +106,9 @@ def test_a_validation_record_without_the_voltage_keeps_the_electronics(
     assert 'plain.csv' in route.note
 
 
-def _state_bag(path: Path, volts: np.ndarray) -> Path:
-    """The suite's ValveState at 1 kHz running 50 Hz PWM, with the given mean voltages."""
+def _state_bag(path: Path, volts: np.ndarray, source: int = 1) -> Path:
+    """ValveState at 1 kHz running 50 Hz PWM, with the given mean voltages, from the CAN
+    driver (``source`` 1) or the suite's simulator (0)."""
     suite = build_typestore()
     state = suite.types['valve_msgs/msg/ValveState']
     n = volts.size
@@ -119,7 +120,7 @@ def _state_bag(path: Path, volts: np.ndarray) -> Path:
                    coil_voltage_mean=float(volts[i]), spool_position=0.0,
                    spool_velocity=0.0, spool_position_avg=0.0, mass_flow=0.0,
                    duty=float(duty[i]), pwm_frequency=50.0, supply_pressure=4e5,
-                   output_pressure=0.0, source=0, position_measured=False))
+                   output_pressure=0.0, source=source, position_measured=False))
             for i in range(n)]
     return write_rosbag2(path, suite, msgs)
 
@@ -136,6 +137,10 @@ def test_the_bag_field_and_the_map_role_reach_the_measurement(tmp_path: Path) ->
         'pwm_frequency=/valve/state.pwm_frequency', 'supply_voltage=24',
         'coil_voltage_mean=/valve/state.coil_voltage_mean', 'supply_pressure=4e5']))
     np.testing.assert_allclose(mapped.coil_voltage_mean_v, volts, rtol=0, atol=1e-12)
+    # the suite's own simulator made its states through its electronics model: exact there
+    sim = read_bag(_state_bag(tmp_path / 'sim', volts, source=0))
+    route = choose_route([sim], [])
+    assert route.name == ROUTE_ELECTRONICS and 'simulator' in route.note
     # a source that does not measure it sends NaN: no mean voltage, the electronics route
     none = read_bag(_state_bag(tmp_path / 'nan', np.full(n, np.nan)))
     assert none.coil_voltage_mean_v is None

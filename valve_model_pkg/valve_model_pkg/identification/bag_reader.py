@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from valve_model_pkg.interface import TOPIC_STATE
+from valve_model_pkg.interface import STATE_SOURCE_SIMULATOR, TOPIC_STATE
 
 from ..errors import MeasurementFormatError, RecordingError
 from ..recording import TopicData, load_bag_contents
@@ -76,6 +76,8 @@ class StateColumns:
     coil_voltage_mean_v : numpy.ndarray or None
         Mean coil voltage since the previous message [V] (NaN where the source gives
         none); ``None`` when the recorded definition has no such field.
+    source : numpy.ndarray or None
+        ``source``: the backend that made each state (``None`` without the field).
     """
 
     frame_id: np.ndarray
@@ -92,6 +94,7 @@ class StateColumns:
     duty: np.ndarray
     coil_current_mean_a: np.ndarray | None = None
     coil_voltage_mean_v: np.ndarray | None = None
+    source: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.stamp_s.size)
@@ -116,7 +119,8 @@ class StateColumns:
             output_pressure_pa=num('output_pressure'), pwm_frequency_hz=num('pwm_frequency'),
             duty=num('duty'),
             coil_current_mean_a=num(MEAN_CURRENT_FIELD) if MEAN_CURRENT_FIELD in f else None,
-            coil_voltage_mean_v=num(MEAN_VOLTAGE_FIELD) if MEAN_VOLTAGE_FIELD in f else None)
+            coil_voltage_mean_v=num(MEAN_VOLTAGE_FIELD) if MEAN_VOLTAGE_FIELD in f else None,
+            source=num('source') if 'source' in f else None)
 
     def select(self, keep: np.ndarray) -> 'StateColumns':
         """The messages where ``keep`` (bool, shape (n,)) is true."""
@@ -346,11 +350,14 @@ def _state_operation(spath: str, topic: str, frame: str, t: np.ndarray, cols: St
                  '(the suite\'s) is assumed')
     v_mean = mean_voltage_column(cols.coil_voltage_mean_v, f'{topic} {MEAN_VOLTAGE_FIELD}',
                                  notes)
+    made_by = {}
+    if cols.source is not None and np.all(cols.source == STATE_SOURCE_SIMULATOR):
+        made_by = {'state_source': 'simulator'}
     return operation_measurement(
         spath, t, cols.duty.copy(), cols.pwm_frequency_hz.copy(), mean.copy(),
         supply_v=DEFAULT_BAG_SUPPLY_V, supply_pa=supply, output_pa=output, notes=notes,
         n_gaps=n_gaps, interval_means=True,
         described=f'from {topic}: the model runs the drive electronics from duty and '
         f'pwm_frequency and is compared with {MEAN_CURRENT_FIELD} (interval means)',
-        metadata={'experiment': 'operation', 'valve': frame, 'topic': topic},
+        metadata={'experiment': 'operation', 'valve': frame, 'topic': topic, **made_by},
         coil_voltage_mean=v_mean)

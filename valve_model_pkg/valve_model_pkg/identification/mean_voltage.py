@@ -98,13 +98,22 @@ def choose_route(fit: Sequence[Measurement], validation: Sequence[Measurement]) 
     Every record through the drive electronics (fit and validation) must carry a finite
     ``coil_voltage_mean`` on every sample; then all of them are fitted around the
     electronics (:func:`around_electronics`). Otherwise all run the electronics model,
-    and the note names the records that lack the voltage.
+    and the note names the records that lack the voltage. States of the suite's own
+    simulator (bag metadata ``state_source: simulator``) run the electronics model that
+    made them: it is exact there, while the held mean leaves some mA where the drive
+    switches within an interval and the spool moves.
     """
     fit, validation = list(fit), list(validation)
     through = [m for m in fit + validation if m.drive is not None]
     if not through:
         return Route(ROUTE_BARE_COIL, fit, validation, fit, validation,
                      'valve fitted on the bare coil driven by the measured voltage')
+    if all(m.metadata.get('state_source') == 'simulator' for m in through):
+        return Route(ROUTE_ELECTRONICS, fit, validation, fit, validation,
+                     f'valve fitted {ROUTE_TEXT[ROUTE_ELECTRONICS]}: the records are states '
+                     "of the suite's own simulator, whose electronics model made them "
+                     'exactly (the mean coil voltage, held over each interval, would only '
+                     'approximate the drive within the intervals)')
     lacking = _lacking(fit + validation)
     if lacking:
         carry = [m.name for m in through if m.has_coil_voltage_mean]
