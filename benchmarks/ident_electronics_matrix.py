@@ -71,6 +71,7 @@ class Cell:
     structured_ma: float | None = None
     unexplained: bool | None = None
     at_bound: str = ''
+    route: str = ''
     generate_s: float = 0.0
     identify_s: float = 0.0
     exit_code: int | None = None
@@ -147,6 +148,25 @@ def _read_report(cell: Cell, report: Path) -> None:
     bounds = list(rep.get('baseline_at_search_bound') or [])
     bounds += list((rep.get('drive_electronics') or {}).get('at_search_bound') or [])
     cell.at_bound = ', '.join(bounds)
+    cell.route = (rep.get('route') or {}).get('name', '')
+
+
+def _before_rows(path: str | None) -> dict[tuple[str, str], tuple[str, str]]:
+    """(form, effect) -> (named, base RMSE mA) of the cells without the voltage column in
+    an earlier table of this script (``--before``)."""
+    if not path or not Path(path).exists():
+        return {}
+    rows: dict[tuple[str, str], tuple[str, str]] = {}
+    head: list[str] = []
+    for line in Path(path).read_text(encoding='utf-8').splitlines():
+        cells = [c.strip() for c in line.strip().strip('|').split('|')]
+        if cells and cells[0] == 'form':
+            head = cells
+        elif head and len(cells) == len(head) and not line.startswith('|---'):
+            row = dict(zip(head, cells))
+            if row.get('V mean') == 'no':
+                rows[(row['form'], row['effect'])] = (row['named'], row['base RMSE mA'])
+    return rows
 
 
 def _fmt(value: float | None, spec: str) -> str:
@@ -155,7 +175,7 @@ def _fmt(value: float | None, spec: str) -> str:
 
 def _table(cells: list[Cell], pending: list[tuple[str, str, bool]], meta: dict[str, str],
            args: argparse.Namespace) -> str:
-    lines = ['# Identification through drive electronics of other forms: before', '']
+    lines = [f'# {args.title}', '']
     lines += [f'- {k}: {v}' for k, v in meta.items()]
     lines += ['', 'Forms (tests/datagen/electronics.py):', '']
     used = sorted({c.form for c in cells} | {p[0] for p in pending})
@@ -168,9 +188,10 @@ def _table(cells: list[Cell], pending: list[tuple[str, str, bool]], meta: dict[s
               'NRMSE and RMSE on the validation record; "noise" and "structured" are the '
               'report\'s estimates (baseline validation residual).', '',
               '| form | effect | V mean | named | confidence | base NRMSE % | base RMSE mA '
-              '| aug NRMSE % | aug RMSE mA | noise mA | structured mA | at bound | right '
-              '| time s |',
-              '|---|---|---|---|---|---|---|---|---|---|---|---|---|---|']
+              '| aug NRMSE % | aug RMSE mA | noise mA | structured mA | at bound | route '
+              '| right | time s | before: named | before: base RMSE mA |',
+              '|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|']
+    before = _before_rows(args.before)
     for c in cells:
         right = '' if not c.named else ('yes' if c.named == c.effect else 'NO')
         named = c.named or f'failed ({c.exit_code}): {c.error[-80:]}'
@@ -180,8 +201,8 @@ def _table(cells: list[Cell], pending: list[tuple[str, str, bool]], meta: dict[s
             f'| {conf} | {_fmt(c.base_val_nrmse_pct, ".2f")} '
             f'| {_fmt(c.base_val_rmse_ma, ".2f")} | {_fmt(c.aug_val_nrmse_pct, ".2f")} '
             f'| {_fmt(c.aug_val_rmse_ma, ".2f")} | {_fmt(c.noise_est_ma, ".2f")} '
-            f'| {_fmt(c.structured_ma, ".2f")} | {c.at_bound} | {right} '
-            f'| {c.identify_s:.0f} |')
+            f'| {_fmt(c.structured_ma, ".2f")} | {c.at_bound} | {c.route} | {right} '
+            f'| {c.identify_s:.0f} | {" | ".join(before.get((c.form, c.effect), ("", "")))} |')
     done = [c for c in cells if c.named]
     if done:
         right = sum(c.named == c.effect for c in done)
@@ -207,6 +228,24 @@ def _load() -> str:
         return 'unknown'
 
 
+def _rewrite(work: Path, args: argparse.Namespace) -> int:
+    """The table again from the cells of an earlier run (``--table-only``)."""
+    cells = [Cell(**c) for c in json.loads((work / 'cells.json').read_text(encoding='utf-8'))]
+    meta: dict[str, str] = {}
+    for line in Path(args.table).read_text(encoding='utf-8').splitlines():
+        if line.startswith('Forms'):
+            break
+        if line.startswith('- ') and ': ' in line:
+            key, value = line[2:].split(': ', 1)
+            meta[key] = value
+    voltages = {'without': [False], 'with': [True], 'both': [False, True]}[args.voltage]
+    done = {(c.form, c.effect, c.voltage) for c in cells}
+    pending = [o for o in _priority(args.form or [], args.effect or [], voltages)
+               if o not in done]
+    Path(args.table).write_text(_table(cells, pending, meta, args), encoding='utf-8')
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--out', required=True, help='work directory (records, reports)')
@@ -215,12 +254,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--effect', action='append', choices=EFFECT_ORDER)
     parser.add_argument('--voltage', choices=('without', 'with', 'both'), default='both')
     parser.add_argument('--noise-ma', type=float, default=3.0)
+    parser.add_argument('--before', help='an earlier table of this script: its cells '
+                        'without the voltage column are shown beside each cell')
+    parser.add_argument('--title', default='Identification through drive electronics of '
+                        'other forms: before', help='heading of the table')
     parser.add_argument('--fit-s', type=float, default=2.0)
     parser.add_argument('--validate-s', type=float, default=1.5)
     parser.add_argument('--budget-min', type=float, default=90.0,
                         help='start no new cell after this many minutes')
+    parser.add_argument('--table-only', action='store_true',
+                        help='run nothing: rewrite --table from OUT/cells.json (and the '
+                        'run facts of the table there), e.g. with --before')
     args = parser.parse_args(argv)
     work = Path(args.out)
+    if args.table_only:
+        return _rewrite(work, args)
     work.mkdir(parents=True, exist_ok=True)
     forms = args.form or [f for f in FORM_ORDER if f in FORMS]
     effects = args.effect or list(EFFECT_ORDER[:3])

@@ -12,8 +12,10 @@ rosbag2 bag directory (the suite's ``/valve/state``, or a user's own topics with
 ``--map``) or an instrument export (imported with the options of ``valve_import`` into
 ``DIR/imported/``). ``pwm`` and ``operation``
 records and PWM bags run the model's drive electronics from the commands and compare like
-with like (interval means); one such record without ``--validate`` has its last 30 % held
-out for validation (docs/identification.md). The supply pressure comes from each file.
+with like (interval means); when every such record carries the mean coil voltage
+(``coil_voltage_mean``), the valve is fitted around the electronics through it instead, and
+the report says which route was taken. One such record without ``--validate`` has its last
+30 % held out for validation (docs/identification.md). The supply pressure comes from each file.
 Progress goes to stderr; DIR receives report.json, report.md with PNG plots and
 params.yaml (loadable by valve_simulate / valve_map). Exit status: 0 on success, 2 on
 refused input (one line naming file, line and reason), 1 on a failure inside.

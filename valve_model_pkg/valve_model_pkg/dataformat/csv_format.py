@@ -24,7 +24,8 @@ the steering repository) as this module applies them to every kind:
   time step off ``1/sample_rate_hz`` by more than a factor of 2 (time in ms) is refused,
   naming the line, the step found and the step expected.
 * ``current`` beyond +-50 A (:data:`MAX_ABS_CURRENT_A`, the plausible range of a bench
-  current sensor) is refused naming the line.
+  current sensor) is refused naming the line, as is ``coil_voltage_mean`` beyond
+  +-1000 V (:data:`MAX_ABS_COIL_VOLTAGE_V`).
 * Bounded resources: the file is streamed line by line and only the columns of the
   record are kept (float64). Refused at once: a file above :data:`MAX_FILE_BYTES`
   (512 MiB, before reading), a NUL byte in the first 64 KiB (binary), a line longer than
@@ -67,12 +68,12 @@ _TRACE_REQUIRED = ('t', 'voltage', 'current')
 _TRACE_OPTIONAL = ('coil_voltage', 'position', 'mass_flow', 'duty')
 #: Columns of an operational record.
 _OPERATION_REQUIRED = ('t', 'duty', 'pwm_frequency_hz', 'current')
-_OPERATION_OPTIONAL = ('supply_pressure', 'output_pressure')
+_OPERATION_OPTIONAL = ('supply_pressure', 'output_pressure', 'coil_voltage_mean')
 #: Columns of a flow map (``duty`` plus exactly one value column).
 _FLOW_VALUE_COLUMNS = ('mass_flow', 'flow_fraction')
 #: Measured signals: the only columns that may lack a value in a row.
 _MAY_BE_MISSING = frozenset({'current', 'coil_voltage', 'position', 'mass_flow',
-                             'supply_pressure', 'output_pressure'})
+                             'supply_pressure', 'output_pressure', 'coil_voltage_mean'})
 
 _NUMERIC_METADATA = ('supply_pressure_pa', 'output_pressure_pa', 'supply_temperature_k',
                      'pwm_frequency_hz', 'sample_rate_hz', 'supply_voltage_v')
@@ -102,6 +103,8 @@ MAX_COLUMNS = 1000
 _SNIFF_BYTES = 1 << 16
 #: Plausible coil current range of a bench current sensor: |i| above this is refused [A].
 MAX_ABS_CURRENT_A = 50.0
+#: Plausible mean coil voltage range of a valve drive: |u| above this is refused [V].
+MAX_ABS_COIL_VOLTAGE_V = 1000.0
 #: A median time step off ``1/sample_rate_hz`` by more than this factor is refused (time
 #: in ms, a wrong rate); smaller differences are noted and the time axis is used.
 _RATE_REFUSE_FACTOR = 2.0
@@ -202,6 +205,11 @@ class OperationRecord:
         assumption is also stated in :attr:`notes`).
     pressure_columns : tuple of str
         Which of ``supply_pressure`` and ``output_pressure`` the file has as columns.
+    coil_voltage_mean_v : numpy.ndarray or None, shape (n,)
+        Mean voltage across the coil terminals over the same interval as the current [V]
+        (``nan`` where missing); ``None`` without the column.
+    n_missing_voltage : int
+        Samples without a ``coil_voltage_mean`` value.
     metadata, nominal_sample_rate_hz, line_numbers, notes, n_missing_values, n_gaps
         As in :class:`TraceRecord`.
     """
@@ -223,6 +231,8 @@ class OperationRecord:
     notes: tuple[str, ...] = ()
     n_missing_values: int = 0
     n_gaps: int = 0
+    coil_voltage_mean_v: np.ndarray | None = None
+    n_missing_voltage: int = 0
 
     kind = 'operation'
     experiment = 'operation'
@@ -235,6 +245,8 @@ class OperationRecord:
                              ('output_pressure', self.output_pressure_pa)):
             if name in self.pressure_columns and values is not None:
                 cols[name] = values
+        if self.coil_voltage_mean_v is not None:
+            cols['coil_voltage_mean'] = self.coil_voltage_mean_v
         return cols
 
 
@@ -587,6 +599,16 @@ def _check_current(table: _Table, current: np.ndarray) -> None:
                            f'current range (|i| <= {MAX_ABS_CURRENT_A:g} A)')
 
 
+def _check_coil_voltage(table: _Table, voltage: np.ndarray) -> None:
+    """Refuse a mean coil voltage beyond a drive's plausible range
+    (:data:`MAX_ABS_COIL_VOLTAGE_V`)."""
+    with np.errstate(invalid='ignore'):
+        bad = np.flatnonzero(np.abs(voltage) > MAX_ABS_COIL_VOLTAGE_V)
+    if bad.size:
+        raise _refuse_cell(table, int(bad[0]), 'coil_voltage_mean', f'V is beyond the '
+                           f'plausible coil voltage range (|u| <= {MAX_ABS_COIL_VOLTAGE_V:g} V)')
+
+
 def _time_notes(t: np.ndarray, nominal: float | None) -> tuple[int, list[str]]:
     """Rate agreement and gaps of a time axis; returns (number of gaps, notes)."""
     notes: list[str] = []
@@ -698,6 +720,12 @@ def _operation(table: _Table) -> OperationRecord:
     for name in ('supply_pressure', 'output_pressure'):
         if name in cols:
             notes += _missing_note(table, name, cols[name])[1]
+    v_mean = cols.get('coil_voltage_mean')
+    n_missing_v = 0
+    if v_mean is not None:
+        _check_coil_voltage(table, v_mean)
+        n_missing_v, v_notes = _missing_note(table, 'coil_voltage_mean', v_mean)
+        notes += v_notes
     nominal = table.numeric.get('sample_rate_hz')
     n_gaps, time_notes = _time_notes(t, nominal)
     notes += time_notes + _unknown_note(table, _OPERATION_REQUIRED + _OPERATION_OPTIONAL)
@@ -717,7 +745,8 @@ def _operation(table: _Table) -> OperationRecord:
         pressure_columns=tuple(c for c in _OPERATION_OPTIONAL if c in cols),
         metadata=table.metadata, nominal_sample_rate_hz=nominal,
         line_numbers=np.asarray(table.linenos, dtype=int), notes=tuple(notes),
-        n_missing_values=n_missing, n_gaps=n_gaps)
+        n_missing_values=n_missing, n_gaps=n_gaps, coil_voltage_mean_v=v_mean,
+        n_missing_voltage=n_missing_v)
 
 
 def _flow_map(table: _Table) -> FlowMapRecord:

@@ -22,12 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
-from valve_model_pkg.interface import TOPIC_STATE
+from valve_model_pkg.interface import STATE_SOURCE_SIMULATOR, TOPIC_STATE
 
 from ..errors import MeasurementFormatError, RecordingError
 from ..recording import TopicData, load_bag_contents
 from .measurement import (MIN_SAMPLES, Measurement, check_excitation, check_time_axis,
-                          median_pressure, refused_bag)
+                          mean_voltage_column, median_pressure, refused_bag)
 from .pwm_grid import operation_measurement
 from .topic_map import FieldSpecOrValue, read_mapped_bag
 
@@ -40,6 +40,9 @@ _LOG = logging.getLogger(__name__)
 VALVE_STATE_TYPE = 'valve_msgs/msg/ValveState'
 #: ValveState field with the mean coil current since the previous message [A].
 MEAN_CURRENT_FIELD = 'coil_current_mean'
+#: ValveState field with the mean coil voltage since the previous message [V] (NaN when
+#: the source does not measure it).
+MEAN_VOLTAGE_FIELD = 'coil_voltage_mean'
 #: Drive supply voltage assumed for a suite bag, which does not carry it [V].
 DEFAULT_BAG_SUPPLY_V = 24.0
 #: A state stream slower than this is coarse for identification (the stroke lasts under
@@ -70,6 +73,11 @@ class StateColumns:
     coil_current_mean_a : numpy.ndarray or None
         Mean coil current since the previous message [A]; ``None`` when the recorded
         definition of ``ValveState`` has no such field.
+    coil_voltage_mean_v : numpy.ndarray or None
+        Mean coil voltage since the previous message [V] (NaN where the source gives
+        none); ``None`` when the recorded definition has no such field.
+    source : numpy.ndarray or None
+        ``source``: the backend that made each state (``None`` without the field).
     """
 
     frame_id: np.ndarray
@@ -85,6 +93,8 @@ class StateColumns:
     pwm_frequency_hz: np.ndarray
     duty: np.ndarray
     coil_current_mean_a: np.ndarray | None = None
+    coil_voltage_mean_v: np.ndarray | None = None
+    source: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.stamp_s.size)
@@ -108,7 +118,9 @@ class StateColumns:
             supply_pressure_pa=num('supply_pressure'),
             output_pressure_pa=num('output_pressure'), pwm_frequency_hz=num('pwm_frequency'),
             duty=num('duty'),
-            coil_current_mean_a=num(MEAN_CURRENT_FIELD) if MEAN_CURRENT_FIELD in f else None)
+            coil_current_mean_a=num(MEAN_CURRENT_FIELD) if MEAN_CURRENT_FIELD in f else None,
+            coil_voltage_mean_v=num(MEAN_VOLTAGE_FIELD) if MEAN_VOLTAGE_FIELD in f else None,
+            source=num('source') if 'source' in f else None)
 
     def select(self, keep: np.ndarray) -> 'StateColumns':
         """The messages where ``keep`` (bool, shape (n,)) is true."""
@@ -336,10 +348,16 @@ def _state_operation(spath: str, topic: str, frame: str, t: np.ndarray, cols: St
     output = median_pressure(cols.output_pressure_pa, 'output_pressure', 0.0, notes)
     notes.append(f'the bag does not carry the drive supply voltage: {DEFAULT_BAG_SUPPLY_V:g} V '
                  '(the suite\'s) is assumed')
+    v_mean = mean_voltage_column(cols.coil_voltage_mean_v, f'{topic} {MEAN_VOLTAGE_FIELD}',
+                                 notes)
+    made_by = {}
+    if cols.source is not None and np.all(cols.source == STATE_SOURCE_SIMULATOR):
+        made_by = {'state_source': 'simulator'}
     return operation_measurement(
         spath, t, cols.duty.copy(), cols.pwm_frequency_hz.copy(), mean.copy(),
         supply_v=DEFAULT_BAG_SUPPLY_V, supply_pa=supply, output_pa=output, notes=notes,
         n_gaps=n_gaps, interval_means=True,
         described=f'from {topic}: the model runs the drive electronics from duty and '
         f'pwm_frequency and is compared with {MEAN_CURRENT_FIELD} (interval means)',
-        metadata={'experiment': 'operation', 'valve': frame, 'topic': topic})
+        metadata={'experiment': 'operation', 'valve': frame, 'topic': topic, **made_by},
+        coil_voltage_mean=v_mean)

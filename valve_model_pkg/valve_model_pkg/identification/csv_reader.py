@@ -21,7 +21,7 @@ from valve_model_pkg import dataformat
 
 from ..errors import MeasurementFormatError
 from .measurement import (MIN_SAMPLES, DriveInput, Measurement, check_excitation,
-                          median_pressure)
+                          mean_voltage_column, median_pressure)
 from .pwm_grid import discard_for, drive_from_in_force, drive_from_main_pwm
 
 __all__ = ['read_csv', 'read_operation_csv', 'write_csv']
@@ -149,7 +149,10 @@ def read_operation_csv(path: str | Path) -> Measurement:
 
     The model runs the drive electronics from the record's duty and frequency in force
     and ``supply_voltage_v`` (required), and is compared with the current as the record
-    gives it (interval means with ``current_averaging: interval_mean``).
+    gives it (interval means with ``current_averaging: interval_mean``). A
+    ``coil_voltage_mean`` column is kept as ``coil_voltage_mean_v`` (missing values as
+    ``nan``): the identification then fits the valve around the electronics
+    (:mod:`.mean_voltage`).
 
     Raises
     ------
@@ -188,6 +191,12 @@ def read_operation_csv(path: str | Path) -> Measurement:
                  f'commands at {rec.supply_voltage_v:g} V and is compared as '
                  f'{"interval means" if sampling == "interval_mean" else "instantaneous"} '
                  'current')
+    v_mean = None
+    if rec.coil_voltage_mean_v is not None:
+        # missing values were noted by the format reader
+        v_mean = mean_voltage_column(rec.coil_voltage_mean_v, 'coil_voltage_mean', [])
+        notes.append('the record carries coil_voltage_mean (mean coil voltage over each '
+                     'current interval)')
     meta = dict(rec.metadata)
     if supply is not None:
         meta.setdefault('supply_pressure_pa', f'{supply:g}')
@@ -198,7 +207,7 @@ def read_operation_csv(path: str | Path) -> Measurement:
         current_a=rec.current_a.copy(), supply_pressure_pa=supply, output_pressure_pa=output,
         experiment='operation', metadata=meta, notes=tuple(notes),
         n_missing_values=rec.n_missing_values, n_gaps=rec.n_gaps, drive=drive,
-        sampling=sampling, exclude_before_s=cut)
+        sampling=sampling, exclude_before_s=cut, coil_voltage_mean_v=v_mean)
 
 
 def write_csv(path: str | Path, t_s: np.ndarray, voltage_v: np.ndarray, current_a: np.ndarray,

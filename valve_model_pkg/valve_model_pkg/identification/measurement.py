@@ -31,7 +31,7 @@ from valve_model_pkg import dataformat
 from ..errors import MeasurementFormatError
 
 __all__ = ['DriveInput', 'MIN_SAMPLES', 'Measurement', 'check_excitation', 'check_time_axis',
-           'hold_out', 'median_pressure', 'refused_bag']
+           'hold_out', 'mean_voltage_column', 'median_pressure', 'refused_bag']
 
 #: Fewest samples a record must have.
 MIN_SAMPLES = 10
@@ -220,6 +220,23 @@ class Measurement:
         Number of samples whose current is missing (``nan``).
     n_gaps : int
         Number of steps of the time axis longer than 1.5 nominal periods.
+    drive : DriveInput or None
+        Main PWM commands through the drive electronics; ``None`` drives the bare coil
+        with ``voltage_v``.
+    sampling : str
+        ``instant`` or ``interval_mean``: how the current was sampled (interval means over
+        ``(t[k-1], t[k]]``, over ``[0, t[0]]`` for the first sample).
+    exclude_before_s : float
+        Samples before this time do not enter the errors [s].
+    held_out_from_s : float or None
+        Start of the hold-out of a split record [s].
+    coil_voltage_mean_v : numpy.ndarray or None, shape (n,)
+        Measured mean voltage across the coil terminals over the same interval as the
+        current [V] (``nan`` where missing), when the record carries it.
+    voltage_hold : str
+        How ``voltage_v`` drives the bare coil: ``sample`` (value ``k`` held from ``t[k]``
+        to ``t[k+1]``) or ``interval_mean`` (value ``k`` is the mean over ``(t[k-1],
+        t[k]]``, over ``[0, t[0]]`` for the first, and is held over that interval).
     """
 
     source: str
@@ -238,6 +255,8 @@ class Measurement:
     sampling: str = 'instant'
     exclude_before_s: float = 0.0
     held_out_from_s: float | None = None
+    coil_voltage_mean_v: np.ndarray | None = None
+    voltage_hold: str = 'sample'
 
     @property
     def through_electronics(self) -> bool:
@@ -272,6 +291,23 @@ class Measurement:
         discarded start (``exclude_before_s``: a record that starts in motion, or the fit
         part of a record whose hold-out this is)."""
         return np.isfinite(self.current_a) & (self.t_s >= self.exclude_before_s)
+
+    @property
+    def has_coil_voltage_mean(self) -> bool:
+        """True when every sample carries a finite measured mean coil voltage."""
+        v = self.coil_voltage_mean_v
+        return v is not None and v.shape == self.t_s.shape and bool(np.all(np.isfinite(v)))
+
+    def samples(self, keep: np.ndarray) -> 'Measurement':
+        """The record cut to the samples where ``keep`` (bool, shape (n,)) is true: every
+        per-sample array and the missing-value count."""
+        v_mean = self.coil_voltage_mean_v
+        return replace(self, t_s=self.t_s[keep], voltage_v=self.voltage_v[keep],
+                       current_a=self.current_a[keep],
+                       position_m=None if self.position_m is None else self.position_m[keep],
+                       coil_voltage_mean_v=None if v_mean is None else v_mean[keep],
+                       n_missing_values=int(np.count_nonzero(
+                           ~np.isfinite(self.current_a[keep]))))
 
     def with_current(self, current_a: np.ndarray, source: str | None = None) -> 'Measurement':
         """Return a copy whose current is replaced (used for residuals and for tests).
@@ -356,6 +392,38 @@ def median_pressure(values: np.ndarray | None, name: str, default: float | None,
     return med
 
 
+def mean_voltage_column(values: np.ndarray | None, where: str, notes: list[str]
+                        ) -> np.ndarray | None:
+    """A record's measured interval-mean coil voltage [V] as the Measurement keeps it.
+
+    ``None`` when the record has none (no column or field, or ``nan`` throughout: a source
+    that does not measure it); missing values are kept as ``nan``, counted in ``notes``
+    (the identification then runs the drive electronics for that record, see
+    :mod:`.mean_voltage`).
+
+    Parameters
+    ----------
+    values : numpy.ndarray or None, shape (n,)
+        The column [V].
+    where : str
+        Where it was read (column, field or topic), for the notes.
+    notes : list of str
+        Appended to.
+    """
+    if values is None:
+        return None
+    v = np.asarray(values, dtype=float).copy()
+    missing = int(np.count_nonzero(~np.isfinite(v)))
+    if missing == v.size:
+        notes.append(f'{where} carries no value (nan throughout): the record has no '
+                     'measured mean coil voltage')
+        return None
+    if missing:
+        notes.append(f'{where}: {missing} of {v.size} samples without a value (kept as '
+                     'nan): the mean coil voltage does not drive this record')
+    return v
+
+
 def hold_out(m: Measurement, fraction: float = 0.3, fit_window_s: float | None = None
              ) -> tuple[Measurement, Measurement]:
     """Split one record into a fit part and a hold-out for validation.
@@ -370,9 +438,7 @@ def hold_out(m: Measurement, fraction: float = 0.3, fit_window_s: float | None =
     split = float(t[0] + (1.0 - fraction) * (t[-1] - t[0]))
     end = split if fit_window_s is None else min(split, m.exclude_before_s + fit_window_s)
     keep = t <= end
-    fit = replace(m, t_s=t[keep], voltage_v=m.voltage_v[keep], current_a=m.current_a[keep],
-                  position_m=None if m.position_m is None else m.position_m[keep],
-                  n_missing_values=int(np.count_nonzero(~np.isfinite(m.current_a[keep]))),
+    fit = replace(m.samples(keep),
                   notes=m.notes + (f'fit part: {t[0]:.3g}..{end:.3g} s of the record '
                                    f'(the last {100 * fraction:.0f} % from {split:.3g} s is '
                                    'held out for validation)',),

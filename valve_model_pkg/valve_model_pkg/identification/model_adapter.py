@@ -28,7 +28,8 @@ from ..model import (DEFAULT_H_FREE_S, DEFAULT_H_STOP_S, PARAMETER_FIELDS,
 from ..errors import ModelAdapterError
 from .measurement import Measurement
 
-__all__ = ['TraceSetup', 'prepare_trace', 'simulate_measurement', 'FIELD_INDEX']
+__all__ = ['TraceSetup', 'interval_segments', 'prepare_trace', 'simulate_measurement',
+           'FIELD_INDEX']
 
 #: Column of each ValveParameters field in a raw parameter matrix.
 FIELD_INDEX = {name: i for i, name in enumerate(PARAMETER_FIELDS)}
@@ -104,6 +105,88 @@ def _segments(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t0, levels
 
 
+#: An interval whose mean lies between its neighbours' means, which differ by more than
+#: this share of the largest |mean|, holds one edge from the level before to the level
+#: after (:func:`interval_segments`).
+EDGE_MIN_SHARE = 0.2
+
+
+def interval_segments(t: np.ndarray, v_mean: np.ndarray, *, place_edges: bool = True
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The bare coil's input from interval-mean voltages over ``(t[k-1], t[k]]`` (over
+    ``[0, t[0]]`` for the first), with the measured integral over every interval.
+
+    Each interval is held at its mean (zero-order hold), except, with ``place_edges``, an
+    interval between a level before and a different level after (the neighbours' means
+    differ by more than :data:`EDGE_MIN_SHARE` of the largest |mean| and its own mean lies
+    between them): the drive switched within it, so it holds the level before for the
+    fraction ``a = (v_after - v_k) / (v_after - v_before)`` of the interval and the level
+    after for the rest. Either way ``a v_before + (1 - a) v_after = v_k``: over every
+    interval the held input has the measured integral of the terminal voltage, so the
+    model's flux linkage obeys the interval balance ``mean(u) dt = R mean(i) dt +
+    delta psi`` (eq. 1) with the measured ``mean(u)``; placing the edge removes most of
+    the zero-order hold's error in the interval's mean current (about ``u dt a (1 - a) /
+    (2 L)``, some 20 mA for 24 V over 1 ms at 0.14 H).
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Interval ends [s], strictly increasing, from t >= 0.
+    v_mean : numpy.ndarray, shape (n,)
+        Mean terminal voltage over each interval [V].
+    place_edges : bool
+        Place one edge in intervals between two levels (else hold every mean).
+
+    Returns
+    -------
+    seg_t0_s, seg_v : numpy.ndarray, shape (n_seg,)
+        Segment starts [s] (the first is 0) and levels [V], equal neighbours merged.
+    """
+    t = np.asarray(t, dtype=float)
+    v = np.asarray(v_mean, dtype=float)
+    begin = np.concatenate(([0.0], t[:-1]))
+    starts = [begin]
+    levels = [v]
+    if place_edges and v.size >= 3:
+        before, mid, after = v[:-2], v[1:-1], v[2:]
+        span = after - before
+        big = np.abs(span) > EDGE_MIN_SHARE * max(float(np.max(np.abs(v))), 1e-9)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            a = np.where(big, (after - mid) / np.where(big, span, 1.0), -1.0)
+        k = np.flatnonzero((a > 0.0) & (a < 1.0)) + 1
+        # interval k: the level before from its start, the level after from the edge
+        levels[0] = v.copy()
+        levels[0][k] = v[k - 1]
+        starts.append(begin[k] + a[k - 1] * (t[k] - begin[k]))
+        levels.append(v[k + 1])
+    seg_t = np.concatenate(starts)
+    seg_v = np.concatenate(levels)
+    order = np.argsort(seg_t, kind='stable')
+    seg_t, seg_v = seg_t[order], seg_v[order]
+    # an empty first interval (t[0] = 0) or an edge at an interval start: the later wins
+    keep = np.concatenate((seg_t[1:] > seg_t[:-1], [True]))
+    seg_t, seg_v = seg_t[keep], seg_v[keep]
+    change = np.concatenate(([True], seg_v[1:] != seg_v[:-1]))
+    seg_t, seg_v = seg_t[change], seg_v[change]
+    seg_t[0] = 0.0
+    return seg_t, seg_v
+
+
+def _interval_mean_setup(m: Measurement, h_stop_s: float | None,
+                         keep: np.ndarray | None) -> TraceSetup:
+    """The bare coil driven by interval-mean voltages, sampled at the record's own times
+    (as interval means when the current is)."""
+    seg_t0, seg_v = interval_segments(m.t_s, m.voltage_v)
+    t = m.t_s if keep is None else m.t_s[keep]
+    return TraceSetup(seg_t0_s=seg_t0, seg_v=seg_v, t_end_s=float(t[-1]),
+                      grid_t0_s=float(t[0]), grid_dt_s=float(np.median(np.diff(t))),
+                      n_grid=0, index=None, t_s=t,
+                      supply_pressure_pa=float(m.supply_pressure_pa),
+                      output_pressure_pa=float(m.output_pressure_pa),
+                      h_stop_s=float(DEFAULT_H_STOP_S if h_stop_s is None else h_stop_s),
+                      sampling=m.sampling)
+
+
 def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
                   keep: np.ndarray | None = None) -> TraceSetup:
     """Prepare a measurement for :func:`simulate_measurement`.
@@ -143,6 +226,8 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
             drive=InputTrace.pwm_commands(d.t_s, d.duty, d.pwm_frequency_hz,
                                           d.supply_voltage_v),
             sampling=m.sampling)
+    if m.voltage_hold == 'interval_mean':
+        return _interval_mean_setup(m, h_stop_s, keep)
     seg_t0, seg_v = _segments(m.t_s, m.voltage_v)
     t = m.t_s if keep is None else m.t_s[keep]
     dt = float(np.median(np.diff(t)))
@@ -213,7 +298,7 @@ def simulate_measurement(raw: np.ndarray, setup: TraceSetup, *,
     if setup.n_grid == 0:
         res = simulate_trace_batch(
             raw, InputTrace.coil_voltage(setup.seg_t0_s, setup.seg_v), setup.t_s,
-            supply_pressure_pa=setup.supply_pressure_pa,
+            sampling=setup.sampling, supply_pressure_pa=setup.supply_pressure_pa,
             output_pressure_pa=setup.output_pressure_pa, h_free_s=float(h_free_s),
             h_stop_s=setup.h_stop_s, validate=False, parallel=parallel)
         return res.coil_current_a, res.spool_position_m

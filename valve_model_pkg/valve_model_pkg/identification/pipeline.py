@@ -40,6 +40,8 @@ from .diagnosis import (
     score_signatures, second_effect, select, slow_effect,
 )
 from .drive import DriveReport, fit_drive
+from .mean_voltage import (ROUTE_BARE_COIL, ROUTE_MEAN_VOLTAGE, Route, check_mean_voltage,
+                           choose_route, through_drive_counterparts)
 from .measurement import Measurement, hold_out
 from .problem import (
     ErrorFigures, FitData, ParameterSpace, baseline_space, effect_space, start_point,
@@ -269,6 +271,7 @@ class Identification:
     drive: DriveReport | None = None
     at_bound: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    route: str = ROUTE_BARE_COIL
 
 
 def _lap(say: Say, what: str, t0: float) -> float:
@@ -333,6 +336,21 @@ def read_inputs(fit: Sequence[Record], validate: Sequence[Record],
     return Inputs(fit_list, val_list, base.replace(**neutral))
 
 
+def route_inputs(inputs: Inputs, say: Say) -> tuple[Inputs, Route]:
+    """The records as the valve is fitted: around the drive electronics through their
+    measured mean coil voltage when every record through them carries it
+    (:func:`.mean_voltage.choose_route`); returns the inputs and the route."""
+    route = choose_route(inputs.fit, inputs.validation)
+    say(route.note)
+    return Inputs(route.fit, route.validation, inputs.base), route
+
+
+def _in_service(m: Measurement) -> bool:
+    """A record of a valve in service (long: held out, windowed), through the drive
+    electronics or around them through its mean coil voltage."""
+    return m.drive is not None or m.voltage_hold == 'interval_mean'
+
+
 # --- stage 2: the data -----------------------------------------------------------------
 
 def _window(m: Measurement, span_s: float) -> Measurement:
@@ -341,10 +359,7 @@ def _window(m: Measurement, span_s: float) -> Measurement:
     if m.t_s[-1] <= end:
         return m
     keep = m.t_s <= end
-    return replace(m, t_s=m.t_s[keep], voltage_v=m.voltage_v[keep],
-                   current_a=m.current_a[keep],
-                   position_m=None if m.position_m is None else m.position_m[keep],
-                   n_missing_values=int(np.count_nonzero(~np.isfinite(m.current_a[keep]))),
+    return replace(m.samples(keep),
                    notes=m.notes + (f'compared up to {end:.3g} s of {m.t_s[-1]:.3g} s (the '
                                     f'first {span_s:g} s of its compared part)',))
 
@@ -410,15 +425,15 @@ def prepare_files(fit_files: Sequence[Measurement], val_files: Sequence[Measurem
     """Hold-out of a single operational record, windows of long ones; notes in words."""
     fit, val = list(fit_files), list(val_files)
     notes = []
-    if len(fit) == 1 and not val and fit[0].drive is not None:
+    if len(fit) == 1 and not val and _in_service(fit[0]):
         f, v = hold_out(fit[0], settings.hold_out_fraction)
         fit, val = [f], [v]
         notes.append(f'one record and no validation file: the last '
                      f'{100 * settings.hold_out_fraction:.0f} % of {fit[0].name} (from '
                      f'{v.held_out_from_s:.3g} s) is held out for validation')
-    fit = [_window(m, settings.operation_fit_window_s) if m.drive is not None else m
+    fit = [_window(m, settings.operation_fit_window_s) if _in_service(m) else m
            for m in fit]
-    val = [_window(m, settings.operation_validation_window_s) if m.drive is not None else m
+    val = [_window(m, settings.operation_validation_window_s) if _in_service(m) else m
            for m in val]
     return PreparedFiles(fit, val, notes)
 
@@ -428,7 +443,7 @@ def search_data(fit_list: list[Measurement], fit: FitData, settings: IdentifySet
     """The data the search stages run on: records through the electronics cut to the
     search window (``fit`` itself when nothing is cut), and a note in words."""
     span = settings.operation_search_window_s
-    cut = [_window(m, span) if m.drive is not None else m for m in fit_list]
+    cut = [_window(m, span) if _in_service(m) else m for m in fit_list]
     if all(a is b for a, b in zip(cut, fit_list)):
         return fit, ''
     data = FitData(cut)
@@ -1113,6 +1128,28 @@ def diagnose(prep: Prepared, baseline: BaselineFit, analysis: BaselineAnalysis,
     return DiagnosisOutcome(diag, augmented)
 
 
+# --- after the valve: the electronics for the simulator ----------------------------------
+
+def electronics_after_valve(route: Route, prep: Prepared, params: ValveParameters,
+                            settings: IdentifySettings, say: Say) -> DriveReport:
+    """The drive electronics of records fitted around them (the mean-voltage route),
+    identified with the valve held at ``params`` on the same fit span, for the simulator
+    and the map; their notes say how well they reproduce the measured mean coil voltage."""
+    records = refine_phases(through_drive_counterparts(route, prep.fit.full), params, say)
+    drive = fit_drive(_fit_data(records, settings), params,
+                      effort=settings.final_drive_effort)
+    drive.notes.insert(0, 'identified after the valve (fitted around the electronics '
+                       'through the measured mean coil voltage), the valve held, for the '
+                       'simulator and the map')
+    check = check_mean_voltage(records, params, drive.electronics)
+    if check is not None:
+        drive.notes.append(check.statement())
+    say('drive electronics (valve held): ' + ', '.join(
+        f'{k} = {v:.4g}' for k, v in drive.values.items())
+        + ('; ' + check.statement() if check is not None else ''))
+    return drive
+
+
 # --- the whole loop ----------------------------------------------------------------------
 
 def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
@@ -1152,8 +1189,9 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
     """
     say = progress or (lambda s: None)
     t_start = time.perf_counter()
-    inputs = read_inputs(fit, validate, settings, base, say)
+    inputs, route = route_inputs(read_inputs(fit, validate, settings, base, say), say)
     prep = prepare_data(inputs, settings, say)
+    prep.notes.insert(0, route.note)
     timings: dict[str, float] = {'phase_grid': time.perf_counter() - t_start}
     t0 = time.perf_counter()
     res = search_baseline(prep, settings, say)
@@ -1173,9 +1211,14 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
     outcome = None
     if settings.diagnose:
         outcome = diagnose(prep, baseline, analysis, settings, timings, say)
+    augmented = outcome.augmented if outcome else analysis.evaluated
+    drive = analysis.drive
+    if route.name == ROUTE_MEAN_VOLTAGE:
+        t0 = time.perf_counter()
+        drive = electronics_after_valve(route, prep, augmented.stage.params, settings, say)
+        timings['electronics'] = _lap(say, 'drive electronics (valve held)', t0)
     timings['total'] = time.perf_counter() - t_start
     say('time split: ' + ', '.join(f'{k} {v:.1f} s' for k, v in timings.items()))
-    augmented = outcome.augmented if outcome else analysis.evaluated
     fit_d, val_d, search = prep.fit, prep.validation, prep.search
     return Identification(
         fit_files=fit_d.measurements, val_files=val_d.measurements if val_d else [],
@@ -1188,5 +1231,5 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
                  'augmented': augmented.current_fit},
         sim_val={'baseline': analysis.evaluated.current_val,
                  'augmented': augmented.current_val},
-        convergence=baseline.convergence, drive=analysis.drive, at_bound=analysis.at_bound,
-        notes=prep.notes + analysis.notes)
+        convergence=baseline.convergence, drive=drive, at_bound=analysis.at_bound,
+        notes=prep.notes + analysis.notes, route=route.name)

@@ -318,7 +318,8 @@ LONG_RECORD_RATE_HZ = 1000.0
 
 def _decimation(m: Measurement) -> np.ndarray | None:
     """Samples kept for fitting: all, or every k-th of a long, fast record."""
-    if m.drive is not None and m.sampling == 'interval_mean':
+    if m.sampling == 'interval_mean' and (m.drive is not None
+                                          or m.voltage_hold == 'interval_mean'):
         return None  # interval means are compared over the record's own intervals
     if m.duration_s < LONG_RECORD_S or m.sample_rate_hz <= 1.2 * LONG_RECORD_RATE_HZ:
         return None
@@ -333,11 +334,7 @@ def _subset(m: Measurement, keep: np.ndarray) -> Measurement:
     from dataclasses import replace
     note = (f'compared at {keep.sum()} of {keep.size} samples (every '
             f'{int(round(keep.size / keep.sum()))}th): a long record is fitted on its drift')
-    return replace(m, t_s=m.t_s[keep], voltage_v=m.voltage_v[keep],
-                   current_a=m.current_a[keep],
-                   position_m=None if m.position_m is None else m.position_m[keep],
-                   notes=m.notes + (note,),
-                   n_missing_values=int(np.count_nonzero(~np.isfinite(m.current_a[keep]))))
+    return replace(m.samples(keep), notes=m.notes + (note,))
 
 
 class FitData:

@@ -217,7 +217,8 @@ def operation_measurement(spath: str, t: np.ndarray, duty: np.ndarray, freq: np.
                           current: np.ndarray, *, supply_v: float, supply_pa: float | None,
                           output_pa: float, notes: list[str], n_gaps: int,
                           interval_means: bool, described: str,
-                          metadata: dict[str, str]) -> Measurement:
+                          metadata: dict[str, str],
+                          coil_voltage_mean: np.ndarray | None = None) -> Measurement:
     """An operational record (drive electronics on) from duty and frequency in force.
 
     Parameters
@@ -245,6 +246,9 @@ def operation_measurement(spath: str, t: np.ndarray, duty: np.ndarray, freq: np.
         Where the data come from and how they are compared, for the last note.
     metadata : dict
         First metadata entries (experiment, valve or source, topic).
+    coil_voltage_mean : numpy.ndarray or None, shape (n,)
+        Measured mean coil voltage over each current interval [V] (``nan`` where
+        missing), when the source carries it.
 
     Raises
     ------
@@ -278,4 +282,4 @@ def operation_measurement(spath: str, t: np.ndarray, duty: np.ndarray, freq: np.
         supply_pressure_pa=supply_pa, output_pressure_pa=output_pa, experiment='operation',
         metadata=metadata, notes=tuple(notes), n_missing_values=n_missing, n_gaps=n_gaps,
         drive=drive, sampling='interval_mean' if interval_means else 'instant',
-        exclude_before_s=cut)
+        exclude_before_s=cut, coil_voltage_mean_v=coil_voltage_mean)

@@ -13,6 +13,8 @@
       "unlisted":  {"tried", "claimed", "terms", "coefficients", "errors": {
                     "baseline_fit", "baseline_validation", "augmented_fit",
                     "augmented_validation"}, ...} | null,
+      "route": {"name": "mean_coil_voltage|drive_electronics|bare_coil",
+                "text": "<how the valve was fitted, in words>"},
       "files": {...}, "timings_s": {...}, "units": {...}
     }
 
@@ -37,6 +39,7 @@ import numpy as np
 import yaml
 
 from ..model.parameters import EFFECTS, ValveParameters
+from .mean_voltage import ROUTE_TEXT
 from .pipeline import Identification, Stage
 from .problem import IDENTIFIED_FIELDS, PAPER_SYMBOLS, TABLE2_MEASURED, equivalent_gap_m
 
@@ -106,6 +109,7 @@ def report_dict(ident: Identification) -> dict[str, object]:
         'augmented': _stage_dict(ident.augmented),
         'diagnosis': diag,
         'unlisted': unl.to_json() if unl is not None else None,
+        'route': {'name': ident.route, 'text': ROUTE_TEXT[ident.route]},
         'start_parameters': _parameters(ident.start),
         'table2_measured': TABLE2_MEASURED,
         'search_bounds': {b.name: [b.low, b.high] for b in ident.space.bounds},
@@ -246,6 +250,7 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
         lines += [f'**Diagnosis: `{d["effect"]}`** (confidence {d["confidence"]}).', '']
         lines += [f'- {e}' for e in d['evidence']]
         lines += ['', f'Rule: {d["numbers"]["rule"]}.', '']
+    lines += [f'**Valve fitted {rep["route"]["text"]}.**', '']
     conv = rep.get('baseline_convergence')
     if conv:
         lines += [f'**Baseline convergence.** {conv["statement"]}.', '']

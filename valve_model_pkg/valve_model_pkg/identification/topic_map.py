@@ -11,7 +11,8 @@ a topic of its own is read by naming, for each role, the topic and field that ca
   ``current_mean`` (interval means since the previous message): the drive electronics run
   from the commands in force; the drive supply is ``supply_voltage``, else the largest
   interval-mean coil voltage (``coil_voltage_mean``: the boost applies the supply), else
-  the suite's 24 V.
+  the suite's 24 V. A mapped ``coil_voltage_mean`` is also carried into the measurement,
+  so the valve is fitted around the electronics (:mod:`.mean_voltage`).
 
 ``supply_pressure`` and ``output_pressure`` (gauge, Pa) come from a topic or a number;
 ``pwm_frequency`` and ``supply_voltage`` may be numbers too. The current's messages are
@@ -31,7 +32,7 @@ import numpy as np
 from ..errors import MeasurementFormatError, RecordingError
 from ..recording import FieldRecord, FieldSeries, FieldSpec, read_fields
 from .measurement import (MIN_SAMPLES, Measurement, check_excitation, check_time_axis,
-                          median_pressure, refused_bag)
+                          mean_voltage_column, median_pressure, refused_bag)
 from .pwm_grid import operation_measurement
 
 __all__ = ['CONSTANT_ROLES', 'DEFAULT_SUPPLY_V', 'FieldSpecOrValue', 'ROLES',
@@ -248,6 +249,9 @@ def _operation(spath: str, t: np.ndarray, cols: dict[str, np.ndarray], current_r
     supply_v = _supply_voltage(cols, notes)
     how = ('interval means' if current_role == 'current_mean'
            else 'instantaneous samples')
+    v_mean = mean_voltage_column(cols.get('coil_voltage_mean'),
+                                 f'coil_voltage_mean ({mapping.get("coil_voltage_mean")})',
+                                 notes) if 'coil_voltage_mean' in cols else None
     return operation_measurement(
         spath, t, cols['duty'].copy(), cols['pwm_frequency'].copy(),
         cols[current_role].copy(), supply_v=supply_v, supply_pa=supply, output_pa=output,
@@ -256,7 +260,8 @@ def _operation(spath: str, t: np.ndarray, cols: dict[str, np.ndarray], current_r
         f'({mapping["duty"]}) and pwm_frequency ({mapping["pwm_frequency"]}) and is compared '
         f'with {current_role} ({mapping[current_role]}, {how})',
         metadata={'experiment': 'operation',
-                  **{f'{role}_source': str(v) for role, v in mapping.items()}})
+                  **{f'{role}_source': str(v) for role, v in mapping.items()}},
+        coil_voltage_mean=v_mean)
 
 
 def read_mapped_bag(path: str | Path, mapping: Mapping[str, FieldSpecOrValue]) -> Measurement:

@@ -20,6 +20,7 @@ __all__ = [
     'TOPIC_REAL_TIME_FACTOR', 'TOPIC_RUN_UNTIL', 'SUITE_TOPICS',
     'STATE_QUEUE_DEPTH', 'COMMAND_QUEUE_DEPTH', 'JOINT_STATES_QUEUE_DEPTH',
     'DIAGNOSTICS_QUEUE_DEPTH', 'MIN_PWM_FREQUENCY_HZ', 'MAX_PWM_FREQUENCY_HZ',
+    'STATE_SOURCE_SIMULATOR',
 ]
 
 TOPIC_STATE = 'valve/state'                      # valve_msgs/ValveState
@@ -71,3 +72,7 @@ DIAGNOSTICS_QUEUE_DEPTH = 10
 #: model's chopper runs far above it) and is what every backend accepted before.
 MIN_PWM_FREQUENCY_HZ = 0.1
 MAX_PWM_FREQUENCY_HZ = 1000.0
+
+#: ``ValveState.source`` of a state made by the suite's own simulator
+#: (``ValveState.SOURCE_SIMULATOR``), for the ROS-free readers of recorded bags.
+STATE_SOURCE_SIMULATOR = 0

@@ -1,0 +1,218 @@
+"""Around the drive electronics: records driven by their measured mean coil voltage.
+
+A record of a valve in service that carries ``coil_voltage_mean`` (the mean voltage across
+the coil terminals over the same interval as the current) needs no model of the drive
+electronics: over every interval the coil's voltage balance (eq. 1) holds exactly in the
+means, ``mean(u) dt = R mean(i) dt + psi(t_k) - psi(t_{k-1})``, whatever the boost,
+chopper or release pulse did inside the interval. :func:`around_electronics` turns such a
+record into one that drives the bare coil with the measured mean held over each interval
+(:func:`.model_adapter.interval_segments`): the model's flux linkage then obeys the
+balance with the measured voltage integral over every interval, and its current is
+compared like with like (interval means against interval means). :func:`choose_route`
+takes this route when every record through the electronics carries the voltage, and says
+which route it took.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+from .measurement import Measurement
+
+__all__ = ['ROUTE_BARE_COIL', 'ROUTE_ELECTRONICS', 'ROUTE_MEAN_VOLTAGE', 'ROUTE_TEXT',
+           'Route', 'VoltageCheck', 'around_electronics', 'check_mean_voltage',
+           'choose_route', 'through_drive_counterparts']
+
+#: Records through the drive electronics, fitted through the mean coil voltage.
+ROUTE_MEAN_VOLTAGE = 'mean_coil_voltage'
+#: Records through the drive electronics, fitted through the model of the electronics.
+ROUTE_ELECTRONICS = 'drive_electronics'
+#: Bench records on the bare coil (step, pwm with its coil voltage): no electronics.
+ROUTE_BARE_COIL = 'bare_coil'
+#: How each route reads in the report.
+ROUTE_TEXT = {
+    ROUTE_MEAN_VOLTAGE: 'through the measured mean coil voltage, no electronics model',
+    ROUTE_ELECTRONICS: 'through the model of the drive electronics (from the main PWM '
+                       'commands)',
+    ROUTE_BARE_COIL: 'the bare coil driven by the measured voltage',
+}
+
+
+@dataclass(frozen=True)
+class Route:
+    """How the valve is fitted (:func:`choose_route`).
+
+    Attributes
+    ----------
+    name : str
+        One of :data:`ROUTE_TEXT`.
+    fit, validation : list of Measurement
+        The records as the fit runs them.
+    through_drive_fit, through_drive_validation : list of Measurement
+        The records as read (through the electronics where they were), for identifying
+        the electronics after the valve.
+    note : str
+        The route in words, with the reason when the mean voltage is not used.
+    """
+
+    name: str
+    fit: list[Measurement]
+    validation: list[Measurement]
+    through_drive_fit: list[Measurement]
+    through_drive_validation: list[Measurement]
+    note: str
+
+    @property
+    def text(self) -> str:
+        """The route as the report says it."""
+        return ROUTE_TEXT[self.name]
+
+
+def around_electronics(m: Measurement) -> Measurement:
+    """``m`` with its drive electronics replaced by its measured mean coil voltage.
+
+    The bare coil is driven by ``coil_voltage_mean`` held over each current interval
+    (``voltage_hold='interval_mean'``), the current compared as the record gives it; the
+    discarded start and the hold-out stay as they are.
+
+    Raises
+    ------
+    ValueError
+        ``m`` does not carry a finite mean coil voltage on every sample.
+    """
+    if not m.has_coil_voltage_mean:
+        raise ValueError(f'{m.source}: no finite coil_voltage_mean on every sample')
+    return replace(m, drive=None, voltage_v=m.coil_voltage_mean_v.copy(),
+                   voltage_hold='interval_mean',
+                   notes=m.notes + ('driven by the measured coil_voltage_mean held over each '
+                                    'current interval (the bare coil, no electronics model)',))
+
+
+def _lacking(records: Sequence[Measurement]) -> list[str]:
+    return [m.name for m in records if m.drive is not None and not m.has_coil_voltage_mean]
+
+
+def choose_route(fit: Sequence[Measurement], validation: Sequence[Measurement]) -> Route:
+    """The mean-voltage route when every record through the electronics carries it.
+
+    Every record through the drive electronics (fit and validation) must carry a finite
+    ``coil_voltage_mean`` on every sample; then all of them are fitted around the
+    electronics (:func:`around_electronics`). Otherwise all run the electronics model,
+    and the note names the records that lack the voltage. States of the suite's own
+    simulator (bag metadata ``state_source: simulator``) run the electronics model that
+    made them: it is exact there, while the held mean leaves some mA where the drive
+    switches within an interval and the spool moves.
+    """
+    fit, validation = list(fit), list(validation)
+    through = [m for m in fit + validation if m.drive is not None]
+    if not through:
+        return Route(ROUTE_BARE_COIL, fit, validation, fit, validation,
+                     'valve fitted on the bare coil driven by the measured voltage')
+    if all(m.metadata.get('state_source') == 'simulator' for m in through):
+        return Route(ROUTE_ELECTRONICS, fit, validation, fit, validation,
+                     f'valve fitted {ROUTE_TEXT[ROUTE_ELECTRONICS]}: the records are states '
+                     "of the suite's own simulator, whose electronics model made them "
+                     'exactly (the mean coil voltage, held over each interval, would only '
+                     'approximate the drive within the intervals)')
+    lacking = _lacking(fit + validation)
+    if lacking:
+        carry = [m.name for m in through if m.has_coil_voltage_mean]
+        why = (f' ({", ".join(lacking)} lack a complete coil_voltage_mean, which '
+               f'{", ".join(carry)} carry; the mean voltage is used only when every record '
+               'through the electronics carries it)') if carry else ''
+        return Route(ROUTE_ELECTRONICS, fit, validation, fit, validation,
+                     f'valve fitted {ROUTE_TEXT[ROUTE_ELECTRONICS]}{why}')
+
+    def conv(ms: list[Measurement]) -> list[Measurement]:
+        return [around_electronics(m) if m.drive is not None else m for m in ms]
+    return Route(ROUTE_MEAN_VOLTAGE, conv(fit), conv(validation), fit, validation,
+                 f'valve fitted {ROUTE_TEXT[ROUTE_MEAN_VOLTAGE]}: the measured '
+                 'coil_voltage_mean is held over each current interval on the bare coil, so '
+                 'the interval voltage balance holds with the measured voltage; interval '
+                 'means of the current are compared')
+
+
+def through_drive_counterparts(route: Route, prepared: Sequence[Measurement]
+                               ) -> list[Measurement]:
+    """The records as read (through the electronics) over the same span as the prepared
+    records of the mean-voltage route (hold-out and windows applied): what the drive
+    electronics are identified on once the valve is known."""
+    originals = {m.source: m for m in route.through_drive_fit if m.drive is not None}
+    out = []
+    for p in prepared:
+        m = originals.get(p.source)
+        if m is None:
+            continue
+        keep = m.t_s <= p.t_s[-1]
+        out.append(replace(m.samples(keep), exclude_before_s=p.exclude_before_s,
+                           held_out_from_s=p.held_out_from_s))
+    return out
+
+
+@dataclass(frozen=True)
+class VoltageCheck:
+    """How well drive electronics reproduce a record's measured mean coil voltage.
+
+    Attributes
+    ----------
+    rmse_v : float
+        RMS of the measured minus the simulated interval-mean coil voltage [V] over the
+        compared samples of every record.
+    supply_v : float
+        The drive supply voltage [V] (the scale of the error).
+    samples : int
+        Samples compared.
+    """
+
+    rmse_v: float
+    supply_v: float
+    samples: int
+
+    def statement(self) -> str:
+        """The check in words."""
+        return (f'the identified electronics reproduce the measured coil_voltage_mean to '
+                f'{self.rmse_v:.3g} V RMS ({100.0 * self.rmse_v / self.supply_v:.3g} % of the '
+                f'{self.supply_v:g} V supply) over {self.samples} samples')
+
+
+def check_mean_voltage(records: Sequence[Measurement], params: object,
+                       electronics: object) -> VoltageCheck | None:
+    """Simulate ``records`` through ``electronics`` with the valve at ``params`` and
+    compare the interval-mean coil voltage with the measured ``coil_voltage_mean``.
+
+    Parameters
+    ----------
+    records : sequence of Measurement
+        Records through the electronics that carry the mean coil voltage.
+    params : ValveParameters
+        The valve.
+    electronics : ElectronicsConfig
+        The drive electronics.
+
+    Returns
+    -------
+    VoltageCheck or None
+        ``None`` when no record carries the voltage.
+    """
+    import numpy as np
+
+    from ..model import InputTrace, simulate_trace_batch
+    errors, supply = [], 0.0
+    for m in records:
+        if m.drive is None or not m.has_coil_voltage_mean or m.supply_pressure_pa is None:
+            continue
+        d = m.drive
+        res = simulate_trace_batch(
+            params, InputTrace.pwm_commands(d.t_s, d.duty, d.pwm_frequency_hz,
+                                            d.supply_voltage_v),
+            m.t_s, electronics=electronics, sampling='interval_mean',
+            supply_pressure_pa=float(m.supply_pressure_pa),
+            output_pressure_pa=float(m.output_pressure_pa))
+        sim = np.asarray(res.coil_voltage_v).reshape(-1)
+        keep = m.t_s >= m.exclude_before_s
+        errors.append((m.coil_voltage_mean_v - sim)[keep])
+        supply = max(supply, float(np.max(d.supply_voltage_v)))
+    if not errors:
+        return None
+    err = np.concatenate(errors)
+    return VoltageCheck(float(np.sqrt(np.mean(err ** 2))), supply, int(err.size))
