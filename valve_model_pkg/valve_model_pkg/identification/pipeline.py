@@ -36,8 +36,8 @@ from ..interface import TOPIC_STATE
 from ..model.parameters import EFFECTS, ValveParameters
 from .criteria import DBIC_THRESHOLD, delta_bic, effective_counts, resolution_floors
 from .diagnosis import (
-    SCREEN_DBIC, CandidateResult, Diagnosis, RefitResult, describe_remaining, refit_effect,
-    score_signatures, second_effect, select, slow_effect,
+    SCREEN_DBIC, CandidateResult, Diagnosis, RefitResult, describe_misfit, describe_remaining,
+    refit_effect, score_signatures, second_effect, select, slow_effect,
 )
 from .drive import DriveReport, fit_drive
 from .measurement import Measurement, hold_out
@@ -1118,6 +1118,9 @@ def diagnose(prep: Prepared, baseline: BaselineFit, analysis: BaselineAnalysis,
         t0 = time.perf_counter()
         offer_unlisted(diag, prep.fit, prep.validation, baseline.params, say)
         timings['unlisted'] = _lap(say, 'unlisted term', t0)
+    describe_misfit(diag, baseline.params)
+    if diag.misfit:
+        say(diag.misfit['statement'])
     return DiagnosisOutcome(diag, augmented)
 
 
