@@ -31,7 +31,7 @@ def processes_with(token: str) -> list[int]:
     return pids
 
 
-@pytest.fixture
+@pytest.fixture(scope='session')
 def make_demo() -> Callable[..., str]:
     """Run ``make demo VAR=... DEMO_ARGS=...`` from the repository root; return its output.
 

@@ -47,11 +47,13 @@ def _lockstep_records() -> tuple[StateColumns, np.ndarray]:
 def test_lockstep_bag_time_axis_and_pwm_grid_match_the_emulator() -> None:
     records, _ = _lockstep_records()
     m = measurement_from_state('lockstep', '/valve/state', None, records)
-    # one message per 1 ms step: the lagging last stamp must not shorten the step
-    np.testing.assert_allclose(m.t_s, np.arange(_N) * _STEP_S, atol=1e-9)
-    # the first energised period starts exactly at 20 ms (the grid of model time 0)
+    # one message per 1 ms step: the lagging last stamp must not shorten the step; time 0
+    # is the start of the first message's interval, one step before it
+    np.testing.assert_allclose(m.t_s, (np.arange(_N) + 1) * _STEP_S, atol=1e-9)
+    # the first energised period starts exactly 20 ms after the first message (model time
+    # 0: the grid of model time 0)
     first = m.drive.period_starts_s[m.drive.period_duty > 0][0]
-    assert abs(first - 0.020) < 1e-9
+    assert abs(first - m.t_s[0] - 0.020) < 1e-9
     np.testing.assert_allclose(np.diff(m.drive.period_starts_s[:6]), 0.02, atol=1e-9)
 
 

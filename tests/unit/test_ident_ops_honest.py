@@ -66,6 +66,8 @@ def test_clean_nominal_operation_record_is_answered_none(
                           '--quick']) == 0
     rep = json.loads((out / 'report.json').read_text())
     assert rep['diagnosis']['effect'] == 'none', rep['diagnosis']['evidence']
+    # the suite's own model describes the record: no misfit statement
+    assert rep['diagnosis']['model_misfit'] is None, rep['diagnosis']['evidence']
     assert any('held out' in n for n in rep['data_notes'])
     drive = rep['drive_electronics']
     assert drive['values']['holding_current_a'] == pytest.approx(0.5, rel=0.02)

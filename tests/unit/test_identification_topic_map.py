@@ -125,7 +125,9 @@ def test_mapped_valve_state_fields_read_as_the_suite_reader_reads_them(tmp_path:
                                rtol=0, atol=1.0 / 50.0 / 4000 + 1e-9)
     np.testing.assert_array_equal(mapped.drive.period_duty, suite.drive.period_duty)
     assert (mapped.supply_pressure_pa, mapped.output_pressure_pa) == (4e5, 1e5)
-    assert mapped.exclude_before_s == suite.exclude_before_s == 0.0       # starts at rest
+    # starts at rest: compared from the first sample (time 0 is its interval's start)
+    for m in (suite, mapped):
+        assert m.exclude_before_s == m.t_s[0] > 0.0
 
 
 def test_a_users_telemetry_type_and_a_command_topic_make_an_operation_record(
@@ -154,11 +156,12 @@ def test_a_users_telemetry_type_and_a_command_topic_make_an_operation_record(
         'supply_pressure=500000']))
     # the first telemetry stamp with a duty in force: sample 3 (duty received 0.2 ms before)
     assert m.n_samples == n - 3
-    np.testing.assert_allclose(m.t_s, np.arange(n - 3) * 1e-3, rtol=0, atol=1e-12)
+    # time 0 is the start of the first sample's interval, one step before it
+    np.testing.assert_allclose(m.t_s, np.arange(1, n - 2) * 1e-3, rtol=0, atol=1e-12)
     assert m.experiment == 'operation' and m.sampling == 'interval_mean'
     assert m.metadata['supply_voltage_v'] == '26'      # the largest interval-mean voltage
     starts = m.drive.period_starts_s[m.drive.period_duty > 0]
-    assert 0.036 < starts[0] <= 0.037                   # duty 0.4 first seen at sample 40
+    assert 0.037 < starts[0] <= 0.038                   # duty 0.4 first seen at sample 40
     notes = '\n'.join(m.notes)
     assert 'the record starts at the first current_mean sample after the first message of ' \
         'duty (3 earlier samples left out)' in notes

@@ -39,12 +39,13 @@ from ..model.parameters import EFFECTS, ValveParameters
 from .criteria import (DBIC_THRESHOLD, MIN_EXPLAINED, MIN_VALIDATION_GAIN, delta_bic,
                        effective_counts, noise_per_file, resolution_floors, structured_energy)
 from .problem import ErrorFigures, FitData, ParameterSpace, effect_space, unit_objective
-from .residuals import ljung_box
+from .residuals import drive_phase_masks, ljung_box
 from .search import SearchSettings, direct_search
-from .sensitivity import perturbed_values
+from .sensitivity import noise_std, perturbed_values
 
 __all__ = ['CandidateResult', 'Diagnosis', 'RefitResult', 'score_signatures', 'refit_effect',
-           'select', 'second_effect', 'describe_remaining', 'effect_scan', 'slow_effect']
+           'select', 'second_effect', 'describe_misfit', 'describe_remaining', 'effect_scan',
+           'slow_effect']
 
 #: Structured residual RMS (beyond noise), relative to the noise, that counts as structure.
 STRUCTURE_FRACTION = 0.3
@@ -200,6 +201,8 @@ class Diagnosis:
     base_mae: dict | None = None
     #: The open-ended sparse augmentation (:mod:`.unlisted`), when it was tried.
     unlisted: object = None
+    #: The baseline misfit no candidate explains, stated (:func:`describe_misfit`).
+    misfit: dict[str, object] | None = None
 
 
 def _stack(data: FitData, arrays: list[np.ndarray]) -> np.ndarray:
@@ -707,6 +710,7 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
         'resolution_floor_a': st.floor_rms_a,
         'baseline_ljung_box_p_min': st.ljung_box_p,
         'baseline_noise_std_a': st.noise_std_a,
+        'judged_on': 'validation' if val is not None else 'fit',
     }
     v = (_verdict_kept(kept, st, baseline, at_bound) if kept
          else _verdict_nothing_kept(ranked, st, baseline))
@@ -805,3 +809,75 @@ def second_effect(diag: Diagnosis, space: ParameterSpace, fit: FitData, val: Fit
         diag.evidence.append(
             f'second effect tried on top of {diag.effect}: {other.effect} does not pay for '
             f'its parameters again (dBIC fit {dfit:.1f}, validation {dval:.1f})')
+
+
+#: A structured baseline misfit at least this many times the noise that no candidate
+#: explains is stated as the model not describing the record (:func:`describe_misfit`).
+MISFIT_OVER_NOISE = 3.0
+#: Fewest at-rest samples of a file the noise of the statement is estimated from.
+_MIN_REST_SAMPLES = 20
+_PHASE_WORDS = {'peak_phase': 'the peak phase', 'hold': 'the hold',
+                'voltage_on': 'the voltage-on phase', 'release': 'the release',
+                'at_rest': 'the coil at rest'}
+
+
+def _statement_noise(data: FitData, residual_noise: list[float]) -> tuple[float, str]:
+    """The noise [A] the misfit is measured against, and where it comes from: the measured
+    current while the coil is at rest, anywhere in the record (the measurement's own noise;
+    a misfit inflates the estimate from the residual's first differences), else the
+    residual's; at least the resolution floor."""
+    floor = float(np.median(list(resolution_floors(data).values()) or [0.0]))
+    vals = []
+    for m in data.measurements:
+        # the whole record, also outside the compared part: its noise is the same there
+        rest = drive_phase_masks(m)['at_rest'] & np.isfinite(m.current_a)
+        if int(rest.sum()) >= _MIN_REST_SAMPLES:
+            vals.append(noise_std(m.current_a[rest]))
+    if vals:
+        return max(float(np.median(vals)), floor), 'the current at rest'
+    return max(float(np.median(residual_noise)), floor), 'the baseline residual'
+
+
+def describe_misfit(diag: Diagnosis, baseline: ValveParameters) -> None:
+    """State a baseline misfit that no candidate explains, when it is well above the noise.
+
+    With the answer ``none`` and a structured baseline residual on the judging data (the
+    validation data, else the fit data) of at least :data:`MISFIT_OVER_NOISE` times the
+    noise, the model (valve or drive electronics) does not describe the record: its size
+    (structured RMS [A], times the noise) and where in the drive cycle it sits (share of
+    the misfit energy per phase of :func:`~.residuals.drive_phase_masks`) are set as
+    ``diag.misfit``, stated as the first evidence, and the confidence is low.
+    """
+    data = diag.judge
+    if diag.effect != 'none' or not diag.unexplained_structure or data is None:
+        return
+    sigma, source = _statement_noise(data, (diag.base_mae or {}).get('noise') or [0.0])
+    res = data.residuals(baseline)
+    sq = np.concatenate([r[v & np.isfinite(r)] ** 2 for r, v in zip(res, data.valid)])
+    structured = math.sqrt(max(float(np.mean(sq)) - sigma ** 2, 0.0)) if sq.size else 0.0
+    if not sigma > 0.0 or structured < MISFIT_OVER_NOISE * sigma:
+        return
+    energy = {}
+    for m, r, v in zip(data.measurements, res, data.valid):
+        for name, mask in drive_phase_masks(m).items():
+            sel = mask & v & np.isfinite(r)
+            energy[name] = energy.get(name, 0.0) + max(
+                float(np.sum(r[sel] ** 2)) - int(sel.sum()) * sigma ** 2, 0.0)
+    total = sum(energy.values()) or 1.0
+    share = {k: e / total for k, e in sorted(energy.items(), key=lambda kv: -kv[1]) if e > 0}
+    where = next(iter(share), 'at_rest')
+    parts = [f'{100 * f:.0f} % in {_PHASE_WORDS[k]}' for k, f in share.items() if f >= 0.1]
+    on = diag.numbers.get('judged_on', 'judged')
+    text = (f'the model (valve or electronics) does not describe this record: the baseline '
+            f'misses the {on} data by {1e3 * structured:.3g} mA RMS of structure '
+            f'({structured / sigma:.0f} x the noise of {1e3 * sigma:.2g} mA, from {source}), '
+            f'{", ".join(parts) or "spread over the cycle"} of it; no listed effect explains '
+            'it: a form of the valve or of its drive electronics the model lacks, not an '
+            'effect the data name (answer none: no effect claimed)')
+    diag.misfit = {'statement': text, 'structured_rms_a': structured, 'noise_std_a': sigma,
+                   'noise_from': source, 'over_noise': structured / sigma, 'on': on,
+                   'where': where, 'where_text': f'{_PHASE_WORDS[where]} '
+                   f'({100 * share.get(where, 0.0):.0f} % of it)',
+                   'phase_share_of_misfit': share}
+    diag.evidence.insert(0, text)
+    diag.confidence = 'low'

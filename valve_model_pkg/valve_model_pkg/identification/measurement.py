@@ -40,6 +40,9 @@ MIN_EXCITATION_V = 1e-3
 #: A command is given this long before the period start it must be latched at [s] (the
 #: model latches commands at the next period start).
 _LATCH_LEAD_S = 1e-6
+#: A first period start this close to t = 0 is at t = 0 [s] (a grid shifted by a rounding
+#: error would need a lead-in period of that length, i.e. an absurd frequency).
+_AT_ZERO_S = 1e-9
 
 
 def _lead(period_s: float) -> float:
@@ -123,6 +126,8 @@ class DriveInput:
         ts: list[float] = []
         dd: list[float] = []
         ff: list[float] = []
+        if 0.0 < starts[0] <= _AT_ZERO_S:
+            starts = [0.0] + list(starts[1:])
         s0 = starts[0]
         if s0 > 0.0:
             # duty 0 until the first period start, with a pre-period that ends exactly there

@@ -36,8 +36,8 @@ from ..interface import TOPIC_STATE
 from ..model.parameters import EFFECTS, ValveParameters
 from .criteria import DBIC_THRESHOLD, delta_bic, effective_counts, resolution_floors
 from .diagnosis import (
-    SCREEN_DBIC, CandidateResult, Diagnosis, RefitResult, describe_remaining, refit_effect,
-    score_signatures, second_effect, select, slow_effect,
+    SCREEN_DBIC, CandidateResult, Diagnosis, RefitResult, describe_misfit, describe_remaining,
+    refit_effect, score_signatures, second_effect, select, slow_effect,
 )
 from .drive import DriveReport, fit_drive
 from .mean_voltage import (ROUTE_BARE_COIL, ROUTE_MEAN_VOLTAGE, Route, check_mean_voltage,
@@ -604,13 +604,21 @@ def _try_other_starts(space: ParameterSpace, data: FitData, check_data: FitData,
                         tolerance=POLISH_TOLERANCE, seed=1)
     res = direct_search(fun_c, np.vstack([u[None, :], np.atleast_2d(others)]), st,
                         label='baseline other starts')
-    there = float(fun(res.u[None, :])[0])
+    # The start points themselves are judged on the fit window too: where the search
+    # window leaves a direction unseen (a stroke the valve does not reach there), its
+    # simplices drift along it, and the start point can be the better one.
+    cand = np.vstack([res.u[None, :], np.atleast_2d(others)])
+    costs = fun(cand)
+    j = int(np.argmin(costs))
+    there = float(costs[j])
     moved = there < cost
+    which = 'their best point' if j == 0 else f'other start point {j} itself'
     text = (f'; simplices from the optimum and from the {n_others} other start points '
             f'on {check_label} reached {res.cost:.4g} A there (the optimum: {own:.4g}'
-            f' A), {there:.4g} A on the fit window'
-            + (' (taken)' if moved else ' (not better: kept the optimum)'))
-    return _OtherStarts(res.u.copy() if moved else u, there if moved else cost, text)
+            f' A); on the fit window their best point {float(costs[0]):.4g} A, the start '
+            'points ' + ', '.join(f'{c:.4g}' for c in costs[1:]) + ' A'
+            + (f' ({which} taken)' if moved else ' (not better: kept the optimum)'))
+    return _OtherStarts(cand[j].copy() if moved else u, there if moved else cost, text)
 
 
 def polish(space: ParameterSpace, data: FitData, u: np.ndarray, cost: float,
@@ -1125,6 +1133,9 @@ def diagnose(prep: Prepared, baseline: BaselineFit, analysis: BaselineAnalysis,
         t0 = time.perf_counter()
         offer_unlisted(diag, prep.fit, prep.validation, baseline.params, say)
         timings['unlisted'] = _lap(say, 'unlisted term', t0)
+    describe_misfit(diag, baseline.params)
+    if diag.misfit:
+        say(diag.misfit['statement'])
     return DiagnosisOutcome(diag, augmented)
 
 

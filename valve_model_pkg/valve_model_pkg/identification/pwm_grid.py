@@ -20,7 +20,7 @@ from ..errors import MeasurementFormatError
 from .measurement import DriveInput, Measurement
 
 __all__ = ['DISCARD_MIN_S', 'DISCARD_PERIODS', 'discard_for', 'drive_from_in_force',
-           'drive_from_main_pwm', 'operation_measurement']
+           'drive_from_main_pwm', 'interval_time_axis', 'operation_measurement']
 
 _LOG = logging.getLogger(__name__)
 
@@ -213,6 +213,22 @@ def discard_for(drive: DriveInput, t0: float, at_rest: bool) -> tuple[float, lis
                  'out of the errors']
 
 
+def interval_time_axis(t: np.ndarray, notes: list[str]) -> np.ndarray:
+    """Times [s] of interval means whose first message is at ``t[0] = 0``, moved so that
+    time 0 is the start of the first message's interval (one median step before it).
+
+    Each mean covers the interval since the previous message, the first message's too; the
+    model starts at rest at time 0, so it then covers every recorded interval (a record of
+    a simulation whose first message comes one step after its start is reproduced from its
+    first sample). A note says so.
+    """
+    step = float(np.median(np.diff(t)))
+    notes.append(f'time from the start of the first message\'s interval ({step * 1e3:.6g} ms '
+                 'before it): each current mean covers the interval since the previous '
+                 'message')
+    return t - t[0] + step
+
+
 def operation_measurement(spath: str, t: np.ndarray, duty: np.ndarray, freq: np.ndarray,
                           current: np.ndarray, *, supply_v: float, supply_pa: float | None,
                           output_pa: float, notes: list[str], n_gaps: int,
@@ -226,7 +242,9 @@ def operation_measurement(spath: str, t: np.ndarray, duty: np.ndarray, freq: np.
     spath : str
         The source, named in errors.
     t : numpy.ndarray, shape (n,)
-        Sample times [s] from 0.
+        Sample times [s] from 0 (the first message). With ``interval_means`` the record's
+        time 0 is moved to the start of the first message's interval, one sample step
+        before it (:func:`interval_time_axis`).
     duty, freq : numpy.ndarray, shape (n,)
         Duty [1] and main PWM frequency [Hz] in force at each sample.
     current : numpy.ndarray, shape (n,)
@@ -260,6 +278,8 @@ def operation_measurement(spath: str, t: np.ndarray, duty: np.ndarray, freq: np.
     if bad.size:
         raise MeasurementFormatError(spath, None, f'message {int(bad[0])} has duty '
                                      f'{duty[bad[0]]!r} / pwm_frequency {freq[bad[0]]!r}')
+    if interval_means:
+        t = interval_time_axis(t, notes)
     drive, dnotes = drive_from_in_force(t, duty, freq, supply_v,
                                         current if interval_means else None)
     notes += dnotes

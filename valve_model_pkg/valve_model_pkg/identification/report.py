@@ -9,7 +9,10 @@
                     when the effect is "none")},
       "diagnosis": {"effect": "<name>|unlisted|none", "confidence": "high|medium|low",
                     "evidence": [...], "numbers": {...}, "candidates": [...ranked...],
-                    "unexplained_structure": bool},
+                    "unexplained_structure": bool,
+                    "model_misfit": {"statement", "structured_rms_a", "noise_std_a",
+                                     "noise_from", "over_noise", "on", "where",
+                                     "where_text", "phase_share_of_misfit"} | null},
       "unlisted":  {"tried", "claimed", "terms", "coefficients", "errors": {
                     "baseline_fit", "baseline_validation", "augmented_fit",
                     "augmented_validation"}, ...} | null,
@@ -28,6 +31,11 @@ explains a structured residual; when it pays the effect is ``unlisted``. The mod
 simulate such a term, so it is never written to ``params.yaml`` (which then holds the
 baseline) and ``augmented`` stays the baseline; its errors before and after are in
 ``unlisted.errors``.
+
+``model_misfit`` is set when the answer is ``none`` but the baseline misses the record by
+a structured error well above the noise that no candidate explains: the model (valve or
+drive electronics) does not describe the record. Its statement, with the size of the
+misfit and the phase of the drive cycle it sits in, is then the report's first line.
 """
 from __future__ import annotations
 
@@ -102,6 +110,7 @@ def report_dict(ident: Identification) -> dict[str, object]:
             'indistinguishable_from': d.indistinguishable,
             'second_effect': d.second,
             'remaining_structure': d.remaining,
+            'model_misfit': d.misfit,
         }
     unl = getattr(d, 'unlisted', None) if d is not None else None
     return _clean({
@@ -246,8 +255,17 @@ def _unlisted_section(u: dict | None) -> list[str]:
 def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
     b, a, d = rep['baseline'], rep['augmented'], rep['diagnosis']
     lines = ['# Valve identification report', '']
-    if d is not None:
+    misfit = d.get('model_misfit') if d is not None else None
+    if misfit:
+        lines[0] += ': the model does not describe this record'
+        lines += [f'**Diagnosis: the model (valve or electronics) does not describe this '
+                  f'record**: {1e3 * misfit["structured_rms_a"]:.3g} mA RMS of structured '
+                  f'misfit ({misfit["over_noise"]:.0f} x the noise), mostly in '
+                  f'{misfit["where_text"]}; no listed effect explains it (effect '
+                  f'`{d["effect"]}`: none claimed; confidence {d["confidence"]}).', '']
+    elif d is not None:
         lines += [f'**Diagnosis: `{d["effect"]}`** (confidence {d["confidence"]}).', '']
+    if d is not None:
         lines += [f'- {e}' for e in d['evidence']]
         lines += ['', f'Rule: {d["numbers"]["rule"]}.', '']
     lines += [f'**Valve fitted {rep["route"]["text"]}.**', '']

@@ -26,13 +26,62 @@ from scipy import stats
 from .measurement import Measurement
 from .sensitivity import noise_std
 
-__all__ = ['PHASES', 'ResidualReport', 'FileResidual', 'analyse_residuals', 'phase_masks',
-           'ljung_box']
+__all__ = ['DRIVE_PHASES', 'PHASES', 'ResidualReport', 'FileResidual', 'analyse_residuals',
+           'drive_phase_masks', 'phase_masks', 'ljung_box']
 
 PHASES = ('idle', 'before_motion', 'during_motion', 'after_stroke', 'steady_state',
           'release')
 _AFTER_STROKE_S = 3e-3
 _LB_LAGS = 20
+#: Phases of the drive cycle, from the record alone (:func:`drive_phase_masks`).
+DRIVE_PHASES = ('peak_phase', 'hold', 'voltage_on', 'release', 'at_rest')
+#: After the voltage is off, the release lasts until the measured current first falls
+#: below this share of the record's largest current; then the coil is at rest.
+_REST_SHARE = 0.02
+
+
+def _on_at(m: Measurement) -> np.ndarray:
+    """Whether the main PWM (records through the electronics) or the coil voltage is on in
+    each sample's interval (at its middle for interval means), shape (n,)."""
+    t = m.t_s
+    if m.drive is None:
+        v = m.voltage_v
+        return np.abs(v) > 0.05 * max(float(np.max(np.abs(v))), 1e-9)
+    if m.sampling == 'interval_mean':
+        t = t - 0.5 * np.diff(t, prepend=0.0)
+    d = m.drive
+    k = np.searchsorted(d.period_starts_s, t, side='right') - 1
+    kk = np.clip(k, 0, None)
+    return (k >= 0) & (t < d.high_until_s[kk])
+
+
+def drive_phase_masks(m: Measurement) -> dict[str, np.ndarray]:
+    """Boolean masks of the phases of the drive cycle of one record, from the record alone.
+
+    Through the drive electronics each high phase of the main PWM is split at the largest
+    measured current in it: ``peak_phase`` up to that sample (boost and stroke), ``hold``
+    after it (the chopper holds a lower current), whatever form the electronics have. A
+    bare coil's voltage on is ``voltage_on``. After the voltage goes off, ``release`` lasts
+    until the measured current first falls below 2 % of the record's largest, then
+    ``at_rest`` until the voltage is on again (also before it first is).
+    """
+    on = _on_at(m)
+    cur = np.where(np.isfinite(m.current_a), m.current_a, 0.0)
+    rest_a = _REST_SHARE * max(float(np.max(np.abs(cur))), 1e-12)
+    phase = np.full(m.t_s.size, 'at_rest', dtype=object)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], on.astype(np.int8), [0]))))
+    starts, stops = edges[::2], edges[1::2]
+    for j, (a, b) in enumerate(zip(starts, stops)):   # each run of the voltage on
+        if m.drive is None:
+            phase[a:b] = 'voltage_on'
+        else:
+            top = a + int(np.argmax(cur[a:b]))
+            phase[a:top + 1] = 'peak_phase'
+            phase[top + 1:b] = 'hold'
+        nxt = int(starts[j + 1]) if j + 1 < starts.size else m.t_s.size
+        quiet = np.flatnonzero(np.abs(cur[b:nxt]) < rest_a)
+        phase[b:b + int(quiet[0]) if quiet.size else nxt] = 'release'
+    return {p: phase == p for p in DRIVE_PHASES}
 
 
 def phase_masks(m: Measurement, position_m: np.ndarray, stroke_m: float
