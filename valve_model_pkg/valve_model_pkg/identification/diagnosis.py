@@ -532,7 +532,11 @@ def _judge_candidate(c: CandidateResult, ref: Reference, fit: FitData, val: FitD
         if not c.dbic_val < DBIC_THRESHOLD:
             reasons.append(f'validation dBIC {c.dbic_val:.1f} not below '
                            f'{DBIC_THRESHOLD:g}')
-        if not c.val_gain >= MIN_VALIDATION_GAIN:
+        if c.val_gain < 0.0:
+            base_cost = sum(ref.validation_errors.mae_per_file.values())
+            reasons.append(f'validation error rises ({1e3 * base_cost:.3g} -> '
+                           f'{1e3 * c.val_cost:.3g} mA mean absolute error)')
+        elif not c.val_gain >= MIN_VALIDATION_GAIN:
             reasons.append(f'validation error falls {100 * c.val_gain:.2f} %, less than '
                            f'{100 * MIN_VALIDATION_GAIN:g} %')
     if at_bound and space is not None:

@@ -403,7 +403,10 @@ def _judge_support(support: tuple[int, ...], ev: _Evaluated, names: list[str],
         why.append(f'fit dBIC {m.dbic_fit:.1f} not below {DBIC_THRESHOLD:g}')
     if not m.dbic_val < DBIC_THRESHOLD:
         why.append(f'validation dBIC {m.dbic_val:.1f} not below {DBIC_THRESHOLD:g}')
-    if not m.val_gain >= MIN_VALIDATION_GAIN:
+    if m.val_gain < 0.0:
+        why.append(f'validation error rises ({1e3 * sum(ref.mae_v.values()):.3g} -> '
+                   f'{1e3 * sum(m.val_mae.values()):.3g} mA mean absolute error)')
+    elif not m.val_gain >= MIN_VALIDATION_GAIN:
         why.append(f'validation error falls {100 * m.val_gain:.2f} %, less than '
                    f'{100 * MIN_VALIDATION_GAIN:g} %')
     m.passes = not why
