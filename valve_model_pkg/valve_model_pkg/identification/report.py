@@ -203,6 +203,14 @@ def _plot(ident: Identification, out: Path) -> list[str]:
     return names
 
 
+def _gain(pct: float | None) -> str:
+    """An error reduction [%] for the table; a rise beyond tenfold reads as such (against
+    a baseline error near zero the percentage means nothing)."""
+    if pct is not None and pct < -900.0:
+        return 'rises > 10x'
+    return _fmt(pct, 1, 3)
+
+
 def _fmt(v: float | None, scale: float = 1.0, digits: int = 4) -> str:
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return '-'
@@ -389,8 +397,8 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
         for c in d['candidates']:
             lines.append(
                 f'| {c["effect"]} | {_fmt(c["signature_correlation"], 1, 2)} | '
-                f'{_fmt(c["fit_error_reduction_pct"], 1, 3)} | '
-                f'{_fmt(c["validation_error_reduction_pct"], 1, 3)} | '
+                f'{_gain(c["fit_error_reduction_pct"])} | '
+                f'{_gain(c["validation_error_reduction_pct"])} | '
                 f'{_fmt(c["delta_bic_fit"], 1, 4)} | {_fmt(c["delta_bic_validation"], 1, 4)} | '
                 f'{_fmt(c["structure_explained_pct"], 1, 3)} | {c["kept"]} | {c["reason"]} |')
     lines += ['', '## Plots', '']
