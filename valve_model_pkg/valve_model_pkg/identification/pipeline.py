@@ -40,7 +40,7 @@ from .diagnosis import (
     score_signatures, second_effect, select, slow_effect,
 )
 from .drive import DriveReport, fit_drive
-from .measurement import Measurement, hold_out
+from .measurement import Measurement, hold_out, with_current_lsb
 from .problem import (
     ErrorFigures, FitData, ParameterSpace, baseline_space, effect_space, start_point,
     unit_objective,
@@ -296,7 +296,7 @@ def _read(records: Sequence[Record], settings: IdentifySettings) -> list[Measure
     out: list[Measurement] = []
     for r in records:
         if isinstance(r, Measurement):
-            out.append(r)
+            out.append(with_current_lsb(r))
         else:
             out += read_measurements([r], topic=settings.topic, valve=settings.valve,
                                      mapping=mapping)
@@ -693,7 +693,8 @@ def polish_baseline(prep: Prepared, rounds: ElectronicsRounds, settings: Identif
     through = prep.through_electronics
     u_best, drive = rounds.u, rounds.drive
     c_best = float(unit_objective(space, fit)(u_best[None, :])[0])
-    noise0 = float(np.nanmedian([noise_std(r) for r in fit.residuals(space.params(u_best))]))
+    noise0 = float(np.nanmedian([noise_std(r, m.current_lsb_a) for m, r in zip(
+        fit.measurements, fit.residuals(space.params(u_best)))]))
     others = [space.to_unit(prep.start)]
     if through:
         # The prior (packaged set or --params) is a start of the polish too: the refits
