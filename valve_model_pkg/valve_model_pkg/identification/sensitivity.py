@@ -404,8 +404,9 @@ def _quantisation_notes(data: FitData, noise: list[NoiseEstimate]) -> list[str]:
                 f'{m.name}: the current is quantised in steps of {1e3 * e.lsb_a:.3g} mA; the '
                 f'noise model sigma^2 = noise^2 + LSB^2/12 = ({1e3 * e.noise_a:.3g} mA)^2 + '
                 f'({1e3 * e.lsb_a / math.sqrt(12.0):.3g} mA)^2 gives sigma = '
-                f'{1e3 * e.std_a:.3g} mA, {100 * e.quantisation_share:.0f} % of its variance '
-                'quantisation; the intervals widen with it')
+                f'{1e3 * e.std_a:.3g} mA, at least {100 * e.quantisation_share:.0f} % of its '
+                'variance quantisation (the noise is what the differences of the residual '
+                'show, part of the rounding included); the intervals widen with it')
     return notes
 
 
