@@ -70,7 +70,9 @@ class NoiseEstimate:
 
     @property
     def quantisation_share(self) -> float:
-        """Share of the noise variance that is quantisation, ``LSB^2 / 12 / std^2`` [1]."""
+        """Share of the noise model's variance that is quantisation, ``LSB^2 / 12 / std^2``
+        [1]: a lower bound where the noise dithers the steps (``noise_a`` then holds part of
+        the rounding)."""
         if not (self.lsb_a > 0.0 and self.std_a > 0.0):
             return 0.0
         return min(1.0, self.lsb_a ** 2 / 12.0 / self.std_a ** 2)
