@@ -33,7 +33,8 @@ def _fake(monkeypatch, jump: bool):
     monkeypatch.setattr(sens_mod, 'current_jacobian', jacobian)
     space = SimpleNamespace(names=('coil_resistance_ohm', 'stroke_m'),
                             bounds=(_Bound(low=1.0, high=30.0), _Bound(low=1e-4, high=1e-3)))
-    data = SimpleNamespace(residuals=lambda params: [noise])
+    data = SimpleNamespace(residuals=lambda params: [noise],
+                           measurements=[SimpleNamespace(name='fake.csv', current_lsb_a=None)])
     return space, data
 
 

@@ -46,6 +46,10 @@ def test_an_8bit_rigol_step_imported_then_identified_is_none(tmp_path: Path) -> 
     rep = _report(out)
     assert rep['diagnosis']['effect'] == 'none'
     assert rep['augmented']['validation']['nrmse_pct'] < 3.0
+    # the importer's LSB reached the noise model, and the report says so
+    assert rep['baseline']['sensitivity']['current_lsb_a'] == {
+        'step.csv': pytest.approx(0.016, rel=0.02)}
+    assert rep['baseline']['sensitivity']['quantisation_share_of_noise_variance'] > 0.3
 
 
 def test_valve_identify_takes_a_tds_pair_directly(tmp_path: Path) -> None:

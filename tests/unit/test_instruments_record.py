@@ -14,6 +14,7 @@ import pytest
 from valve_model_pkg import dataformat
 from valve_model_pkg.cli.identify import main as valve_identify
 from valve_model_pkg.cli.import_record import main as valve_import
+from valve_model_pkg.instruments import infer_lsb
 from valve_model_pkg.instruments.record import find_step
 
 
@@ -35,6 +36,17 @@ def test_the_step_is_found_after_a_short_pre_trigger() -> None:
     assert step is not None and step.index == 40
     assert step.before_v == 0.0 and step.after_v == 24.0
     assert find_step(np.full(1000, 12.0) + 0.1 * np.sin(np.arange(1000))) is None
+
+
+def test_the_lsb_is_found_through_a_three_digit_print() -> None:
+    # 8-bit codes of 1.6 mV printed with three significant digits (as a Rigol does): above
+    # 0.1 V the print rounds to 1 mV, so adjacent levels print 1 or 2 mV apart and the
+    # largest value is off the grid by up to 0.3 steps
+    codes = np.random.default_rng(4).integers(0, 100, 20_000)
+    printed = np.array([float(f'{x:.2e}') for x in codes * 1.6e-3])
+    res = infer_lsb(printed)
+    assert res is not None and res.lsb == pytest.approx(1.6e-3, rel=0.01)
+    assert infer_lsb(np.random.default_rng(5).normal(0.5, 0.1, 20_000)) is None
 
 
 def test_auto_decimation_keeps_a_fast_rise(tmp_path: Path) -> None:

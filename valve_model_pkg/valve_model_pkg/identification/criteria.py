@@ -8,7 +8,8 @@ One home for the rule every augmentation is judged by, a listed effect's refit
   :data:`DBIC_THRESHOLD` (strong evidence), on the fit data and on the hold-out data;
 * with ``n_f`` the file's samples divided by the correlation time of the residual of the
   model under test (:func:`effective_counts`), and each MAE raised by a resolution floor
-  (:func:`resolution_floors`);
+  (:func:`resolution_floors`: a share of the current range, at least half the LSB of a
+  quantised current);
 * on the hold-out data a fall of the mean absolute error by at least
   :data:`MIN_VALIDATION_GAIN`.
 """
@@ -85,8 +86,8 @@ def effective_counts(data: FitData, params: ValveParameters) -> dict[str, float]
     return out
 
 
-def resolution_floors(data: FitData) -> dict[str, float]:
-    """Resolution floor of each file [A]: :data:`MAE_FLOOR_FRACTION` of its current range."""
+def _range_floors(data: FitData) -> dict[str, float]:
+    """:data:`MAE_FLOOR_FRACTION` of each file's current range [A]."""
     out = {}
     for m, v in zip(data.measurements, data.valid):
         c = m.current_a[v]
@@ -94,11 +95,25 @@ def resolution_floors(data: FitData) -> dict[str, float]:
     return out
 
 
+def resolution_floors(data: FitData) -> dict[str, float]:
+    """Resolution floor of each file [A]: :data:`MAE_FLOOR_FRACTION` of its current range,
+    at least half the quantisation step of a quantised current (``current_lsb_a``): the
+    instrument rounds every value by up to half a step, so two models closer than that are
+    equal to it, and a residual within it is its rounding (smooth, hence not white, where
+    the noise does not dither the steps), not structure."""
+    floors = _range_floors(data)
+    for m in data.measurements:
+        if m.current_lsb_a:
+            floors[m.name] = max(floors[m.name], 0.5 * m.current_lsb_a)
+    return floors
+
+
 def noise_per_file(data: FitData, params: ValveParameters) -> list[float]:
-    """Noise of each file, estimated once from the baseline residual [A], at least the
-    resolution floor (:func:`resolution_floors`)."""
-    floors = resolution_floors(data)
-    return [max(noise_std(r), floors[m.name])
+    """Noise of each file, estimated once from the baseline residual [A], the quantisation
+    of its current counted (:func:`.sensitivity.noise_estimate`), at least
+    :data:`MAE_FLOOR_FRACTION` of its current range."""
+    floors = _range_floors(data)
+    return [max(noise_std(r, m.current_lsb_a), floors[m.name])
             for m, r in zip(data.measurements, data.residuals(params))]
 
 

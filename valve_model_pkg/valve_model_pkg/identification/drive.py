@@ -181,7 +181,8 @@ def _intervals(data: FitData, params: ValveParameters, cfg: ElectronicsConfig,
     view = data.serial()
     view.electronics = cfg
     res_now = view.residuals(params)
-    sigma = noise_a if noise_a else float(np.nanmedian([noise_std(r) for r in res_now]))
+    sigma = noise_a if noise_a else float(np.nanmedian(
+        [noise_std(r, m.current_lsb_a) for m, r in zip(view.measurements, res_now)]))
     if not math.isfinite(sigma) or sigma <= 0:
         sigma = 1e-3
     fim = jac.T @ jac / sigma ** 2

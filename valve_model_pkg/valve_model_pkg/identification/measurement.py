@@ -12,6 +12,11 @@ dropped silently: a sample whose current is missing is kept as ``nan`` (and excl
 the error integrals), gaps in the time axis are counted, and every such finding is listed
 in :attr:`Measurement.notes`.
 
+A coarse instrument's current takes values on a grid (an 8-bit scope: 10-20 mA steps):
+:func:`with_current_lsb` sets :attr:`Measurement.current_lsb_a` from the record's header
+(``current_lsb_a``, which ``valve_import`` writes) or from the samples, and the noise model
+of the identification counts the quantisation (:func:`.sensitivity.noise_estimate`).
+
 Records with different sample rates are combined by keeping each on its own time base:
 the model is simulated at its own step and sampled at each record's sample times, and the
 error integrals are integrals over time, so a 1 kHz record and a 50 kHz one weigh by
@@ -30,11 +35,19 @@ from valve_model_pkg import dataformat
 
 from ..errors import MeasurementFormatError
 
-__all__ = ['DriveInput', 'MIN_SAMPLES', 'Measurement', 'check_excitation', 'check_time_axis',
-           'hold_out', 'mean_voltage_column', 'median_pressure', 'refused_bag']
+__all__ = ['DriveInput', 'MIN_SAMPLES', 'MIN_LSB_LEVELS', 'Measurement', 'check_excitation',
+           'check_time_axis', 'hold_out', 'mean_voltage_column', 'median_pressure', 'refused_bag',
+           'with_current_lsb']
 
 #: Fewest samples a record must have.
 MIN_SAMPLES = 10
+#: Fewest distinct current values from which a quantisation step is inferred: fewer leave
+#: the step unknown (two or three levels fit many grids).
+MIN_LSB_LEVELS = 8
+#: Most steps of an inferred grid over the record's current range: a finer grid is the
+#: print rounding of the file (beyond a 16-bit converter), not the instrument's, and its
+#: variance is negligible.
+_MAX_LSB_STEPS = 1 << 16
 #: A coil voltage at or below this everywhere counts as no excitation [V].
 MIN_EXCITATION_V = 1e-3
 #: A command is given this long before the period start it must be latched at [s] (the
@@ -242,6 +255,9 @@ class Measurement:
         How ``voltage_v`` drives the bare coil: ``sample`` (value ``k`` held from ``t[k]``
         to ``t[k+1]``) or ``interval_mean`` (value ``k`` is the mean over ``(t[k-1],
         t[k]]``, over ``[0, t[0]]`` for the first, and is held over that interval).
+    current_lsb_a : float or None
+        Quantisation step of the current [A] (:func:`with_current_lsb`): ``None`` not yet
+        examined, 0 no grid (or not one worth counting).
     """
 
     source: str
@@ -262,6 +278,7 @@ class Measurement:
     held_out_from_s: float | None = None
     coil_voltage_mean_v: np.ndarray | None = None
     voltage_hold: str = 'sample'
+    current_lsb_a: float | None = None
 
     @property
     def through_electronics(self) -> bool:
@@ -453,6 +470,66 @@ def hold_out(m: Measurement, fraction: float = 0.3, fit_window_s: float | None =
                                    f'{t[-1]:.3g} s (the last {100 * fraction:.0f} %), never '
                                    'seen by the fit',))
     return fit, val
+
+
+def _header_lsb(m: Measurement) -> float | None:
+    """The header's ``current_lsb_a`` [A]: None when absent, 0 when the importer found no
+    grid (``current_resolution``); refused when not a positive number."""
+    text = m.metadata.get('current_lsb_a')
+    if text is None:
+        return 0.0 if 'current_resolution' in m.metadata else None
+    try:
+        lsb = float(text)
+    except ValueError:
+        lsb = math.nan
+    if not (math.isfinite(lsb) and lsb > 0.0):
+        raise MeasurementFormatError(m.source, None, f'metadata current_lsb_a: {text!r} is '
+                                     'not a positive number of amperes')
+    return lsb
+
+
+def _inferred_lsb(m: Measurement) -> tuple[float, str]:
+    """The current's grid step [A] found in the samples (0: none), and a note."""
+    from ..instruments.capture import infer_lsb
+    cur = m.current_a[np.isfinite(m.current_a)]
+    levels = int(np.unique(cur).size)
+    if levels < MIN_LSB_LEVELS:
+        return 0.0, (f'the current takes only {levels} distinct values: too few to infer '
+                     'a quantisation step; none assumed (state current_lsb_a in the header)')
+    res = infer_lsb(cur)
+    if res is None or np.ptp(cur) > _MAX_LSB_STEPS * res.lsb:
+        return 0.0, ''
+    return res.lsb, (f'the current lies on a grid of {1e3 * res.lsb:.4g} mA ({res.levels_used} '
+                     'levels used): taken as its quantisation step')
+
+
+def with_current_lsb(m: Measurement) -> Measurement:
+    """``m`` with :attr:`~Measurement.current_lsb_a` set, and a note saying where from.
+
+    The header's ``current_lsb_a`` [A] when there is one (``valve_import`` writes it from
+    the raw samples, before any decimation, and ``current_resolution`` when it found no
+    grid); else the step of the grid the current's values lie on
+    (:func:`valve_model_pkg.instruments.infer_lsb`), when at least :data:`MIN_LSB_LEVELS`
+    distinct values show one. A record already examined is returned as it is.
+
+    Raises
+    ------
+    MeasurementFormatError
+        A header ``current_lsb_a`` that is not a positive number (names the file).
+    """
+    if m.current_lsb_a is not None:
+        return m
+    lsb = _header_lsb(m)
+    if lsb is None:
+        lsb, note = _inferred_lsb(m)
+    elif lsb > 0.0:
+        note = (f'the current is quantised in steps of {1e3 * lsb:.4g} mA (header '
+                'current_lsb_a)')
+    else:
+        note = ''
+    notes = m.notes + ((note + '; the noise model counts LSB^2/12',) if lsb > 0.0 else
+                       (note,) if note else ())
+    return replace(m, current_lsb_a=lsb, notes=notes)
 
 
 def refused_bag(source: str, err: BaseException) -> MeasurementFormatError:

@@ -42,7 +42,7 @@ from .diagnosis import (
 from .drive import DriveReport, fit_drive
 from .mean_voltage import (ROUTE_BARE_COIL, ROUTE_MEAN_VOLTAGE, Route, check_mean_voltage,
                            choose_route, through_drive_counterparts)
-from .measurement import Measurement, hold_out
+from .measurement import Measurement, hold_out, with_current_lsb
 from .problem import (
     ErrorFigures, FitData, ParameterSpace, baseline_space, effect_space, start_point,
     unit_objective,
@@ -299,7 +299,7 @@ def _read(records: Sequence[Record], settings: IdentifySettings) -> list[Measure
     out: list[Measurement] = []
     for r in records:
         if isinstance(r, Measurement):
-            out.append(r)
+            out.append(with_current_lsb(r))
         else:
             out += read_measurements([r], topic=settings.topic, valve=settings.valve,
                                      mapping=mapping)
@@ -716,7 +716,8 @@ def polish_baseline(prep: Prepared, rounds: ElectronicsRounds, settings: Identif
     through = prep.through_electronics
     u_best, drive = rounds.u, rounds.drive
     c_best = float(unit_objective(space, fit)(u_best[None, :])[0])
-    noise0 = float(np.nanmedian([noise_std(r) for r in fit.residuals(space.params(u_best))]))
+    noise0 = float(np.nanmedian([noise_std(r, m.current_lsb_a) for m, r in zip(
+        fit.measurements, fit.residuals(space.params(u_best)))]))
     others = [space.to_unit(prep.start)]
     if through:
         # The prior (packaged set or --params) is a start of the polish too: the refits

@@ -3,7 +3,8 @@
 :func:`read_measurements` is the one entry for a list of paths as a user gives them
 (``valve_identify --fit A B C``): a directory or a storage file (``.mcap``, ``.db3``, also
 ``.zstd``-compressed) is a rosbag2 bag (:func:`~.bag_reader.read_bag`), anything else a CSV
-record of the measured-data format (:func:`~.csv_reader.read_csv`).
+record of the measured-data format (:func:`~.csv_reader.read_csv`). Each record's current
+quantisation step is set (:func:`~.measurement.with_current_lsb`).
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from valve_model_pkg.interface import TOPIC_STATE
 
 from .bag_reader import read_bag
 from .csv_reader import read_csv
-from .measurement import Measurement
+from .measurement import Measurement, with_current_lsb
 from .topic_map import FieldSpecOrValue
 
 __all__ = ['BAG_FILE_SUFFIXES', 'read_measurements']
@@ -40,7 +41,7 @@ def read_measurements(paths: Iterable[str | Path], *, topic: str = '/' + TOPIC_S
     Returns
     -------
     list of Measurement
-        In the order given.
+        In the order given, with ``current_lsb_a`` set.
 
     Raises
     ------
@@ -53,7 +54,8 @@ def read_measurements(paths: Iterable[str | Path], *, topic: str = '/' + TOPIC_S
         if path.name.endswith(BAG_FILE_SUFFIXES) and (path.parent / 'metadata.yaml').is_file():
             path = path.parent  # a file of a complete bag: the whole bag, named by its dir
         if path.is_dir() or path.name.endswith(BAG_FILE_SUFFIXES):
-            out.append(read_bag(path, topic=topic, valve=valve, mapping=mapping))
+            m = read_bag(path, topic=topic, valve=valve, mapping=mapping)
         else:
-            out.append(read_csv(path))
+            m = read_csv(path)
+        out.append(with_current_lsb(m))
     return out

@@ -13,7 +13,8 @@ The residual is measured minus simulated current. It is studied per file:
 * **Shape**: the dominant frequency, the share of energy below 1 kHz, the largest
   excursion and when it happens.
 * **Structure**: the residual's energy beyond the noise, ``mean(r^2) - sigma^2``, with the
-  noise ``sigma`` from first differences (:func:`sensitivity.noise_std`).
+  noise ``sigma`` from first differences, the quantisation of a coarse instrument counted
+  (:func:`sensitivity.noise_estimate`: ``sigma^2 = noise^2 + LSB^2 / 12``).
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ import numpy as np
 from scipy import stats
 
 from .measurement import Measurement
-from .sensitivity import noise_std
+from .sensitivity import noise_estimate
 
 __all__ = ['DRIVE_PHASES', 'PHASES', 'ResidualReport', 'FileResidual', 'analyse_residuals',
            'drive_phase_masks', 'phase_masks', 'ljung_box']
@@ -162,6 +163,8 @@ class FileResidual:
     peak_a: float
     peak_time_s: float
     phases: dict[str, dict[str, float]]
+    current_lsb_a: float = 0.0
+    quantisation_share: float = 0.0
 
     def to_json(self) -> dict[str, object]:
         return dict(self.__dict__)
@@ -213,7 +216,8 @@ def analyse_file(m: Measurement, residual: np.ndarray, position_m: np.ndarray,
     """Residual analysis of one file (see module notes)."""
     ok = np.isfinite(residual)
     r = residual
-    sigma = noise_std(r)
+    noise = noise_estimate(r, m.current_lsb_a)
+    sigma = noise.std_a
     ms = float(np.mean(r[ok] ** 2))
     struct = math.sqrt(max(ms - sigma ** 2, 0.0))
     q, p, rho1 = ljung_box(r)
@@ -240,7 +244,8 @@ def analyse_file(m: Measurement, residual: np.ndarray, position_m: np.ndarray,
         ljung_box_q=q, ljung_box_p=p, lag1_autocorrelation=rho1,
         white=bool(p > 0.01) if math.isfinite(p) else False,
         dominant_frequency_hz=f_dom, low_frequency_share=low,
-        peak_a=float(r[k_peak]), peak_time_s=float(m.t_s[k_peak]), phases=phases)
+        peak_a=float(r[k_peak]), peak_time_s=float(m.t_s[k_peak]), phases=phases,
+        current_lsb_a=noise.lsb_a, quantisation_share=noise.quantisation_share)
 
 
 def analyse_residuals(measurements: list[Measurement], residuals: list[np.ndarray],
@@ -284,7 +289,9 @@ def analyse_residuals(measurements: list[Measurement], residuals: list[np.ndarra
     for f in files:
         summary.append(
             f'{f.name}: RMS {f.rms_a * 1e3:.2f} mA against noise {f.noise_std_a * 1e3:.2f} mA '
-            f'(structured part {f.structured_rms_a * 1e3:.2f} mA); Ljung-Box p = '
+            + (f'({100 * f.quantisation_share:.0f} % of its variance the quantisation of '
+               f'{f.current_lsb_a * 1e3:.3g} mA steps) ' if f.current_lsb_a > 0.0 else '')
+            + f'(structured part {f.structured_rms_a * 1e3:.2f} mA); Ljung-Box p = '
             f'{f.ljung_box_p:.3g} -> {"white" if f.white else "not white"}; largest '
             f'{f.peak_a * 1e3:+.1f} mA at {f.peak_time_s * 1e3:.2f} ms; dominant frequency '
             f'{f.dominant_frequency_hz:.0f} Hz')

@@ -346,9 +346,12 @@ class Resolution:
 def infer_lsb(values: np.ndarray) -> Resolution | None:
     """The quantisation step of a channel's samples, if they lie on a grid.
 
-    The median step between adjacent distinct values is refined to the span divided by a
-    whole number of steps; the samples count as quantised when at least 90 % of the
-    distinct values lie within 0.3 steps of that grid (print rounding of the file included).
+    A candidate step (the median step between adjacent distinct values) numbers each
+    distinct value by its whole count of steps from the smallest; the step and the grid's
+    offset are then the least-squares line through (count, value), so that the print
+    rounding of the extremes does not bend the grid. The samples count as quantised when
+    at least 90 % of the distinct values lie within 0.3 steps of that grid (print rounding
+    of the file included).
 
     Parameters
     ----------
@@ -373,12 +376,15 @@ def infer_lsb(values: np.ndarray) -> Resolution | None:
     levels = round(span / step)
     if levels < 2 or levels > 1 << 24:
         return None
-    lsb = span / levels
-    r = (u - u[0]) / lsb
+    counts = np.round((u - u[0]) / step)
+    lsb, offset = np.polyfit(counts, u, 1)
+    if not lsb > 0.0:
+        return None
+    r = (u - offset) / lsb
     on_grid = np.abs(r - np.round(r)) < 0.3
     if float(np.mean(on_grid)) < _GRID_SHARE:
         return None
-    return Resolution(lsb=lsb, levels_used=int(u.size))
+    return Resolution(lsb=float(lsb), levels_used=int(u.size))
 
 
 def parse_number(path: str, line: int | None, text: str, what: str) -> float:
