@@ -181,7 +181,8 @@ def test_the_held_input_has_the_measured_integral_over_every_interval() -> None:
 @pytest.mark.parametrize('effect', ['none', 'eddy_current'])
 def test_an_unknown_drive_is_fitted_to_the_noise_around_it(
         tmp_path_factory: pytest.TempPathFactory, tmp_path: Path, effect: str) -> None:
-    """A form the suite has no model of (dip and rise, PI fast decay, peak-charged capacitor), 3 mA noise:
+    """A form the suite has no model of (dip and rise, PI fast decay, peak-charged
+    capacitor), 3 mA noise:
     through the suite's electronics model the baseline misses the validation record by
     25 mA RMS without an effect and eddy current goes unnamed
     (benchmarks/results/ident_electronics_before.md); through the mean coil voltage the
