@@ -20,9 +20,11 @@ and the data choose one, as they choose an effect:
 4. **Choice** (:func:`choose_form`): the :data:`FINALISTS` best forms on the whole fit
    window and the hold-out data: ``dBIC`` (:func:`.criteria.delta_bic`, each form's
    constants counted as its parameters) on the fit data against the best there; among
-   the forms not strongly worse there (``dBIC`` below ``-DBIC_THRESHOLD``), the lowest
-   hold-out error is chosen. A form whose hold-out ``dBIC`` against the chosen one is not
-   strongly positive (above ``-DBIC_THRESHOLD``) and whose hold-out error is within
+   the forms not strongly worse there (``dBIC`` below ``-DBIC_THRESHOLD``) and, where any
+   has none, without a constant at its search bound (a sign of misfit: a capacitor at 60 V
+   standing in for a Zener clamp), the lowest hold-out error is chosen. A form whose
+   hold-out ``dBIC`` against the chosen one is below ``-DBIC_THRESHOLD`` (no strong
+   evidence against it) and whose hold-out error is within
    :data:`~.criteria.MIN_VALIDATION_GAIN` of it cannot be told apart from it by these
    data: the report says so and names it.
 
@@ -43,7 +45,8 @@ from ..model import ElectronicsConfig
 from ..model.parameters import ValveParameters
 from .criteria import DBIC_THRESHOLD, MIN_VALIDATION_GAIN, delta_bic, effective_counts
 from .criteria import resolution_floors
-from .drive import form_constants, search_constants
+from .drive import AT_BOUND_FRACTION, DRIVE_BOUNDS, form_constants, search_constants
+from .problem import ParameterBound
 from .problem import FitData, ParameterSpace, unit_objective
 from .search import SearchSettings, direct_search
 
@@ -134,12 +137,22 @@ class FormFit:
     def n_constants(self) -> int:
         return len(form_constants(self.electronics))
 
+    @property
+    def at_bound(self) -> list[str]:
+        """The form's constants at a search bound (a sign of misfit)."""
+        out = []
+        for n in form_constants(self.electronics):
+            u = ParameterBound(n, *DRIVE_BOUNDS[n]).to_unit(getattr(self.electronics, n))
+            if u <= AT_BOUND_FRACTION or u >= 1.0 - AT_BOUND_FRACTION:
+                out.append(n)
+        return out
+
     def to_json(self) -> dict[str, object]:
         return {'form': self.name, 'constants': {n: getattr(self.electronics, n)
                                                  for n in form_constants(self.electronics)},
                 'search_cost_a': self.search_cost, 'fit_rmse_a': self.fit_rmse_a,
                 'validation_rmse_a': self.val_rmse_a, 'delta_bic_fit': self.dbic_fit,
-                'delta_bic_validation': self.dbic_val}
+                'delta_bic_validation': self.dbic_val, 'at_search_bound': self.at_bound}
 
 
 @dataclass
@@ -318,6 +331,7 @@ def choose_form(forms: list[FormFit], fit: FitData, val: FitData | None, workers
     for f in finalists:
         f.dbic_fit = _dbic(fit, best_fit, f, best_fit.fit_mae, f.fit_mae)
     eligible = [f for f in finalists if f.dbic_fit < -DBIC_THRESHOLD] or [best_fit]
+    eligible = [f for f in eligible if not f.at_bound] or eligible
     if val is not None:
         chosen = min(eligible, key=lambda f: sum(f.val_mae.values()))
     else:
