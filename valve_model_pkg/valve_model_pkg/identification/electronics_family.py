@@ -16,15 +16,17 @@ and the data choose one, as they choose an effect:
    valve held (:func:`.drive.search_constants`); cost on the search window.
 3. **Complete forms** (:func:`fit_forms`): the :data:`KEEP_PER_PART` best options of each
    part combined, each form's constants searched with the valve held; the
-   :data:`FINALISTS` best then search the valve locally and their constants again.
-4. **Choice** (:func:`choose_form`): the :data:`FINALISTS` best forms on the whole fit
-   window and the hold-out data: ``dBIC`` (:func:`.criteria.delta_bic`, each form's
-   constants counted as its parameters) on the fit data against the best there; among
-   the forms not strongly worse there (``dBIC`` below ``-DBIC_THRESHOLD``) and, where any
-   has none, without a constant at its search bound (a sign of misfit: a capacitor at 60 V
-   standing in for a Zener clamp), the lowest hold-out error is chosen. A form whose
-   hold-out ``dBIC`` against the chosen one is below ``-DBIC_THRESHOLD`` (no strong
-   evidence against it) and whose hold-out error is within
+   :data:`FINALISTS` best, and the prior form (the paper's driver) always, then search the
+   valve locally and their constants again.
+4. **Choice** (:func:`choose_form`), as an effect is selected against the baseline: the
+   prior form stays unless another finalist beats it on the whole fit window by
+   ``dBIC`` below ``DBIC_THRESHOLD`` (:func:`.criteria.delta_bic`, each form's constants
+   counted as its parameters) and on the hold-out data by a fall of the mean absolute
+   error of at least :data:`~.criteria.MIN_VALIDATION_GAIN`; among those that do, the ones
+   without a constant at its search bound (a sign of misfit: a capacitor at 60 V standing
+   in for a Zener clamp) go first, and the lowest hold-out error is chosen. A finalist
+   whose ``dBIC`` against the chosen one is below ``-DBIC_THRESHOLD`` (no strong evidence
+   against it) on the hold-out data and whose hold-out error is within
    :data:`~.criteria.MIN_VALIDATION_GAIN` of it cannot be told apart from it by these
    data: the report says so and names it.
 
@@ -117,6 +119,10 @@ class FormFit:
         RMSE on the fit and hold-out data [A] (finalists only).
     dbic_fit, dbic_val : float
         dBIC against the chosen form (finalists only).
+    refined : bool
+        A finalist: the valve searched through it too.
+    prior : bool
+        The prior form (the paper's driver), which the others must beat.
     """
 
     electronics: ElectronicsConfig
@@ -128,6 +134,8 @@ class FormFit:
     val_rmse_a: float = math.nan
     dbic_fit: float = math.nan
     dbic_val: float = math.nan
+    refined: bool = False
+    prior: bool = False
 
     @property
     def name(self) -> str:
@@ -152,7 +160,8 @@ class FormFit:
                                                  for n in form_constants(self.electronics)},
                 'search_cost_a': self.search_cost, 'fit_rmse_a': self.fit_rmse_a,
                 'validation_rmse_a': self.val_rmse_a, 'delta_bic_fit': self.dbic_fit,
-                'delta_bic_validation': self.dbic_val, 'at_search_bound': self.at_bound}
+                'delta_bic_validation': self.dbic_val, 'at_search_bound': self.at_bound,
+                'prior': self.prior}
 
 
 @dataclass
@@ -280,16 +289,24 @@ def _refine_form(data: FitData, space: ParameterSpace, f: FormFit) -> FormFit:
     drive = search_constants(_view(data, f.electronics), params, f.electronics,
                              FORM_EFFORT // 2)
     if drive.cost < cost:
-        return FormFit(drive.electronics, params, float(drive.cost))
-    return FormFit(f.electronics, params, cost)
+        return FormFit(drive.electronics, params, float(drive.cost), refined=True,
+                       prior=f.prior)
+    return FormFit(f.electronics, params, cost, refined=True, prior=f.prior)
+
+
+def _same_form(a: ElectronicsConfig, b: ElectronicsConfig) -> bool:
+    return all(getattr(a, k) == getattr(b, k) for k in ('peak_end', 'hold', 'hold_decay',
+                                                        'release'))
 
 
 def fit_forms(data: FitData, space: ParameterSpace, params: ValveParameters,
               screen: dict[str, list[tuple[dict[str, str], float]]],
-              base: ElectronicsConfig, workers: int) -> list[FormFit]:
+              base: ElectronicsConfig, prior: ElectronicsConfig, workers: int
+              ) -> list[FormFit]:
     """The complete forms of the :data:`KEEP_PER_PART` best options of each part, their
-    constants searched with the valve at ``params``; the :data:`FINALISTS` best refined
-    (:func:`_refine_form`). Finalists first (by their cost), then the others."""
+    constants searched with the valve at ``params``; the :data:`FINALISTS` best and the
+    ``prior`` form refined (:func:`_refine_form`). Finalists first (by their cost), then
+    the others."""
     kept = [[o for o, _ in screen[p][:KEEP_PER_PART]] for p in PARTS]
     cfgs = []
     for combo in itertools.product(*kept):
@@ -297,10 +314,16 @@ def fit_forms(data: FitData, space: ParameterSpace, params: ValveParameters,
         for c in combo:
             changes.update(c)
         cfgs.append(base.replace(**changes))
+    if not any(_same_form(c, prior) for c in cfgs):
+        cfgs.append(base.replace(**{k: getattr(prior, k) for k in (
+            'peak_end', 'hold', 'hold_decay', 'release')}))
     fits = sorted(_pool_map(lambda c: _constants_only(data, params, c), cfgs, workers),
                   key=lambda f: f.search_cost)
-    top = _pool_map(lambda f: _refine_form(data, space, f), fits[:FINALISTS], workers)
-    return sorted(top, key=lambda f: f.search_cost) + fits[FINALISTS:]
+    for f in fits:
+        f.prior = _same_form(f.electronics, prior)
+    chosen = fits[:FINALISTS] + [f for f in fits[FINALISTS:] if f.prior]
+    top = _pool_map(lambda f: _refine_form(data, space, f), chosen, workers)
+    return sorted(top, key=lambda f: f.search_cost) + [f for f in fits if f not in chosen]
 
 
 def _judge(f: FormFit, fit: FitData, val: FitData | None) -> None:
@@ -321,41 +344,53 @@ def _dbic(data: FitData, ref: FormFit, other: FormFit, ref_mae: dict[str, float]
                      resolution_floors(data))
 
 
+def _val_gain(ref: FormFit, f: FormFit) -> float:
+    """Relative fall of the hold-out mean absolute error from ``ref`` to ``f``."""
+    return 1.0 - sum(f.val_mae.values()) / max(sum(ref.val_mae.values()), 1e-30)
+
+
+def _beats(fit: FitData, val: FitData | None, ref: FormFit, f: FormFit) -> bool:
+    """``f`` is strongly better than ``ref``: fit dBIC and hold-out error (module notes)."""
+    if _dbic(fit, ref, f, ref.fit_mae, f.fit_mae) >= DBIC_THRESHOLD:
+        return False
+    return val is None or _val_gain(ref, f) >= MIN_VALIDATION_GAIN
+
+
+def _cannot_tell(fit: FitData, val: FitData | None, chosen: FormFit, f: FormFit) -> bool:
+    """The data hold no strong evidence between ``f`` and ``chosen`` (module notes)."""
+    f.dbic_fit = _dbic(fit, chosen, f, chosen.fit_mae, f.fit_mae)
+    if val is None:
+        return f is not chosen and f.dbic_fit < -DBIC_THRESHOLD
+    f.dbic_val = _dbic(val, chosen, f, chosen.val_mae, f.val_mae)
+    return (f is not chosen and f.dbic_val < -DBIC_THRESHOLD
+            and _val_gain(f, chosen) < MIN_VALIDATION_GAIN)
+
+
 def choose_form(forms: list[FormFit], fit: FitData, val: FitData | None, workers: int
                 ) -> tuple[FormFit, list[str], str]:
-    """The chosen form among the :data:`FINALISTS` best, the forms the data cannot tell
-    from it, and the choice in words (module notes, step 3)."""
-    finalists = forms[:FINALISTS]
+    """The chosen form among the finalists, the forms the data cannot tell from it, and
+    the choice in words (module notes, step 4)."""
+    finalists = [f for f in forms if f.refined]
     _pool_map(lambda f: _judge(f, fit, val), finalists, workers)
-    best_fit = min(finalists, key=lambda f: sum(f.fit_mae.values()))
-    for f in finalists:
-        f.dbic_fit = _dbic(fit, best_fit, f, best_fit.fit_mae, f.fit_mae)
-    eligible = [f for f in finalists if f.dbic_fit < -DBIC_THRESHOLD] or [best_fit]
-    eligible = [f for f in eligible if not f.at_bound] or eligible
-    if val is not None:
-        chosen = min(eligible, key=lambda f: sum(f.val_mae.values()))
-    else:
-        chosen = min(eligible, key=lambda f: f.dbic_fit)
-    same = []
-    for f in finalists:
-        f.dbic_fit = _dbic(fit, chosen, f, chosen.fit_mae, f.fit_mae)
-        if val is not None:
-            f.dbic_val = _dbic(val, chosen, f, chosen.val_mae, f.val_mae)
-        if f is chosen:
-            continue
-        if val is not None:
-            gain = 1.0 - sum(chosen.val_mae.values()) / max(sum(f.val_mae.values()), 1e-30)
-            close = f.dbic_val < -DBIC_THRESHOLD and gain < MIN_VALIDATION_GAIN
-        else:
-            close = f.dbic_fit < -DBIC_THRESHOLD
-        if close:
-            same.append(f.name)
+    ref = next((f for f in finalists if f.prior),
+               min(finalists, key=lambda f: sum(f.fit_mae.values())))
+    better = [f for f in finalists if f is not ref and _beats(fit, val, ref, f)]
+    pool = [f for f in better if not f.at_bound] or better
     where = 'hold-out' if val is not None else 'fit'
+    if pool:
+        chosen = min(pool, key=lambda f: sum((f.val_mae if val is not None
+                                              else f.fit_mae).values()))
+    else:
+        chosen = ref
+    same = [f.name for f in finalists if _cannot_tell(fit, val, chosen, f)]
+    err = chosen.val_rmse_a if val is not None else chosen.fit_rmse_a
     text = (f'drive electronics chosen by the data: {chosen.name}; constants '
-            f'{describe_constants(chosen.electronics)} ({where} RMSE '
-            f'{1e3 * (chosen.val_rmse_a if val is not None else chosen.fit_rmse_a):.3g} mA; '
+            f'{describe_constants(chosen.electronics)} ({where} RMSE {1e3 * err:.3g} mA; '
             f'{len(forms)} complete forms fitted, {len(finalists)} compared on the fit and '
-            f'{where} data)')
+            f'{where} data')
+    text += (')' if pool else '; no form beat the prior one (the paper\'s driver) by dBIC '
+             f'below {DBIC_THRESHOLD:g} on the fit data and '
+             f'{100 * MIN_VALIDATION_GAIN:g} % less {where} error: it is kept)')
     if same:
         text += ('; the data cannot tell it from: ' + '; '.join(same)
                  + f' (|dBIC| below {-DBIC_THRESHOLD:g} and {where} error within '
@@ -381,11 +416,12 @@ def select_family(search: FitData, fit: FitData, val: FitData | None, space: Par
     workers : int
         Python threads (one form or option per thread).
     base : ElectronicsConfig
-        The other parts' forms during the screen and the constants not searched.
+        The prior form (the paper's driver), which another form must beat; the other
+        parts' forms during the screen.
     """
     start = valve_under(search, space, starts, base, workers)
     screen = screen_parts(search, start.params, start.base, workers)
-    forms = fit_forms(search, space, start.params, screen, start.base, workers)
+    forms = fit_forms(search, space, start.params, screen, start.base, base, workers)
     chosen, same, text = choose_form(forms, fit, val, workers)
     words = {p: [(_option_words(p, o), c) for o, c in v] for p, v in screen.items()}
     return FamilyChoice(chosen, words, forms, same, text)
