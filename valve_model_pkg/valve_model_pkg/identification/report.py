@@ -159,7 +159,10 @@ def _electronics_section(form: dict | None) -> list[str]:
         lines += [fam['statement'] + '.', '', '| form | search MAE [mA] | fit RMSE [mA] | '
                   'hold-out RMSE [mA] | dBIC fit | dBIC hold-out |', '|---|---|---|---|---|---|']
         for f in fam['forms']:
-            lines.append(f'| {f["form"]} | {_fmt(f["search_cost_a"], 1e3)} | '
+            name = f['form'] + (' (prior)' if f.get('prior') else '') + (
+                ' (at bound: ' + ', '.join(f['at_search_bound']) + ')'
+                if f.get('at_search_bound') else '')
+            lines.append(f'| {name} | {_fmt(f["search_cost_a"], 1e3)} | '
                          f'{_fmt(f["fit_rmse_a"], 1e3)} | {_fmt(f["validation_rmse_a"], 1e3)} | '
                          f'{_fmt(f["delta_bic_fit"], 1, 3)} | '
                          f'{_fmt(f["delta_bic_validation"], 1, 3)} |')
