@@ -28,7 +28,8 @@ and the data choose one, as they choose an effect:
    whose ``dBIC`` against the chosen one is below ``-DBIC_THRESHOLD`` (no strong evidence
    against it) on the hold-out data and whose hold-out error is within
    :data:`~.criteria.MIN_VALIDATION_GAIN` of it cannot be told apart from it by these
-   data: the report says so and names it.
+   data: the report says so and names it; when such a form has fewer constants (a Zener
+   clamp against a capacitor pulse), it is chosen instead.
 
 The valve parameters of the forms are local searches: enough to rank forms whose misfit is
 milliamperes to tens of milliamperes; the pipeline's baseline search (global stage,
@@ -382,7 +383,12 @@ def choose_form(forms: list[FormFit], fit: FitData, val: FitData | None, workers
                                               else f.fit_mae).values()))
     else:
         chosen = ref
-    same = [f.name for f in finalists if _cannot_tell(fit, val, chosen, f)]
+    same = [f for f in finalists if _cannot_tell(fit, val, chosen, f)]
+    simpler = [f for f in same if f.n_constants < chosen.n_constants and not f.at_bound]
+    if simpler:
+        # the data cannot tell them apart: the form with fewer constants
+        chosen = min(simpler, key=lambda f: (f.n_constants, sum(f.fit_mae.values())))
+        same = [f for f in finalists if _cannot_tell(fit, val, chosen, f)]
     err = chosen.val_rmse_a if val is not None else chosen.fit_rmse_a
     text = (f'drive electronics chosen by the data: {chosen.name}; constants '
             f'{describe_constants(chosen.electronics)} ({where} RMSE {1e3 * err:.3g} mA; '
@@ -392,10 +398,10 @@ def choose_form(forms: list[FormFit], fit: FitData, val: FitData | None, workers
              f'below {DBIC_THRESHOLD:g} on the fit data and '
              f'{100 * MIN_VALIDATION_GAIN:g} % less {where} error: it is kept)')
     if same:
-        text += ('; the data cannot tell it from: ' + '; '.join(same)
+        text += ('; the data cannot tell it from: ' + '; '.join(f.name for f in same)
                  + f' (|dBIC| below {-DBIC_THRESHOLD:g} and {where} error within '
                  f'{100 * MIN_VALIDATION_GAIN:g} %)')
-    return chosen, same, text
+    return chosen, [f.name for f in same], text
 
 
 def select_family(search: FitData, fit: FitData, val: FitData | None, space: ParameterSpace,
