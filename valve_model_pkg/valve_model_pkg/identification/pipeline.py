@@ -8,6 +8,10 @@ result:
    paths), the known parameters with every effect switched off;
 2. :func:`prepare_data` (:class:`Prepared`): the PWM period grids placed, hold-out and
    windows, the fit, validation and search data, the parameter space;
+   :func:`settle_electronics` (:class:`ElectronicsSettled`): the drive electronics' form
+   of records through the electronics, given (``--electronics``) or chosen by the data
+   (:mod:`.electronics_family`; chosen again by :func:`reselect_electronics` after the
+   baseline search);
 3. :func:`search_baseline` (:class:`~.search.SearchResult`): the direct search of the
    baseline parameters;
 4. :func:`alternate_electronics` (:class:`ElectronicsRounds`): the drive electronics and
@@ -566,9 +570,14 @@ def settle_electronics(inputs: Inputs, prep: Prepared, settings: IdentifySetting
     """The drive electronics' form: the user's (:attr:`IdentifySettings.electronics`), the
     data's choice (:mod:`.electronics_family`), or the paper's driver's; the data prepared
     again through a chosen form (its PWM grids placed through it)."""
-    if not prep.through_electronics:
-        return ElectronicsSettled(prep, None, '')
     given = settings.electronics
+    if not prep.through_electronics:
+        if given is not None:
+            note = ('--electronics given, but no record runs through the drive electronics '
+                    '(step records, or pwm records with their coil voltage): not used')
+            say(note)
+            prep.notes.append(note)
+        return ElectronicsSettled(prep, None, '')
     if given is not None:
         prep.electronics_fixed = settings.electronics_fixed
         how = ('constants as given' if settings.electronics_fixed else
