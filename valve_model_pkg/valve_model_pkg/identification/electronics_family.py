@@ -28,8 +28,10 @@ and the data choose one, as they choose an effect:
    whose ``dBIC`` against the chosen one is below ``-DBIC_THRESHOLD`` (no strong evidence
    against it) on the hold-out data and whose hold-out error is within
    :data:`~.criteria.MIN_VALIDATION_GAIN` of it cannot be told apart from it by these
-   data: the report says so and names it; when such a form has fewer constants (a Zener
-   clamp against a capacitor pulse), it is chosen instead.
+   data: the report says so and names it; when such a form has no constant at a bound
+   where the chosen one has (a capacitor at 1 V standing in for a freewheel diode), or as
+   few and fewer constants (a Zener clamp against a capacitor pulse), it is chosen
+   instead.
 
 The valve parameters of the forms are local searches: enough to rank forms whose misfit is
 milliamperes to tens of milliamperes; the pipeline's baseline search (global stage,
@@ -367,6 +369,12 @@ def _cannot_tell(fit: FitData, val: FitData | None, chosen: FormFit, f: FormFit)
             and _val_gain(f, chosen) < MIN_VALIDATION_GAIN)
 
 
+def _plainness(f: FormFit) -> tuple[bool, int]:
+    """Order of preference among forms the data cannot tell apart: none of its constants
+    at a bound (a capacitor at 1 V standing in for a diode), then fewer constants."""
+    return bool(f.at_bound), f.n_constants
+
+
 def choose_form(forms: list[FormFit], fit: FitData, val: FitData | None, workers: int
                 ) -> tuple[FormFit, list[str], str]:
     """The chosen form among the finalists, the forms the data cannot tell from it, and
@@ -384,10 +392,10 @@ def choose_form(forms: list[FormFit], fit: FitData, val: FitData | None, workers
     else:
         chosen = ref
     same = [f for f in finalists if _cannot_tell(fit, val, chosen, f)]
-    simpler = [f for f in same if f.n_constants < chosen.n_constants and not f.at_bound]
-    if simpler:
-        # the data cannot tell them apart: the form with fewer constants
-        chosen = min(simpler, key=lambda f: (f.n_constants, sum(f.fit_mae.values())))
+    plainer = [f for f in same if _plainness(f) < _plainness(chosen)]
+    if plainer:
+        # the data cannot tell them apart: no constant at a bound, then fewer constants
+        chosen = min(plainer, key=lambda f: (_plainness(f), sum(f.fit_mae.values())))
         same = [f for f in finalists if _cannot_tell(fit, val, chosen, f)]
     err = chosen.val_rmse_a if val is not None else chosen.fit_rmse_a
     text = (f'drive electronics chosen by the data: {chosen.name}; constants '
