@@ -25,8 +25,8 @@ and the data choose one, as they choose an effect:
    error of at least :data:`~.criteria.MIN_VALIDATION_GAIN`; among those that do, the ones
    without a constant at its search bound (a sign of misfit: a capacitor at 60 V standing
    in for a Zener clamp) go first, and the lowest hold-out error is chosen. A finalist
-   whose ``dBIC`` against the chosen one is below ``-DBIC_THRESHOLD`` (no strong evidence
-   against it) on the hold-out data and whose hold-out error is within
+   whose hold-out ``|dBIC|`` against the chosen one is below ``-DBIC_THRESHOLD`` (no strong
+   evidence either way) and whose hold-out error is within
    :data:`~.criteria.MIN_VALIDATION_GAIN` of it cannot be told apart from it by these
    data: the report says so and names it; when such a form has no constant at a bound
    where the chosen one has (a capacitor at 1 V standing in for a freewheel diode), or as
@@ -363,10 +363,10 @@ def _cannot_tell(fit: FitData, val: FitData | None, chosen: FormFit, f: FormFit)
     """The data hold no strong evidence between ``f`` and ``chosen`` (module notes)."""
     f.dbic_fit = _dbic(fit, chosen, f, chosen.fit_mae, f.fit_mae)
     if val is None:
-        return f is not chosen and f.dbic_fit < -DBIC_THRESHOLD
+        return f is not chosen and abs(f.dbic_fit) < -DBIC_THRESHOLD
     f.dbic_val = _dbic(val, chosen, f, chosen.val_mae, f.val_mae)
-    return (f is not chosen and f.dbic_val < -DBIC_THRESHOLD
-            and _val_gain(f, chosen) < MIN_VALIDATION_GAIN)
+    return (f is not chosen and abs(f.dbic_val) < -DBIC_THRESHOLD
+            and abs(_val_gain(f, chosen)) < MIN_VALIDATION_GAIN)
 
 
 def _plainness(f: FormFit) -> tuple[bool, int]:
