@@ -16,8 +16,8 @@ and the data choose one, as they choose an effect:
    valve held (:func:`.drive.search_constants`); cost on the search window.
 3. **Complete forms** (:func:`fit_forms`): the :data:`KEEP_PER_PART` best options of each
    part combined, each form's constants searched with the valve held; the
-   :data:`FINALISTS` best, and the prior form (the paper's driver) always, then search the
-   valve locally and their constants again.
+   :data:`FINALISTS` best, the best form with each kept option, and the prior form (the
+   paper's driver) always, then search the valve locally and their constants again.
 4. **Choice** (:func:`choose_form`), as an effect is selected against the baseline: the
    prior form stays unless another finalist beats it on the whole fit window by
    ``dBIC`` below ``DBIC_THRESHOLD`` (:func:`.criteria.delta_bic`, each form's constants
@@ -307,9 +307,10 @@ def fit_forms(data: FitData, space: ParameterSpace, params: ValveParameters,
               base: ElectronicsConfig, prior: ElectronicsConfig, workers: int
               ) -> list[FormFit]:
     """The complete forms of the :data:`KEEP_PER_PART` best options of each part, their
-    constants searched with the valve at ``params``; the :data:`FINALISTS` best and the
-    ``prior`` form refined (:func:`_refine_form`). Finalists first (by their cost), then
-    the others."""
+    constants searched with the valve at ``params``; the :data:`FINALISTS` best, the best
+    form with each kept option (so that two releases, say, are compared with the valve
+    refitted through each) and the ``prior`` form refined (:func:`_refine_form`).
+    Finalists first (by their cost), then the others."""
     kept = [[o for o, _ in screen[p][:KEEP_PER_PART]] for p in PARTS]
     cfgs = []
     for combo in itertools.product(*kept):
@@ -325,6 +326,12 @@ def fit_forms(data: FitData, space: ParameterSpace, params: ValveParameters,
     for f in fits:
         f.prior = _same_form(f.electronics, prior)
     chosen = fits[:FINALISTS] + [f for f in fits[FINALISTS:] if f.prior]
+    for opts in kept:
+        for opt in opts:
+            best = next(f for f in fits if all(getattr(f.electronics, k) == v
+                                               for k, v in opt.items()))
+            if best not in chosen:
+                chosen.append(best)
     top = _pool_map(lambda f: _refine_form(data, space, f), chosen, workers)
     return sorted(top, key=lambda f: f.search_cost) + [f for f in fits if f not in chosen]
 
