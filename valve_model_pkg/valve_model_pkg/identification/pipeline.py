@@ -592,10 +592,18 @@ def settle_electronics(inputs: Inputs, prep: Prepared, settings: IdentifySetting
     family = select_family(prep.search, prep.fit, prep.validation, prep.space,
                            [prep.start, prep.space.base], settings.workers)
     _say_family(family, say)
-    chosen = family.chosen.electronics
+    chosen = _start_electronics(family)
     new = prepare_data(inputs, settings, lambda s: None, chosen)
     new.notes.append(family.statement)
     return ElectronicsSettled(new, family, 'chosen by the data: ' + describe_form(chosen))
+
+
+def _start_electronics(family: FamilyChoice) -> ElectronicsConfig:
+    """The electronics the baseline starts from: the chosen form with its constants; the
+    prior form (the paper's driver) kept by the choice starts from its nominal constants,
+    as without the choice (its constants searched through a locally fitted valve can hold
+    the valve's global search in a poor minimum)."""
+    return ElectronicsConfig() if family.chosen.prior else family.chosen.electronics
 
 
 def _say_family(family: FamilyChoice, say: Say) -> None:
@@ -615,7 +623,7 @@ def reselect_electronics(prep: Prepared, settled: ElectronicsSettled, params: Va
     family = select_family(prep.search, prep.fit, prep.validation, prep.space, [params],
                            settings.workers)
     _say_family(family, say)
-    prep.use_electronics(family.chosen.electronics)
+    prep.use_electronics(_start_electronics(family))
     first = settled.family.statement if settled.family else ''
     prep.notes[:] = [n for n in prep.notes if n != first] + [family.statement]
     return ElectronicsSettled(prep, family,
