@@ -212,17 +212,10 @@ def search_constants(data: FitData, params: ValveParameters, base: ElectronicsCo
     return _search_drive(data, params, base, bounds, effort)
 
 
-#: Constants read off the data first (:func:`hold_start`): the nominal start keeps them.
-_FROM_DATA = ('holding_current_a', 'hold_duty')
-
-
 def _search_drive(data: FitData, params: ValveParameters, base: ElectronicsConfig,
-                  bounds: list[ParameterBound], effort: int,
-                  nominal_start: bool = False) -> DriveFit:
+                  bounds: list[ParameterBound], effort: int) -> DriveFit:
     """Bounded direct search of the electronics constants of ``bounds`` from ``base``, the
-    valve held at ``params``; with ``nominal_start`` a second simplex from the nominal
-    constants (``ElectronicsConfig()``'s, the hold as read off the data), so that start
-    values from a search through another valve cannot hold it in a poor minimum."""
+    valve held at ``params``."""
     raw = params.to_vector()
 
     def configs(u: np.ndarray) -> list[ElectronicsConfig]:
@@ -235,13 +228,7 @@ def _search_drive(data: FitData, params: ValveParameters, base: ElectronicsConfi
     best = DriveFit(base, float(_costs(data, raw, [base])[0]))
     if bounds and effort > 0:
         u0 = np.array([b.to_unit(getattr(base, b.name)) for b in bounds])
-        nominal = ElectronicsConfig()
-        u_nom = np.array([b.to_unit(getattr(base if b.name in _FROM_DATA else nominal,
-                                            b.name)) for b in bounds])
-        if nominal_start and float(np.max(np.abs(u_nom - u0))) > 1e-3:
-            u0 = np.vstack([u0, u_nom])
-        settings = SearchSettings(global_samples=0, starts=np.atleast_2d(u0).shape[0],
-                                  max_iterations=effort,
+        settings = SearchSettings(global_samples=0, starts=1, max_iterations=effort,
                                   initial_step=0.15, restarts=1, stall_iterations=25,
                                   tolerance=1e-4)
         res = direct_search(lambda u: _costs(data, raw, configs(u)), u0, settings,
@@ -329,8 +316,7 @@ def fit_drive(data: FitData, params: ValveParameters, *, effort: int = 120,
         notes.append('not carried by these records (held at their given values): '
                      + ', '.join(missing))
     bounds = [ParameterBound(n, *DRIVE_BOUNDS[n]) for n in names]
-    best = _search_drive(data, params, base, [] if fixed else bounds, effort,
-                         nominal_start=True)
+    best = _search_drive(data, params, base, [] if fixed else bounds, effort)
     values = {n: float(getattr(best.electronics, n)) for n in carried}
     ci: dict[str, float | None] = {n: None for n in carried}
     at_bound = []
