@@ -6,6 +6,7 @@ Usage::
                    [--quick] [--no-diagnosis] [--effects EFFECT...] [--seed N]
                    [--threads N] [--no-plots] [--topic TOPIC] [--valve NAME]
                    [--map ROLE=TOPIC[.FIELD]...] [--voltage CH --current CH ...]
+                   [--electronics YAML [--fit-electronics] | --choose-electronics]
 
 FILE is a ``step``, ``pwm`` or ``operation`` record of the measured-data format, a
 rosbag2 bag directory (the suite's ``/valve/state``, or a user's own topics with
@@ -17,7 +18,11 @@ with like (interval means); when every such record carries the mean coil voltage
 the report says which route was taken. One such record without ``--validate`` has its last
 30 % held out for validation (docs/identification.md). The supply pressure comes from each file.
 Progress goes to stderr; DIR receives report.json, report.md with PNG plots and
-params.yaml (loadable by valve_simulate / valve_map). Exit status: 0 on success, 2 on
+params.yaml (loadable by valve_simulate / valve_map), and for records through the drive
+electronics electronics.yaml (the electronics identified with it, for ``--electronics``).
+Without ``--electronics`` the electronics' form (peak end, hold, release) is chosen by the
+data; with it, the file's form and constants are used as given (``--fit-electronics``: its
+constants are start values of their fit). Exit status: 0 on success, 2 on
 refused input (one line naming file, line and reason), 1 on a failure inside.
 
 The options are parsed into one :class:`~valve_model_pkg.identification.IdentifySettings`
@@ -96,6 +101,18 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('--threads', type=positive_int, default=None, metavar='N',
                    help='threads of the identification (default: one per CPU)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
+    p.add_argument('--electronics', metavar='YAML', default=None,
+                   help='drive electronics of operation/pwm records (the description file '
+                        'valve_simulate, valve_map and the emulator take): its form and '
+                        'constants are used as given; default: the paper\'s driver\'s form, '
+                        'its constants fitted')
+    p.add_argument('--fit-electronics', action='store_true',
+                   help='with --electronics: its constants are start values, fitted within '
+                        'bounds (the form stays)')
+    p.add_argument('--choose-electronics', action='store_true',
+                   help='without --electronics: choose the form (peak end, hold, release) '
+                        'by the data, with its constants (slower: about half of a --quick '
+                        'run more; docs/identification.md)')
     p.add_argument('--quiet', action='store_true', help='no progress output')
     from valve_model_pkg.instruments import add_import_options
     add_import_options(p)
@@ -109,12 +126,19 @@ def settings_from_args(args: argparse.Namespace) -> 'IdentifySettings':
         params_file=args.params, allow_implausible=args.allow_implausible, topic=args.topic,
         valve=args.valve, topic_map=tuple(args.map), diagnose=not args.no_diagnosis,
         effects=tuple(args.effects) if args.effects is not None else None, quick=args.quick,
-        seed=args.seed, threads=args.threads)
+        seed=args.seed, threads=args.threads, electronics=args.electronics,
+        electronics_fixed=not args.fit_electronics,
+        choose_electronics=args.choose_electronics)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``valve_identify``."""
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.fit_electronics and args.electronics is None:
+        parser.error('--fit-electronics needs --electronics FILE')
+    if args.choose_electronics and args.electronics is not None:
+        parser.error('--choose-electronics and --electronics exclude each other')
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s: %(message)s')
     from ..errors import IdentificationError, InstrumentFormatError, MeasurementFormatError
     from ..errors import ParameterError
@@ -146,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
     key = 'validation' if b['validation'] else 'fit'
     progress(f'{key} RMSE baseline {1e3 * b[key]["rmse"]:.2f} mA -> augmented '
              f'{1e3 * a[key]["rmse"]:.2f} mA; effect: {d["effect"] if d else "-"}')
-    progress(f'wrote {args.out}/report.json, report.md, params.yaml')
+    progress(f'wrote {args.out}/report.json, report.md, params.yaml'
+             + (', electronics.yaml' if rep.get('electronics_form') else ''))
     return 0
 
 

@@ -1,24 +1,31 @@
 """The drive electronics' constants that show in the current, identified within bounds.
 
 Operation and ``pwm`` records run the model's drive electronics
-(:class:`~valve_model_pkg.model.ElectronicsConfig`: boost with end-of-stroke dip detection,
-20 kHz chopper holding a set current, negative release pulse from a capacitor). A real
-driver's constants differ from the nominal ones, and three of them leave their mark in
-the coil current:
+(:class:`~valve_model_pkg.model.ElectronicsConfig`): a form for each phase (how the peak
+phase ends, how the current is held, how the valve is released) and its constants. The
+form is given (``--electronics``) or chosen by the data (:mod:`.electronics_family`); the
+constants of that form that leave their mark in a 1 kHz interval-mean current are
+identified here (:data:`FORM_CONSTANTS`):
 
-* ``holding_current_a``, the hold set point: the mean current of the hold phase;
-* ``dip_threshold_a``, the end-of-boost detection: how long the boost lasts after the
-  stroke, so the current peak's width;
-* ``capacitor_voltage_v`` and ``capacitor_discharge_time_s``, the release pulse: how fast
-  the current falls after the main PWM's falling edge.
+* the peak end: the dip (``dip_threshold_a``), dip and rise (and ``rise_threshold_a``), a
+  current threshold (``peak_current_a``) or a timer (``max_boost_time_s``): the width of
+  the current peak;
+* the hold: the set point of a PI chopper or hysteresis band (``holding_current_a``, and
+  ``hysteresis_band_a``), or the fixed duty of an open-loop PWM hold (``hold_duty``): the
+  hold phase's mean current;
+* the release: a capacitor (``capacitor_voltage_v``, ``capacitor_discharge_time_s``) or a
+  Zener clamp (``zener_voltage_v``): how fast the current falls after the main PWM's
+  falling edge (a freewheel diode has no constant that shows).
 
 They are identified with the valve's parameters held (the model's batch entry point takes
 one electronics setting per batch, so each electronics candidate is its own run; runs go
-to a thread pool), alternating with the valve fit: hold current first from the data
-directly (the PI controller regulates the mean current of the hold phase to it), then a
-bounded direct search over all four. Each is reported with its bounds, an interval from
-the local sensitivity (widened for a structured residual as the valve parameters' are),
-whether it is pinned down and whether it sits at a bound (a sign of misfit).
+to a thread pool), alternating with the valve fit: the hold first from the data directly
+(a closed-loop hold regulates the mean current of the hold phase to its set point; an
+open-loop hold's duty is R I_hold / V_supply), then a bounded direct search over all of
+them. Each is reported with its bounds, an interval from the local sensitivity (widened
+for a structured residual as the valve parameters' are), whether it is pinned down and
+whether it sits at a bound (a sign of misfit). ``fixed`` (a user's description file taken
+as it is) skips the search and reports the intervals only.
 """
 from __future__ import annotations
 
@@ -33,16 +40,56 @@ from ..model.parameters import ValveParameters
 from .problem import FitData, ParameterBound
 from .search import SearchSettings, direct_search
 
-__all__ = ['DRIVE_BOUNDS', 'DriveReport', 'estimate_hold_current', 'fit_drive']
+__all__ = ['DRIVE_BOUNDS', 'FORM_CONSTANTS', 'DriveReport', 'estimate_hold_current',
+           'fit_drive', 'form_constants', 'hold_start', 'search_constants',
+           'DriveFit']
 
 #: Search ranges of the electronics constants (SI). Wide: a driver's hold current is set
-#: between a few hundred mA and an ampere or two, its release pulse by a capacitor.
+#: between a few hundred mA and an ampere or two, its release pulse by a capacitor or a
+#: Zener diode of a few to a hundred volts.
 DRIVE_BOUNDS: dict[str, tuple[float, float]] = {
     'holding_current_a': (0.1, 2.0),
+    'hysteresis_band_a': (0.005, 0.3),
+    'hold_duty': (0.02, 1.0),
     'dip_threshold_a': (0.002, 0.1),
+    'rise_threshold_a': (0.0005, 0.1),
+    'peak_current_a': (0.1, 3.0),
+    'max_boost_time_s': (0.5e-3, 20e-3),
     'capacitor_voltage_v': (1.0, 60.0),
     'capacitor_discharge_time_s': (0.05e-3, 5e-3),
+    'zener_voltage_v': (3.0, 100.0),
 }
+#: The constants of each form (by part and form name) that show in the current.
+FORM_CONSTANTS: dict[tuple[str, str], tuple[str, ...]] = {
+    ('peak_end', 'dip'): ('dip_threshold_a',),
+    ('peak_end', 'dip_rise'): ('dip_threshold_a', 'rise_threshold_a'),
+    ('peak_end', 'threshold'): ('peak_current_a',),
+    ('peak_end', 'timer'): ('max_boost_time_s',),
+    ('hold', 'pi'): ('holding_current_a',),
+    ('hold', 'hysteresis'): ('holding_current_a', 'hysteresis_band_a'),
+    ('hold', 'pwm'): ('hold_duty',),
+    ('release', 'capacitor'): ('capacitor_voltage_v', 'capacitor_discharge_time_s'),
+    ('release', 'capacitor_peak'): ('capacitor_voltage_v', 'capacitor_discharge_time_s'),
+    ('release', 'zener'): ('zener_voltage_v',),
+    ('release', 'diode'): (),
+}
+#: Which phase of the record shows each constant: the hold phase (peak end and hold) or
+#: the fall after the main PWM's falling edge (release).
+_SHOWN_BY = {'peak_end': 'hold', 'hold': 'hold', 'release': 'falls'}
+
+
+def form_constants(cfg: ElectronicsConfig, part: str | None = None) -> list[str]:
+    """The constants of ``cfg``'s form (of one ``part``: peak_end, hold or release; default
+    all three) that show in the current (:data:`FORM_CONSTANTS`)."""
+    parts = (part,) if part else ('peak_end', 'hold', 'release')
+    out: list[str] = []
+    for p in parts:
+        if p == 'release' and not cfg.negative_voltage:
+            continue
+        out += [n for n in FORM_CONSTANTS[(p, getattr(cfg, p))] if n not in out]
+    return out
+
+
 #: A value within this share of its log range from a bound counts as at the bound.
 AT_BOUND_FRACTION = 0.01
 _PINNED_CI95_PCT = 5.0
@@ -66,7 +113,10 @@ class DriveReport:
         return {'values': self.values, 'bounds': self.bounds, 'ci95_pct': self.ci95_pct,
                 'pinned_down': self.pinned, 'at_search_bound': self.at_bound,
                 'carried_by_the_data': self.carried, 'notes': self.notes,
-                'nominal': {k: getattr(ElectronicsConfig(), k) for k in DRIVE_BOUNDS}}
+                'form': {p: getattr(self.electronics, p)
+                         for p in ('peak_end', 'hold', 'hold_decay', 'release')},
+                'electronics': self.electronics.to_dict(),
+                'nominal': {k: getattr(ElectronicsConfig(), k) for k in self.values}}
 
 
 @dataclass
@@ -103,8 +153,8 @@ def estimate_hold_current(data: FitData) -> tuple[float | None, int]:
     return float(np.median(vals)), int(vals.size)
 
 
-def _carried(data: FitData) -> dict[str, bool]:
-    """Which constants the records can show at all."""
+def _carried(data: FitData, cfg: ElectronicsConfig) -> dict[str, bool]:
+    """Which constants of ``cfg``'s form the records can show at all."""
     hold = sum(int(s.sum()) for _, s in _hold_samples(data)) >= 5
     falls = False
     for m in data.measurements:
@@ -112,8 +162,30 @@ def _carried(data: FitData) -> dict[str, bool]:
         if d is not None and np.any((d.high_until_s > d.period_starts_s)
                                     & (d.high_until_s < m.t_s[-1] - 2e-3)):
             falls = True
-    return {'holding_current_a': hold, 'dip_threshold_a': hold,
-            'capacitor_voltage_v': falls, 'capacitor_discharge_time_s': falls}
+    shown = {'hold': hold, 'falls': falls}
+    return {n: shown[_SHOWN_BY[p]] for p in _SHOWN_BY for n in form_constants(cfg, p)}
+
+
+def hold_start(data: FitData, params: ValveParameters, cfg: ElectronicsConfig
+               ) -> tuple[ElectronicsConfig, str | None]:
+    """``cfg`` with its hold constant read from the data (set point of a closed-loop hold:
+    the median hold-phase current; duty of an open-loop hold: R I_hold / V_supply) and a
+    note in words (None when the records have no hold phase)."""
+    hold, n_hold = estimate_hold_current(data)
+    if hold is None:
+        return cfg, None
+    if cfg.hold == 'pwm':
+        supply = [float(np.median(m.drive.supply_voltage_v)) for m in data.measurements
+                  if m.drive is not None]
+        lo, hi = DRIVE_BOUNDS['hold_duty']
+        duty = params.coil_resistance_ohm * hold / max(float(np.median(supply)), 1e-3)
+        return (cfg.replace(hold_duty=min(max(duty, lo), hi)),
+                f'hold duty first read from the data: R I_hold / V_supply = {duty:.4g} '
+                f'(median hold current {hold:.4g} A over {n_hold} hold-phase samples)')
+    lo, hi = DRIVE_BOUNDS['holding_current_a']
+    return (cfg.replace(holding_current_a=min(max(hold, lo), hi)),
+            f'hold current first read from the data: median {hold:.4g} A over {n_hold} '
+            'hold-phase samples')
 
 
 def _costs(data: FitData, raw: np.ndarray, configs: list[ElectronicsConfig]) -> np.ndarray:
@@ -127,6 +199,17 @@ def _costs(data: FitData, raw: np.ndarray, configs: list[ElectronicsConfig]) -> 
         return np.array([one(c) for c in configs])
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return np.array(list(pool.map(one, configs)))
+
+
+def search_constants(data: FitData, params: ValveParameters, base: ElectronicsConfig,
+                     effort: int) -> DriveFit:
+    """The constants of ``base``'s form that the records carry, from the hold read off the
+    data and ``base``'s other values, searched with the valve held at ``params`` (``effort``
+    Nelder-Mead iterations; no intervals)."""
+    base, _ = hold_start(data, params, base)
+    carried = _carried(data, base)
+    bounds = [ParameterBound(n, *DRIVE_BOUNDS[n]) for n in carried if carried[n]]
+    return _search_drive(data, params, base, bounds, effort)
 
 
 def _search_drive(data: FitData, params: ValveParameters, base: ElectronicsConfig,
@@ -143,7 +226,7 @@ def _search_drive(data: FitData, params: ValveParameters, base: ElectronicsConfi
         return out
 
     best = DriveFit(base, float(_costs(data, raw, [base])[0]))
-    if bounds:
+    if bounds and effort > 0:
         u0 = np.array([b.to_unit(getattr(base, b.name)) for b in bounds])
         settings = SearchSettings(global_samples=0, starts=1, max_iterations=effort,
                                   initial_step=0.15, restarts=1, stall_iterations=25,
@@ -196,8 +279,11 @@ def _intervals(data: FitData, params: ValveParameters, cfg: ElectronicsConfig,
 
 
 def fit_drive(data: FitData, params: ValveParameters, *, effort: int = 120,
-              noise_a: float | None = None, inflation: float = 1.0) -> DriveReport:
-    """Identify the electronics constants with the valve parameters held at ``params``.
+              noise_a: float | None = None, inflation: float = 1.0,
+              fixed: bool = False) -> DriveReport:
+    """Identify the constants of the electronics' form with the valve held at ``params``.
+
+    The form and the start values are ``data.electronics``.
 
     Parameters
     ----------
@@ -206,33 +292,36 @@ def fit_drive(data: FitData, params: ValveParameters, *, effort: int = 120,
     params : ValveParameters
         The valve parameters (held).
     effort : int
-        Nelder-Mead iterations of the search.
+        Nelder-Mead iterations of the search (0: the intervals only).
     noise_a : float, optional
         Noise of the current [A] for the intervals (default: from the residual).
     inflation : float
         Factor on the standard errors for a correlated/structured residual (the valve
         parameters' factor, :func:`.sensitivity.analyse_sensitivity`).
+    fixed : bool
+        Take ``data.electronics`` as it is (a user's description file): no hold estimate,
+        no search; the intervals say how well the data confirm it.
     """
-    carried = _carried(data)
-    names = [n for n in DRIVE_BOUNDS if carried[n]]
-    notes = []
     base = data.electronics
-    hold, n_hold = estimate_hold_current(data)
-    if hold is not None:
-        lo, hi = DRIVE_BOUNDS['holding_current_a']
-        base = base.replace(holding_current_a=min(max(hold, lo), hi))
-        notes.append(f'hold current first read from the data: median {hold:.4g} A over '
-                     f'{n_hold} hold-phase samples')
-    missing = [n for n in DRIVE_BOUNDS if not carried[n]]
+    carried = _carried(data, base)
+    names = [n for n in carried if carried[n]]
+    notes = []
+    if fixed:
+        notes.append('form and constants as given (--electronics): not searched')
+    elif effort > 0:
+        base, note = hold_start(data, params, base)
+        if note:
+            notes.append(note)
+    missing = [n for n in carried if not carried[n]]
     if missing:
-        notes.append('not carried by these records (held at their nominal values): '
+        notes.append('not carried by these records (held at their given values): '
                      + ', '.join(missing))
     bounds = [ParameterBound(n, *DRIVE_BOUNDS[n]) for n in names]
-    best = _search_drive(data, params, base, bounds, effort)
-    values = {n: float(getattr(best.electronics, n)) for n in DRIVE_BOUNDS}
-    ci: dict[str, float | None] = {n: None for n in DRIVE_BOUNDS}
+    best = _search_drive(data, params, base, [] if fixed else bounds, effort)
+    values = {n: float(getattr(best.electronics, n)) for n in carried}
+    ci: dict[str, float | None] = {n: None for n in carried}
     at_bound = []
-    for b in bounds:
+    for b in ([] if fixed else bounds):
         u = b.to_unit(values[b.name])
         if u <= AT_BOUND_FRACTION or u >= 1.0 - AT_BOUND_FRACTION:
             at_bound.append(b.name)
@@ -244,6 +333,6 @@ def fit_drive(data: FitData, params: ValveParameters, *, effort: int = 120,
         notes.append('at a search bound (a sign of misfit, never reported pinned down): '
                      + ', '.join(at_bound))
     return DriveReport(electronics=best.electronics, values=values,
-                       bounds={n: DRIVE_BOUNDS[n] for n in DRIVE_BOUNDS}, ci95_pct=ci,
+                       bounds={n: DRIVE_BOUNDS[n] for n in carried}, ci95_pct=ci,
                        pinned=pinned, at_bound=at_bound, carried=carried, notes=notes,
                        cost=best.cost)

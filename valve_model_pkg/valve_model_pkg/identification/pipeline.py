@@ -8,6 +8,10 @@ result:
    paths), the known parameters with every effect switched off;
 2. :func:`prepare_data` (:class:`Prepared`): the PWM period grids placed, hold-out and
    windows, the fit, validation and search data, the parameter space;
+   :func:`settle_electronics` (:class:`ElectronicsSettled`): the drive electronics' form
+   of records through the electronics, given (``--electronics``) or chosen by the data
+   (:mod:`.electronics_family`; chosen again by :func:`reselect_electronics` after the
+   baseline search);
 3. :func:`search_baseline` (:class:`~.search.SearchResult`): the direct search of the
    baseline parameters;
 4. :func:`alternate_electronics` (:class:`ElectronicsRounds`): the drive electronics and
@@ -33,6 +37,7 @@ import numpy as np
 
 from ..errors import MeasurementFormatError, ParameterError
 from ..interface import TOPIC_STATE
+from ..model import ElectronicsConfig, load_electronics
 from ..model.parameters import EFFECTS, ValveParameters
 from .criteria import DBIC_THRESHOLD, delta_bic, effective_counts, resolution_floors
 from .diagnosis import (
@@ -40,6 +45,7 @@ from .diagnosis import (
     refit_effect, score_signatures, second_effect, select, slow_effect,
 )
 from .drive import DriveReport, fit_drive
+from .electronics_family import FamilyChoice, describe_form, select_family
 from .mean_voltage import (ROUTE_BARE_COIL, ROUTE_MEAN_VOLTAGE, Route, check_mean_voltage,
                            choose_route, through_drive_counterparts)
 from .measurement import Measurement, hold_out, with_current_lsb
@@ -144,6 +150,20 @@ class IdentifySettings:
     hold_out_fraction : float
         Share of a single record through the electronics held out for validation when no
         validation file is given (the last part).
+    electronics : ElectronicsConfig, path or None
+        The drive electronics of records through the electronics (``--electronics``): an
+        :class:`~valve_model_pkg.model.ElectronicsConfig` or the path of its description
+        file (YAML, :func:`~valve_model_pkg.model.load_electronics`, read here). None:
+        the paper's driver's form with fitted constants, or the form chosen by the data
+        (:attr:`choose_electronics`, :mod:`.electronics_family`).
+    electronics_fixed : bool
+        With :attr:`electronics`: take its constants as they are (default), or as start
+        values of their fit within bounds (False, ``--fit-electronics``). The form is
+        the given one either way.
+    choose_electronics : bool
+        Without :attr:`electronics`: choose the form by the data (``--choose-electronics``;
+        it adds about half of a quick run), or use the paper's driver's form and fit its
+        constants (False, the default).
     """
 
     params_file: str | None = None
@@ -174,8 +194,14 @@ class IdentifySettings:
     operation_fit_window_s: float = 1.0
     operation_validation_window_s: float = 3.0
     hold_out_fraction: float = 0.3
+    electronics: ElectronicsConfig | str | os.PathLike | None = None
+    electronics_fixed: bool = True
+    choose_electronics: bool = False
 
     def __post_init__(self) -> None:
+        if self.electronics is not None and not isinstance(self.electronics,
+                                                           ElectronicsConfig):
+            object.__setattr__(self, 'electronics', load_electronics(self.electronics))
         unknown = [e for e in self.effects or () if e not in EFFECTS]
         if unknown:
             raise ParameterError(f'effects: {unknown[0]!r} is not an effect of the model; '
@@ -272,6 +298,8 @@ class Identification:
     at_bound: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     route: str = ROUTE_BARE_COIL
+    family: FamilyChoice | None = None
+    electronics_source: str = ''
 
 
 def _lap(say: Say, what: str, t0: float) -> float:
@@ -482,6 +510,7 @@ class Prepared:
     space: ParameterSpace
     start: ValveParameters
     notes: list[str]
+    electronics_fixed: bool = False
 
     @property
     def through_electronics(self) -> bool:
@@ -502,10 +531,12 @@ def _fit_data(files: list[Measurement], settings: IdentifySettings) -> FitData:
     return data
 
 
-def prepare_data(inputs: Inputs, settings: IdentifySettings, say: Say) -> Prepared:
-    """Place the PWM grids, hold out and window the records, build the data and space."""
-    fit_files = refine_phases(list(inputs.fit), inputs.base, say)
-    val_files = refine_phases(list(inputs.validation), inputs.base, say)
+def prepare_data(inputs: Inputs, settings: IdentifySettings, say: Say,
+                 electronics: ElectronicsConfig | None = None) -> Prepared:
+    """Place the PWM grids, hold out and window the records, build the data and space
+    (records through the electronics run ``electronics``, default the paper's driver)."""
+    fit_files = refine_phases(list(inputs.fit), inputs.base, say, electronics)
+    val_files = refine_phases(list(inputs.validation), inputs.base, say, electronics)
     files = prepare_files(fit_files, val_files, settings)
     for n in files.notes:
         say(n)
@@ -523,7 +554,96 @@ def prepare_data(inputs: Inputs, settings: IdentifySettings, say: Say) -> Prepar
     if search_note:
         notes.append(search_note)
         say(search_note)
-    return Prepared(fit, val, search, search_note, space, start_point(space), notes)
+    prep = Prepared(fit, val, search, search_note, space, start_point(space), notes)
+    if electronics is not None:
+        prep.use_electronics(electronics)
+    return prep
+
+
+# --- stage 2b: the drive electronics' form ----------------------------------------------
+
+@dataclass
+class ElectronicsSettled:
+    """The data through the electronics' form to identify with (:func:`settle_electronics`).
+
+    Attributes
+    ----------
+    prep : Prepared
+        The data, through the given or chosen form.
+    family : FamilyChoice or None
+        The forms compared and the choice (None: given, or no record through electronics).
+    source : str
+        Where the form comes from, in words ('' without records through the electronics).
+    """
+
+    prep: Prepared
+    family: FamilyChoice | None
+    source: str
+
+
+def settle_electronics(inputs: Inputs, prep: Prepared, settings: IdentifySettings,
+                       say: Say) -> ElectronicsSettled:
+    """The drive electronics' form: the user's (:attr:`IdentifySettings.electronics`), the
+    data's choice (:mod:`.electronics_family`), or the paper's driver's; the data prepared
+    again through a chosen form (its PWM grids placed through it)."""
+    given = settings.electronics
+    if not prep.through_electronics:
+        if given is not None:
+            note = ('--electronics given, but no record runs through the drive electronics '
+                    '(step records, or pwm records with their coil voltage): not used')
+            say(note)
+            prep.notes.append(note)
+        return ElectronicsSettled(prep, None, '')
+    if given is not None:
+        prep.electronics_fixed = settings.electronics_fixed
+        how = ('constants as given' if settings.electronics_fixed else
+               'constants fitted from the given values')
+        source = f'given (--electronics): {describe_form(given)}; {how}'
+        say('drive electronics ' + source)
+        return ElectronicsSettled(prep, None, source)
+    if not settings.choose_electronics:
+        source = f'the paper\'s driver: {describe_form(ElectronicsConfig())}; constants fitted'
+        return ElectronicsSettled(prep, None, source)
+    say('drive electronics: screening the forms (peak end x hold x release)')
+    family = select_family(prep.search, prep.fit, prep.validation, prep.space,
+                           [prep.start, prep.space.base], settings.workers)
+    _say_family(family, say)
+    chosen = _start_electronics(family)
+    new = prepare_data(inputs, settings, lambda s: None, chosen)
+    new.notes.append(family.statement)
+    return ElectronicsSettled(new, family, 'chosen by the data: ' + describe_form(chosen))
+
+
+def _start_electronics(family: FamilyChoice) -> ElectronicsConfig:
+    """The electronics the baseline starts from: the chosen form with its constants; the
+    prior form (the paper's driver) kept by the choice starts from its nominal constants,
+    as without the choice (its constants searched through a locally fitted valve can hold
+    the valve's global search in a poor minimum)."""
+    return ElectronicsConfig() if family.chosen.prior else family.chosen.electronics
+
+
+def _say_family(family: FamilyChoice, say: Say) -> None:
+    for part, opts in family.screen.items():
+        say(f'  screen {part}: ' + ', '.join(f'{o} {1e3 * c:.3g} mA' for o, c in opts))
+    for f in family.forms:
+        say(f'  form {f.name}: search-window MAE {1e3 * f.search_cost:.3g} mA')
+    say(family.statement)
+
+
+def reselect_electronics(prep: Prepared, settled: ElectronicsSettled, params: ValveParameters,
+                         settings: IdentifySettings, say: Say) -> ElectronicsSettled:
+    """The form chosen again with the valve at the baseline search's optimum (``params``):
+    the first choice compared forms at a valve searched only locally, this one at the valve
+    the record shows; the data keep their PWM grids."""
+    say('drive electronics: the forms screened again at the baseline search\'s optimum')
+    family = select_family(prep.search, prep.fit, prep.validation, prep.space, [params],
+                           settings.workers)
+    _say_family(family, say)
+    prep.use_electronics(_start_electronics(family))
+    first = settled.family.statement if settled.family else ''
+    prep.notes[:] = [n for n in prep.notes if n != first] + [family.statement]
+    return ElectronicsSettled(prep, family,
+                              'chosen by the data: ' + describe_form(family.chosen.electronics))
 
 
 # --- stages 3-5: the baseline ----------------------------------------------------------
@@ -567,7 +687,7 @@ def alternate_electronics(prep: Prepared, res: SearchResult, settings: IdentifyS
     space, fun_s = prep.space, unit_objective(prep.space, prep.search)
     u_best, drive = res.u, None
     for _ in range(settings.electronics_rounds):
-        drive = fit_drive(prep.search, space.params(u_best))
+        drive = fit_drive(prep.search, space.params(u_best), fixed=prep.electronics_fixed)
         prep.use_electronics(drive.electronics)
         say('drive electronics: ' + ', '.join(f'{k} = {v:.4g}'
                                               for k, v in drive.values.items()))
@@ -734,7 +854,8 @@ def polish_baseline(prep: Prepared, rounds: ElectronicsRounds, settings: Identif
                           iterations=settings.operation_local_iterations if through else 300)
     say(conv.statement)
     if through:
-        drive = fit_drive(fit, space.params(u_best), effort=settings.final_drive_effort)
+        drive = fit_drive(fit, space.params(u_best), effort=settings.final_drive_effort,
+                          fixed=prep.electronics_fixed)
         prep.use_electronics(drive.electronics)
     return BaselineFit(u_best, space.params(u_best), conv, drive)
 
@@ -811,7 +932,8 @@ def analyse_baseline(prep: Prepared, base: BaselineFit, say: Say) -> BaselineAna
                                                nrmse_pct=ev.stage.fit.nrmse_pct)
     drive = base.drive
     if drive is not None:
-        drive = fit_drive(fit, params, effort=0, inflation=ev.stage.sensitivity.inflation)
+        drive = fit_drive(fit, params, effort=0, inflation=ev.stage.sensitivity.inflation,
+                          fixed=prep.electronics_fixed)
     # A bound reached along a direction the data do not see (b on a step: the damping
     # force is ~1 % of the others) is no misfit; one the data care about is.
     ci = ev.stage.sensitivity.ci95_pct
@@ -1202,12 +1324,21 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
     say = progress or (lambda s: None)
     t_start = time.perf_counter()
     inputs, route = route_inputs(read_inputs(fit, validate, settings, base, say), say)
-    prep = prepare_data(inputs, settings, say)
+    prep = prepare_data(inputs, settings, say, settings.electronics)
     prep.notes.insert(0, route.note)
     timings: dict[str, float] = {'phase_grid': time.perf_counter() - t_start}
     t0 = time.perf_counter()
+    elec = settle_electronics(inputs, prep, settings, say)
+    prep = elec.prep
+    if elec.family is not None:
+        timings['electronics_family'] = _lap(say, 'electronics family', t0)
+    t0 = time.perf_counter()
     res = search_baseline(prep, settings, say)
     timings['baseline_search'] = _lap(say, 'baseline search', t0)
+    if elec.family is not None:
+        t0 = time.perf_counter()
+        elec = reselect_electronics(prep, elec, prep.space.params(res.u), settings, say)
+        timings['electronics_family_2'] = _lap(say, 'electronics family at the baseline', t0)
     t0 = time.perf_counter()
     rounds = alternate_electronics(prep, res, settings, say)
     if prep.through_electronics:
@@ -1244,4 +1375,5 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
         sim_val={'baseline': analysis.evaluated.current_val,
                  'augmented': augmented.current_val},
         convergence=baseline.convergence, drive=drive, at_bound=analysis.at_bound,
-        notes=prep.notes + analysis.notes, route=route.name)
+        notes=prep.notes + analysis.notes, route=route.name, family=elec.family,
+        electronics_source=elec.source)

@@ -18,13 +18,21 @@
                     "augmented_validation"}, ...} | null,
       "route": {"name": "mean_coil_voltage|drive_electronics|bare_coil",
                 "text": "<how the valve was fitted, in words>"},
+      "drive_electronics": {"values", "bounds", "ci95_pct", "form", "electronics",
+                    ...} | null,
+      "electronics_form": {"form", "constants", "source", "family": {"chosen",
+                    "statement", "cannot_tell_from", "screen", "forms"} | null,
+                    "file"} | null,
       "files": {...}, "timings_s": {...}, "units": {...}
     }
 
 ``iae`` is in A s, ``rmse`` in A, ``nrmse_pct`` in % of the measured current's range;
 parameters are SI with the names of ``ValveParameters``. ``params.yaml`` is the full
 parameter set in the nested form ``load_parameters`` reads, so ``valve_simulate`` and
-``valve_map`` use the identified (and augmented) model directly.
+``valve_map`` use the identified (and augmented) model directly; for records through the
+drive electronics ``electronics.yaml`` beside it holds the electronics identified with it
+(form and constants), so ``valve_simulate --params params.yaml --electronics
+electronics.yaml`` reproduces the fit.
 
 ``unlisted`` is the open-ended sparse term of :mod:`.unlisted`, tried when no listed effect
 explains a structured residual; when it pays the effect is ``unlisted``. The model cannot
@@ -130,6 +138,7 @@ def report_dict(ident: Identification) -> dict[str, object]:
         },
         'baseline_convergence': ident.convergence.to_json() if ident.convergence else None,
         'drive_electronics': ident.drive.to_json() if ident.drive else None,
+        'electronics_form': _electronics_form(ident),
         'baseline_at_search_bound': ident.at_bound,
         'data_notes': ident.notes,
         'timings_s': ident.timings_s,
@@ -137,6 +146,45 @@ def report_dict(ident: Identification) -> dict[str, object]:
         'units': {'iae': 'A s', 'rmse': 'A', 'nrmse_pct': '% of measured current range',
                   'parameters': 'SI (names of ValveParameters)'},
     })
+
+
+def _electronics_form(ident: Identification) -> dict[str, object] | None:
+    """Which drive electronics the records were identified through, and from where."""
+    if ident.drive is None:
+        return None
+    from .electronics_family import describe_constants, describe_form
+    cfg = ident.drive.electronics
+    return {'form': describe_form(cfg), 'constants': describe_constants(cfg),
+            'source': ident.electronics_source,
+            'family': ident.family.to_json() if ident.family is not None else None,
+            'file': 'electronics.yaml'}
+
+
+def _electronics_section(form: dict | None) -> list[str]:
+    """The drive electronics' form, where it came from, the forms compared."""
+    if not form:
+        return []
+    lines = [f'**Drive electronics: {form["form"]}**; constants {form["constants"]} '
+             f'({form["source"]}; in electronics.yaml, for `valve_simulate --electronics`).',
+             '']
+    fam = form.get('family')
+    if fam:
+        lines += [fam['statement'] + '.', '', '| form | search MAE [mA] | fit RMSE [mA] | '
+                  'hold-out RMSE [mA] | dBIC fit | dBIC hold-out |', '|---|---|---|---|---|---|']
+        for f in fam['forms']:
+            name = f['form'] + (' (prior)' if f.get('prior') else '') + (
+                ' (at bound: ' + ', '.join(f['at_search_bound']) + ')'
+                if f.get('at_search_bound') else '')
+            lines.append(f'| {name} | {_fmt(f["search_cost_a"], 1e3)} | '
+                         f'{_fmt(f["fit_rmse_a"], 1e3)} | {_fmt(f["validation_rmse_a"], 1e3)} | '
+                         f'{_fmt(f["delta_bic_fit"], 1, 3)} | '
+                         f'{_fmt(f["delta_bic_validation"], 1, 3)} |')
+        lines.append('')
+        for part, opts in fam['screen'].items():
+            lines.append(f'- screen of the {part}: ' + ', '.join(
+                f'{o["option"]} {_fmt(o["search_cost_a"], 1e3)} mA' for o in opts))
+        lines.append('')
+    return lines
 
 
 def _smooth(t: np.ndarray, r: np.ndarray, window_s: float = 0.5e-3) -> np.ndarray:
@@ -310,7 +358,9 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
         lines.append('')
     drv = rep.get('drive_electronics')
     if drv:
-        lines += ['## Drive electronics (identified within bounds)', '',
+        lines += ['## Drive electronics (identified within bounds)', '']
+        lines += _electronics_section(rep.get('electronics_form'))
+        lines += [
                   '| constant | nominal | identified | bounds | 95 % CI | pinned down |',
                   '|---|---|---|---|---|---|']
         for k, v in drv['values'].items():
@@ -441,4 +491,11 @@ def write_report(ident: Identification, out_dir: str | Path, *, plots: bool = Tr
               'valve_map).\n')
     body = yaml.safe_dump(_clean(ident.augmented.params.to_dict()), sort_keys=False)
     (out / 'params.yaml').write_text(header + body, encoding='utf-8')
+    if ident.drive is not None:
+        text = ident.drive.electronics.to_yaml()
+        (out / 'electronics.yaml').write_text(
+            '# Drive electronics identified by valve_identify with params.yaml: '
+            f'{rep["electronics_form"]["form"]}\n# ({ident.electronics_source}). '
+            'Read with --electronics (valve_simulate, valve_map, the emulator).\n' + text,
+            encoding='utf-8')
     return rep

@@ -1,0 +1,448 @@
+"""The drive electronics' form chosen by the data: peak end x hold x release.
+
+A record through drive electronics the user does not describe (no ``--electronics``) is
+fitted through each of a few complete forms of :class:`~valve_model_pkg.model.ElectronicsConfig`,
+and the data choose one, as they choose an effect:
+
+1. **Valve first** (:func:`valve_under`): the release shapes the current most (a
+   freewheel diode against a capacitor pulse: 100 mA and more), so the release's options
+   are tried first with the valve at its start values, and the valve is searched locally
+   under the best of them: the screen then compares forms at a valve near the record's.
+2. **Screen** (:func:`screen_parts`): each part's options (peak end: dip, dip and rise,
+   current threshold, timer; hold: PI chopper with slow or fast decay, hysteresis band
+   with diode or fast decay, open-loop PWM; release: capacitor charged while high or
+   during the peak only, Zener clamp, freewheel diode) in turn, the other parts at the
+   paper's driver (the release at step 1's), the form's constants searched with the
+   valve held (:func:`.drive.search_constants`); cost on the search window.
+3. **Complete forms** (:func:`fit_forms`): the :data:`KEEP_PER_PART` best options of each
+   part combined, each form's constants searched with the valve held; the
+   :data:`FINALISTS` best, the best form with each kept option, and the prior form (the
+   paper's driver) always, then search the valve locally and their constants again.
+4. **Choice** (:func:`choose_form`), as an effect is selected against the baseline: the
+   prior form stays unless another finalist beats it on the whole fit window by
+   ``dBIC`` below ``DBIC_THRESHOLD`` (:func:`.criteria.delta_bic`, each form's constants
+   counted as its parameters) and on the hold-out data by a fall of the mean absolute
+   error of at least :data:`~.criteria.MIN_VALIDATION_GAIN`; among those that do, the ones
+   without a constant at its search bound (a sign of misfit: a capacitor at 60 V standing
+   in for a Zener clamp) go first, and the lowest hold-out error is chosen. A finalist
+   whose hold-out ``|dBIC|`` against the chosen one is below ``-DBIC_THRESHOLD`` (no strong
+   evidence either way) and whose hold-out error is within
+   :data:`~.criteria.MIN_VALIDATION_GAIN` of it cannot be told apart from it by these
+   data: the report says so and names it; when such a form has no constant at a bound
+   where the chosen one has (a capacitor at 1 V standing in for a freewheel diode), or as
+   few and fewer constants (a Zener clamp against a capacitor pulse), it is chosen
+   instead.
+
+The valve parameters of the forms are local searches: enough to rank forms whose misfit is
+milliamperes to tens of milliamperes; the pipeline's baseline search (global stage,
+simplices, polish) then runs through the chosen form.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..model import ElectronicsConfig
+from ..model.parameters import ValveParameters
+from .criteria import DBIC_THRESHOLD, MIN_VALIDATION_GAIN, delta_bic, effective_counts
+from .criteria import resolution_floors
+from .drive import AT_BOUND_FRACTION, DRIVE_BOUNDS, form_constants, search_constants
+from .problem import ParameterBound
+from .problem import FitData, ParameterSpace, unit_objective
+from .search import SearchSettings, direct_search
+
+__all__ = ['PEAK_OPTIONS', 'HOLD_OPTIONS', 'RELEASE_OPTIONS', 'FamilyChoice', 'FormFit',
+           'describe_form', 'select_family', 'screen_parts', 'fit_forms', 'choose_form']
+
+#: Options of each part, as the fields of ElectronicsConfig they set.
+PEAK_OPTIONS: tuple[dict[str, str], ...] = tuple(
+    {'peak_end': p} for p in ('dip', 'dip_rise', 'threshold', 'timer'))
+HOLD_OPTIONS: tuple[dict[str, str], ...] = (
+    {'hold': 'pi', 'hold_decay': 'freewheel'}, {'hold': 'pi', 'hold_decay': 'fast'},
+    {'hold': 'hysteresis', 'hold_decay': 'diode'},
+    {'hold': 'hysteresis', 'hold_decay': 'fast'},
+    {'hold': 'pwm', 'hold_decay': 'freewheel'})
+RELEASE_OPTIONS: tuple[dict[str, str], ...] = tuple(
+    {'release': r} for r in ('capacitor', 'capacitor_peak', 'zener', 'diode'))
+PARTS = {'peak_end': PEAK_OPTIONS, 'hold': HOLD_OPTIONS, 'release': RELEASE_OPTIONS}
+#: Options of each part kept from the screen (2 x 2 x 2 complete forms).
+KEEP_PER_PART = 2
+#: Complete forms compared on the whole fit window and the hold-out data.
+FINALISTS = 3
+#: Nelder-Mead iterations: constants in the screen, constants and valve of a form.
+SCREEN_EFFORT = 30
+FORM_EFFORT = 50
+VALVE_ITERATIONS = 100
+
+_PEAK_WORDS = {'dip': 'dip', 'dip_rise': 'dip_rise', 'threshold': 'current-threshold',
+               'timer': 'timer'}
+_HOLD_WORDS = {'pi': 'PI hold', 'hysteresis': 'hysteresis hold', 'pwm': 'open-loop PWM hold'}
+_DECAY_WORDS = {'freewheel': 'slow decay', 'diode': 'slow (diode) decay', 'fast': 'fast decay'}
+_RELEASE_WORDS = {'capacitor': 'capacitor release', 'capacitor_peak':
+                  'capacitor (peak-charged) release', 'zener': 'Zener clamp release',
+                  'diode': 'freewheel diode release'}
+
+
+def describe_form(cfg: ElectronicsConfig) -> str:
+    """The form in words: 'dip_rise peak end, PI hold with fast decay, capacitor
+    (peak-charged) release'."""
+    if not cfg.current_control:
+        hold = 'no peak and hold (full supply while the main PWM is high)'
+    else:
+        hold = (f'{_PEAK_WORDS[cfg.peak_end]} peak end, {_HOLD_WORDS[cfg.hold]} with '
+                f'{_DECAY_WORDS[cfg.hold_decay]}')
+    release = _RELEASE_WORDS[cfg.release] if cfg.negative_voltage else 'no release pulse'
+    return f'{hold}, {release}'
+
+
+def describe_constants(cfg: ElectronicsConfig) -> str:
+    """The form's constants that show in the current, as ``name = value`` in words."""
+    return ', '.join(f'{n} = {getattr(cfg, n):.4g}' for n in form_constants(cfg))
+
+
+@dataclass
+class FormFit:
+    """One complete form fitted on the search window, and on the fit/hold-out data.
+
+    Attributes
+    ----------
+    electronics : ElectronicsConfig
+        The form with its searched constants.
+    params : ValveParameters
+        The valve after the local search through it.
+    search_cost : float
+        Mean absolute error on the search window [A].
+    fit_mae, val_mae : dict
+        Mean absolute error of each file [A] (finalists only).
+    fit_rmse_a, val_rmse_a : float
+        RMSE on the fit and hold-out data [A] (finalists only).
+    dbic_fit, dbic_val : float
+        dBIC against the chosen form (finalists only).
+    refined : bool
+        A finalist: the valve searched through it too.
+    prior : bool
+        The prior form (the paper's driver), which the others must beat.
+    """
+
+    electronics: ElectronicsConfig
+    params: ValveParameters
+    search_cost: float
+    fit_mae: dict[str, float] = field(default_factory=dict)
+    val_mae: dict[str, float] = field(default_factory=dict)
+    fit_rmse_a: float = math.nan
+    val_rmse_a: float = math.nan
+    dbic_fit: float = math.nan
+    dbic_val: float = math.nan
+    refined: bool = False
+    prior: bool = False
+
+    @property
+    def name(self) -> str:
+        return describe_form(self.electronics)
+
+    @property
+    def n_constants(self) -> int:
+        return len(form_constants(self.electronics))
+
+    @property
+    def at_bound(self) -> list[str]:
+        """The form's constants at a search bound (a sign of misfit)."""
+        out = []
+        for n in form_constants(self.electronics):
+            u = ParameterBound(n, *DRIVE_BOUNDS[n]).to_unit(getattr(self.electronics, n))
+            if u <= AT_BOUND_FRACTION or u >= 1.0 - AT_BOUND_FRACTION:
+                out.append(n)
+        return out
+
+    def to_json(self) -> dict[str, object]:
+        return {'form': self.name, 'constants': {n: getattr(self.electronics, n)
+                                                 for n in form_constants(self.electronics)},
+                'search_cost_a': self.search_cost, 'fit_rmse_a': self.fit_rmse_a,
+                'validation_rmse_a': self.val_rmse_a, 'delta_bic_fit': self.dbic_fit,
+                'delta_bic_validation': self.dbic_val, 'at_search_bound': self.at_bound,
+                'prior': self.prior}
+
+
+@dataclass
+class FamilyChoice:
+    """The form the data chose, the forms it was compared with, and what they say.
+
+    Attributes
+    ----------
+    chosen : FormFit
+        The chosen form.
+    screen : dict
+        Per part, (option in words, search-window cost [A]) of each option, best first.
+    forms : list of FormFit
+        The complete forms fitted, best search-window cost first.
+    indistinguishable : list of str
+        Forms the data cannot tell from the chosen one.
+    statement : str
+        The choice in one sentence.
+    """
+
+    chosen: FormFit
+    screen: dict[str, list[tuple[str, float]]]
+    forms: list[FormFit]
+    indistinguishable: list[str]
+    statement: str
+
+    def to_json(self) -> dict[str, object]:
+        return {'chosen': self.chosen.to_json(), 'statement': self.statement,
+                'cannot_tell_from': self.indistinguishable,
+                'screen': {k: [{'option': o, 'search_cost_a': c} for o, c in v]
+                           for k, v in self.screen.items()},
+                'forms': [f.to_json() for f in self.forms]}
+
+
+def _option_words(part: str, option: dict[str, str]) -> str:
+    if part == 'peak_end':
+        return _PEAK_WORDS[option['peak_end']] + ' peak end'
+    if part == 'hold':
+        return f'{_HOLD_WORDS[option["hold"]]} with {_DECAY_WORDS[option["hold_decay"]]}'
+    return _RELEASE_WORDS[option['release']]
+
+
+def _pool_map(fn, items: list, workers: int) -> list:
+    if workers <= 1 or len(items) <= 1:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(max_workers=min(workers, len(items))) as pool:
+        return list(pool.map(fn, items))
+
+
+def _view(data: FitData, cfg: ElectronicsConfig) -> FitData:
+    """A serial view of ``data`` through ``cfg`` (one thread per view)."""
+    v = data.serial()
+    v.electronics = cfg
+    v.workers = 1
+    return v
+
+
+def _valve_search(data: FitData, space: ParameterSpace, starts: list[ValveParameters],
+                  cfg: ElectronicsConfig) -> tuple[ValveParameters, float]:
+    """Local search of the valve through ``cfg`` from ``starts`` (one simplex each)."""
+    fun = unit_objective(space, _view(data, cfg))
+    u0 = np.vstack([space.to_unit(p) for p in starts])
+    res = direct_search(fun, u0, SearchSettings(
+        global_samples=0, starts=len(starts), max_iterations=VALVE_ITERATIONS,
+        initial_step=0.08, restarts=0, stall_iterations=30), label='form valve')
+    own = fun(u0)
+    k = int(np.argmin(own))
+    if own[k] <= res.cost:
+        return starts[k], float(own[k])
+    return space.params(res.u), float(res.cost)
+
+
+@dataclass
+class ValveStart:
+    """The valve the screen holds and the electronics it was searched through."""
+
+    params: ValveParameters
+    base: ElectronicsConfig
+    release_costs: list[tuple[dict[str, str], float]]
+
+
+def valve_under(data: FitData, space: ParameterSpace, starts: list[ValveParameters],
+                base: ElectronicsConfig, workers: int) -> ValveStart:
+    """The release's options at the start values, then the valve searched locally under
+    ``base`` with the best of them (module notes, step 1)."""
+    def one(opt: dict[str, str]) -> float:
+        cfg = base.replace(**opt)
+        return search_constants(_view(data, cfg), starts[0], cfg, SCREEN_EFFORT).cost
+    costs = _pool_map(one, list(RELEASE_OPTIONS), workers)
+    ranked = sorted(zip(RELEASE_OPTIONS, costs), key=lambda x: x[1])
+    cfg = search_constants(_view(data, base.replace(**ranked[0][0])), starts[0],
+                           base.replace(**ranked[0][0]), SCREEN_EFFORT).electronics
+    params, _ = _valve_search(data, space, starts, cfg)
+    return ValveStart(params, cfg, [(o, float(c)) for o, c in ranked])
+
+
+def screen_parts(data: FitData, params: ValveParameters, base: ElectronicsConfig,
+                 workers: int) -> dict[str, list[tuple[dict[str, str], float]]]:
+    """Each part's options, the other parts at ``base``: the form's constants searched with
+    the valve at ``params``; per part the options with their cost [A], best first."""
+    jobs = [(part, opt) for part, opts in PARTS.items() for opt in opts]
+
+    def one(job: tuple[str, dict[str, str]]) -> float:
+        cfg = base.replace(**job[1])
+        return search_constants(_view(data, cfg), params, cfg, SCREEN_EFFORT).cost
+    costs = _pool_map(one, jobs, workers)
+    out: dict[str, list[tuple[dict[str, str], float]]] = {p: [] for p in PARTS}
+    for (part, opt), c in zip(jobs, costs):
+        out[part].append((opt, float(c)))
+    for part in out:
+        out[part].sort(key=lambda x: x[1])
+    return out
+
+
+def _constants_only(data: FitData, params: ValveParameters, cfg: ElectronicsConfig
+                    ) -> FormFit:
+    """The form's constants searched with the valve held at ``params``."""
+    drive = search_constants(_view(data, cfg), params, cfg, FORM_EFFORT)
+    return FormFit(drive.electronics, params, float(drive.cost))
+
+
+def _refine_form(data: FitData, space: ParameterSpace, f: FormFit) -> FormFit:
+    """The valve searched locally through ``f``'s form, then its constants again."""
+    params, cost = _valve_search(data, space, [f.params], f.electronics)
+    drive = search_constants(_view(data, f.electronics), params, f.electronics,
+                             FORM_EFFORT // 2)
+    if drive.cost < cost:
+        return FormFit(drive.electronics, params, float(drive.cost), refined=True,
+                       prior=f.prior)
+    return FormFit(f.electronics, params, cost, refined=True, prior=f.prior)
+
+
+def _same_form(a: ElectronicsConfig, b: ElectronicsConfig) -> bool:
+    return all(getattr(a, k) == getattr(b, k) for k in ('peak_end', 'hold', 'hold_decay',
+                                                        'release'))
+
+
+def fit_forms(data: FitData, space: ParameterSpace, params: ValveParameters,
+              screen: dict[str, list[tuple[dict[str, str], float]]],
+              base: ElectronicsConfig, prior: ElectronicsConfig, workers: int
+              ) -> list[FormFit]:
+    """The complete forms of the :data:`KEEP_PER_PART` best options of each part, their
+    constants searched with the valve at ``params``; the :data:`FINALISTS` best, the best
+    form with each kept option (so that two releases, say, are compared with the valve
+    refitted through each) and the ``prior`` form refined (:func:`_refine_form`).
+    Finalists first (by their cost), then the others."""
+    kept = [[o for o, _ in screen[p][:KEEP_PER_PART]] for p in PARTS]
+    cfgs = []
+    for combo in itertools.product(*kept):
+        changes: dict[str, str] = {}
+        for c in combo:
+            changes.update(c)
+        cfgs.append(base.replace(**changes))
+    if not any(_same_form(c, prior) for c in cfgs):
+        cfgs.append(base.replace(**{k: getattr(prior, k) for k in (
+            'peak_end', 'hold', 'hold_decay', 'release')}))
+    fits = sorted(_pool_map(lambda c: _constants_only(data, params, c), cfgs, workers),
+                  key=lambda f: f.search_cost)
+    for f in fits:
+        f.prior = _same_form(f.electronics, prior)
+    chosen = fits[:FINALISTS] + [f for f in fits[FINALISTS:] if f.prior]
+    for opts in kept:
+        for opt in opts:
+            best = next(f for f in fits if all(getattr(f.electronics, k) == v
+                                               for k, v in opt.items()))
+            if best not in chosen:
+                chosen.append(best)
+    top = _pool_map(lambda f: _refine_form(data, space, f), chosen, workers)
+    return sorted(top, key=lambda f: f.search_cost) + [f for f in fits if f not in chosen]
+
+
+def _judge(f: FormFit, fit: FitData, val: FitData | None) -> None:
+    """Errors of ``f`` on the fit and hold-out data."""
+    v = _view(fit, f.electronics)
+    e = v.errors(f.params)
+    f.fit_mae, f.fit_rmse_a = e.mae_per_file, e.rmse
+    if val is not None:
+        e = _view(val, f.electronics).errors(f.params)
+        f.val_mae, f.val_rmse_a = e.mae_per_file, e.rmse
+
+
+def _dbic(data: FitData, ref: FormFit, other: FormFit, ref_mae: dict[str, float],
+          other_mae: dict[str, float]) -> float:
+    """dBIC of ``other`` against ``ref`` on ``data`` (the forms' constants counted)."""
+    counts = effective_counts(_view(data, ref.electronics), ref.params)
+    return delta_bic(ref_mae, other_mae, counts, other.n_constants - ref.n_constants,
+                     resolution_floors(data))
+
+
+def _val_gain(ref: FormFit, f: FormFit) -> float:
+    """Relative fall of the hold-out mean absolute error from ``ref`` to ``f``."""
+    return 1.0 - sum(f.val_mae.values()) / max(sum(ref.val_mae.values()), 1e-30)
+
+
+def _beats(fit: FitData, val: FitData | None, ref: FormFit, f: FormFit) -> bool:
+    """``f`` is strongly better than ``ref``: fit dBIC and hold-out error (module notes)."""
+    if _dbic(fit, ref, f, ref.fit_mae, f.fit_mae) >= DBIC_THRESHOLD:
+        return False
+    return val is None or _val_gain(ref, f) >= MIN_VALIDATION_GAIN
+
+
+def _cannot_tell(fit: FitData, val: FitData | None, chosen: FormFit, f: FormFit) -> bool:
+    """The data hold no strong evidence between ``f`` and ``chosen`` (module notes)."""
+    f.dbic_fit = _dbic(fit, chosen, f, chosen.fit_mae, f.fit_mae)
+    if val is None:
+        return f is not chosen and abs(f.dbic_fit) < -DBIC_THRESHOLD
+    f.dbic_val = _dbic(val, chosen, f, chosen.val_mae, f.val_mae)
+    return (f is not chosen and abs(f.dbic_val) < -DBIC_THRESHOLD
+            and abs(_val_gain(f, chosen)) < MIN_VALIDATION_GAIN)
+
+
+def _plainness(f: FormFit) -> tuple[bool, int]:
+    """Order of preference among forms the data cannot tell apart: none of its constants
+    at a bound (a capacitor at 1 V standing in for a diode), then fewer constants."""
+    return bool(f.at_bound), f.n_constants
+
+
+def choose_form(forms: list[FormFit], fit: FitData, val: FitData | None, workers: int
+                ) -> tuple[FormFit, list[str], str]:
+    """The chosen form among the finalists, the forms the data cannot tell from it, and
+    the choice in words (module notes, step 4)."""
+    finalists = [f for f in forms if f.refined]
+    _pool_map(lambda f: _judge(f, fit, val), finalists, workers)
+    ref = next((f for f in finalists if f.prior),
+               min(finalists, key=lambda f: sum(f.fit_mae.values())))
+    better = [f for f in finalists if f is not ref and _beats(fit, val, ref, f)]
+    pool = [f for f in better if not f.at_bound] or better
+    where = 'hold-out' if val is not None else 'fit'
+    if pool:
+        chosen = min(pool, key=lambda f: sum((f.val_mae if val is not None
+                                              else f.fit_mae).values()))
+    else:
+        chosen = ref
+    same = [f for f in finalists if _cannot_tell(fit, val, chosen, f)]
+    plainer = [f for f in same if _plainness(f) < _plainness(chosen)]
+    if plainer:
+        # the data cannot tell them apart: no constant at a bound, then fewer constants
+        chosen = min(plainer, key=lambda f: (_plainness(f), sum(f.fit_mae.values())))
+        same = [f for f in finalists if _cannot_tell(fit, val, chosen, f)]
+    err = chosen.val_rmse_a if val is not None else chosen.fit_rmse_a
+    text = (f'drive electronics chosen by the data: {chosen.name}; constants '
+            f'{describe_constants(chosen.electronics)} ({where} RMSE {1e3 * err:.3g} mA; '
+            f'{len(forms)} complete forms fitted, {len(finalists)} compared on the fit and '
+            f'{where} data')
+    text += (')' if pool else '; no form beat the prior one (the paper\'s driver) by dBIC '
+             f'below {DBIC_THRESHOLD:g} on the fit data and '
+             f'{100 * MIN_VALIDATION_GAIN:g} % less {where} error: it is kept)')
+    if same:
+        text += ('; the data cannot tell it from: ' + '; '.join(f.name for f in same)
+                 + f' (|dBIC| below {-DBIC_THRESHOLD:g} and {where} error within '
+                 f'{100 * MIN_VALIDATION_GAIN:g} %)')
+    return chosen, [f.name for f in same], text
+
+
+def select_family(search: FitData, fit: FitData, val: FitData | None, space: ParameterSpace,
+                  starts: list[ValveParameters], workers: int,
+                  base: ElectronicsConfig = ElectronicsConfig()) -> FamilyChoice:
+    """Screen the parts, fit the complete forms of the best options, choose one.
+
+    Parameters
+    ----------
+    search : FitData
+        The search window's data (screen and complete forms).
+    fit, val : FitData
+        The whole fit window and the hold-out data (the finalists' comparison).
+    space : ParameterSpace
+        The valve's search space.
+    starts : list of ValveParameters
+        Start values of the valve (the first holds it during the screen).
+    workers : int
+        Python threads (one form or option per thread).
+    base : ElectronicsConfig
+        The prior form (the paper's driver), which another form must beat; the other
+        parts' forms during the screen.
+    """
+    start = valve_under(search, space, starts, base, workers)
+    screen = screen_parts(search, start.params, start.base, workers)
+    forms = fit_forms(search, space, start.params, screen, start.base, base, workers)
+    chosen, same, text = choose_form(forms, fit, val, workers)
+    words = {p: [(_option_words(p, o), c) for o, c in v] for p, v in screen.items()}
+    return FamilyChoice(chosen, words, forms, same, text)
