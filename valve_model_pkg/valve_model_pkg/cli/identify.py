@@ -4,6 +4,7 @@ Usage::
 
     valve_identify --fit FILE... [--validate FILE...] [--params YAML] -o DIR
                    [--quick] [--no-diagnosis] [--effects EFFECT...] [--seed N]
+                   [--route auto|mean-voltage|electronics]
                    [--threads N] [--no-plots] [--topic TOPIC] [--valve NAME]
                    [--map ROLE=TOPIC[.FIELD]...] [--voltage CH --current CH ...]
 
@@ -13,9 +14,11 @@ rosbag2 bag directory (the suite's ``/valve/state``, or a user's own topics with
 ``DIR/imported/``). ``pwm`` and ``operation``
 records and PWM bags run the model's drive electronics from the commands and compare like
 with like (interval means); when every such record carries the mean coil voltage
-(``coil_voltage_mean``), the valve is fitted around the electronics through it instead, and
-the report says which route was taken. One such record without ``--validate`` has its last
-30 % held out for validation (docs/identification.md). The supply pressure comes from each file.
+(``coil_voltage_mean``), the valve may be fitted around the electronics through it
+instead: the data choose the route that describes the records better (``--route`` forces
+one), and the report says which route was taken, why, and the other route's error. One
+such record without ``--validate`` has its last 30 % held out for validation
+(docs/identification.md). The supply pressure comes from each file.
 Progress goes to stderr; DIR receives report.json, report.md with PNG plots and
 params.yaml (loadable by valve_simulate / valve_map). Exit status: 0 on success, 2 on
 refused input (one line naming file, line and reason), 1 on a failure inside.
@@ -55,6 +58,7 @@ class _MapAction(argparse.Action):
 
 
 def _parser() -> argparse.ArgumentParser:
+    from valve_model_pkg.identification.mean_voltage import ROUTE_CHOICES
     from valve_model_pkg.interface import TOPIC_STATE
     from valve_model_pkg.model.parameters import EFFECTS
 
@@ -91,6 +95,12 @@ def _parser() -> argparse.ArgumentParser:
                    help='candidate effects (default: all of ' + ', '.join(EFFECTS) + ')')
     p.add_argument('--quick', action='store_true',
                    help='smaller search effort (for tests and previews)')
+    p.add_argument('--route', choices=ROUTE_CHOICES, default='auto',
+                   help='how records through the drive electronics are fitted: auto (the '
+                        'data choose when they carry both the mean coil voltage and the PWM '
+                        'commands), mean-voltage (around the electronics through '
+                        'coil_voltage_mean) or electronics (through the model of the drive '
+                        'electronics); default auto')
     p.add_argument('--seed', type=int, default=0,
                    help='seed of the baseline search\'s global stage (default 0)')
     p.add_argument('--threads', type=positive_int, default=None, metavar='N',
@@ -109,7 +119,7 @@ def settings_from_args(args: argparse.Namespace) -> 'IdentifySettings':
         params_file=args.params, allow_implausible=args.allow_implausible, topic=args.topic,
         valve=args.valve, topic_map=tuple(args.map), diagnose=not args.no_diagnosis,
         effects=tuple(args.effects) if args.effects is not None else None, quick=args.quick,
-        seed=args.seed, threads=args.threads)
+        seed=args.seed, threads=args.threads, route=args.route)
 
 
 def main(argv: list[str] | None = None) -> int:
