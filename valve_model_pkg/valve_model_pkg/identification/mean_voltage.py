@@ -22,10 +22,11 @@ from dataclasses import dataclass, replace
 from ..errors import MeasurementFormatError
 from .measurement import Measurement
 
-__all__ = ['ROUTE_AUTO', 'ROUTE_BARE_COIL', 'ROUTE_CHOICES', 'ROUTE_ELECTRONICS',
-           'ROUTE_FORCE', 'ROUTE_MEAN_VOLTAGE', 'ROUTE_TEXT', 'Route', 'RouteScreen',
-           'VoltageCheck', 'around_electronics', 'check_mean_voltage', 'choose_route',
-           'settle_route', 'through_drive_counterparts']
+__all__ = ['ROUTES_TOLD_APART', 'ROUTE_AUTO', 'ROUTE_BARE_COIL', 'ROUTE_CHOICES',
+           'ROUTE_ELECTRONICS', 'ROUTE_FORCE', 'ROUTE_MEAN_VOLTAGE', 'ROUTE_TEXT',
+           'Route', 'RouteScreen', 'VOLTAGE_MATCH_FRACTION', 'VoltageCheck',
+           'around_electronics', 'check_mean_voltage', 'choose_route', 'settle_route',
+           'through_drive_counterparts']
 
 #: Records through the drive electronics, fitted through the mean coil voltage.
 ROUTE_MEAN_VOLTAGE = 'mean_coil_voltage'
@@ -188,6 +189,19 @@ def choose_route(fit: Sequence[Measurement], validation: Sequence[Measurement],
     return replace(around, rival=electronics)
 
 
+#: The current errors tell the two routes apart when the worse route's RMS error is at
+#: least this multiple of the better one's (its own error, in quadrature, at least 0.75 of
+#: the better route's). Below it a misfit common to both (an effect the baseline lacks)
+#: dominates, and the measured mean voltage decides (:data:`VOLTAGE_MATCH_FRACTION`).
+ROUTES_TOLD_APART = 1.25
+#: The electronics model describes the drive when it reproduces the measured
+#: coil_voltage_mean to within this fraction of the supply (RMS) on the fit window, at the
+#: baseline of the screen: a driver of the suite's form is reproduced to 0.2 % without an
+#: effect and 2.6 % with a strong unmodelled eddy current (it shifts the dip), drivers of
+#: other forms to 10-60 %.
+VOLTAGE_MATCH_FRACTION = 0.05
+
+
 @dataclass(frozen=True)
 class RouteScreen:
     """The two routes' baselines compared after the search on the search window.
@@ -202,16 +216,38 @@ class RouteScreen:
         the Bayesian information criterion on the fit window without them.
     compared_on : str
         What the figures are taken on, in words.
+    voltage : VoltageCheck or None
+        How well the electronics route's drive reproduces the measured mean coil voltage.
     """
 
     rmse_a: dict[str, float]
     criterion: dict[str, float]
     compared_on: str
+    voltage: VoltageCheck | None = None
+
+    @property
+    def told_apart(self) -> bool:
+        """True when the current errors tell the routes apart (:data:`ROUTES_TOLD_APART`)."""
+        a, b = sorted(self.rmse_a[r] for r in (ROUTE_MEAN_VOLTAGE, ROUTE_ELECTRONICS))
+        if not (math.isfinite(a) and math.isfinite(b) and a > 0.0):
+            return True
+        return b >= ROUTES_TOLD_APART * a
+
+    @property
+    def voltage_matched(self) -> bool:
+        """True when the electronics reproduce the measured mean voltage
+        (:data:`VOLTAGE_MATCH_FRACTION`)."""
+        v = self.voltage
+        return v is not None and v.rmse_v <= VOLTAGE_MATCH_FRACTION * v.supply_v
 
     @property
     def chosen(self) -> str:
-        """The route with the lower criterion (the mean-voltage route on a tie or when
-        neither is finite: it needs no electronics model)."""
+        """The route with the lower criterion when the current errors tell them apart,
+        else the electronics route when they reproduce the measured mean voltage; the
+        mean-voltage route on a tie or when neither is finite (it needs no electronics
+        model)."""
+        if not self.told_apart:
+            return ROUTE_ELECTRONICS if self.voltage_matched else ROUTE_MEAN_VOLTAGE
         mv, el = self.criterion[ROUTE_MEAN_VOLTAGE], self.criterion[ROUTE_ELECTRONICS]
         if math.isfinite(el) and (el < mv or not math.isfinite(mv)):
             return ROUTE_ELECTRONICS
@@ -219,19 +255,31 @@ class RouteScreen:
 
     def to_json(self) -> dict[str, object]:
         """``report.json`` ``route.chosen_by_data``."""
+        v = self.voltage
         return {'chosen': self.chosen, 'rmse_a': dict(self.rmse_a),
                 'criterion': dict(self.criterion), 'compared_on': self.compared_on,
+                'told_apart_by_the_current': self.told_apart,
+                'electronics_voltage_rmse_v': v.rmse_v if v is not None else None,
                 'statement': self.statement()}
 
     def statement(self) -> str:
         """The choice in words, with both routes' errors."""
         other = (ROUTE_ELECTRONICS if self.chosen == ROUTE_MEAN_VOLTAGE
                  else ROUTE_MEAN_VOLTAGE)
-        return (f'route chosen by the data: the records carry both the mean coil voltage '
+        text = (f'route chosen by the data: the records carry both the mean coil voltage '
                 f'and the PWM commands; each route\'s baseline, searched on the search '
                 f'window, misses {self.compared_on} by '
                 f'{1e3 * self.rmse_a[self.chosen]:.3g} mA RMS on the chosen route against '
                 f'{1e3 * self.rmse_a[other]:.3g} mA {ROUTE_TEXT[other]}')
+        if self.told_apart:
+            return text
+        v = self.voltage
+        return text + (
+            f' (within a factor {ROUTES_TOLD_APART:g}: a misfit common to both routes '
+            'dominates, so the measured mean voltage decided: '
+            + (v.statement() if v is not None else 'no electronics check')
+            + (', within ' if self.voltage_matched else ', beyond ')
+            + f'{100 * VOLTAGE_MATCH_FRACTION:g} % of the supply)')
 
 
 def settle_route(route: Route, screen: RouteScreen) -> Route:

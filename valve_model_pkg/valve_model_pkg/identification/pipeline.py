@@ -638,8 +638,11 @@ def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
     route (the bare coil, cheap), the electronics route starts from that optimum
     (:func:`alternate_electronics`: the drive constants with the valve held, then the
     valve again, twice); each route's baseline is compared on the hold-out records (RMS
-    error), else on the fit window (BIC, the electronics' constants counted). The better
-    route goes on; the other one's error is stated in the route's note.
+    error), else on the fit window (BIC, the electronics' constants counted). When the
+    errors are too close to tell the routes apart (a misfit common to both dominates),
+    the electronics route is taken if it reproduces the measured mean voltage
+    (:class:`.mean_voltage.RouteScreen`). The chosen route goes on; the other one's error
+    is stated in the route's note.
     """
     t0 = time.perf_counter()
     prep = prepare_data(inputs, settings, say)
@@ -665,8 +668,11 @@ def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
                            sum(rival_rounds.drive.carried.values()))):
         rmse[name], crit[name] = _route_criterion(
             p.validation if hold else p.fit, p.space.params(u), p.space.size + k, hold)
+    voltage = check_mean_voltage(rival.fit.full, rival.space.params(rival_rounds.u),
+                                 rival_rounds.drive.electronics)
     screen = RouteScreen(rmse, crit, 'the hold-out records' if hold else
-                         'the fit window (BIC with the electronics constants counted)')
+                         'the fit window (BIC with the electronics constants counted)',
+                         voltage)
     settled = settle_route(route, screen)
     say(settled.note)
     timings['route_screen'] = _lap(say, 'route screen', t0)
