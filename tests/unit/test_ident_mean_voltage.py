@@ -151,19 +151,22 @@ def test_the_screen_settles_on_the_route_that_describes_the_record_better(
     assert f'against {1e3 * other:.3g} mA' in settled.note
 
 
-@pytest.mark.parametrize('voltage_v, chosen', [
-    (0.63, ROUTE_ELECTRONICS), (2.4, ROUTE_MEAN_VOLTAGE), (None, ROUTE_MEAN_VOLTAGE)])
-def test_routes_the_current_cannot_tell_apart_are_told_by_the_voltage(
-        short_record: Path, voltage_v: float | None, chosen: str) -> None:
-    """Both baselines miss by about 96 mA (an effect they lack): the electronics go on
-    only when they reproduce the measured mean voltage (5 % of 24 V = 1.2 V)."""
+@pytest.mark.parametrize('voltage_v', [0.63, 2.4, None])
+def test_routes_the_current_cannot_tell_apart_keep_the_mean_voltage(
+        short_record: Path, voltage_v: float | None) -> None:
+    """Both baselines miss by about 96 mA (an effect they lack): the mean-voltage route
+    goes on whatever the electronics' voltage check, which the note reports."""
     route = choose_route([read_csv(short_record)], [])
-    figures = {ROUTE_MEAN_VOLTAGE: 95.9e-3, ROUTE_ELECTRONICS: 97.2e-3}
+    figures = {ROUTE_MEAN_VOLTAGE: 97.2e-3, ROUTE_ELECTRONICS: 95.9e-3}
     check = None if voltage_v is None else VoltageCheck(voltage_v, 24.0, 1000)
     screen = RouteScreen(figures, figures, 'the hold-out records', check)
-    assert not screen.told_apart and screen.chosen == chosen
-    assert 'the measured mean voltage decided' in settle_route(route, screen).note
-    # apart by the current, the voltage does not matter
+    assert not screen.told_apart and screen.chosen == ROUTE_MEAN_VOLTAGE
+    note = settle_route(route, screen).note
+    assert 'a misfit common to both routes dominates' in note
+    assert ('V RMS' in note) == (voltage_v is not None)
+    if voltage_v is not None:
+        assert f'{voltage_v:.3g} V RMS' in note
+    # apart by the current, the lower error goes on
     apart = RouteScreen({ROUTE_MEAN_VOLTAGE: 4.9e-3, ROUTE_ELECTRONICS: 27.5e-3},
                         {ROUTE_MEAN_VOLTAGE: 4.9e-3, ROUTE_ELECTRONICS: 27.5e-3},
                         'the hold-out records', check)
@@ -267,10 +270,11 @@ def test_an_unknown_drive_is_fitted_to_the_noise_around_it(
     rep = json.loads((tmp_path / 'report.json').read_text(encoding='utf-8'))
     assert rep['route']['name'] == ROUTE_MEAN_VOLTAGE
     assert 'no electronics model' in (tmp_path / 'report.md').read_text(encoding='utf-8')
-    # the data chose the route: the electronics model misses this driver
+    # the data chose the route: the electronics model misses this driver (at baseline,
+    # without the effect, 27.5 against 4.9 mA; with eddy current 37 against 28 mA)
     screen = rep['route']['chosen_by_data']
     assert screen['chosen'] == ROUTE_MEAN_VOLTAGE
-    assert screen['rmse_a'][ROUTE_ELECTRONICS] > 2.0 * screen['rmse_a'][ROUTE_MEAN_VOLTAGE]
+    assert screen['rmse_a'][ROUTE_ELECTRONICS] > screen['rmse_a'][ROUTE_MEAN_VOLTAGE]
     # the electronics are still identified (for the simulator), and checked on the voltage
     notes = ' '.join(rep['drive_electronics']['notes'])
     assert 'reproduce the measured coil_voltage_mean to' in notes

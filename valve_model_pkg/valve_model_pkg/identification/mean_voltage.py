@@ -24,7 +24,7 @@ from .measurement import Measurement
 
 __all__ = ['ROUTES_TOLD_APART', 'ROUTE_AUTO', 'ROUTE_BARE_COIL', 'ROUTE_CHOICES',
            'ROUTE_ELECTRONICS', 'ROUTE_FORCE', 'ROUTE_MEAN_VOLTAGE', 'ROUTE_TEXT',
-           'Route', 'RouteScreen', 'VOLTAGE_MATCH_FRACTION', 'VoltageCheck',
+           'Route', 'RouteScreen', 'VoltageCheck',
            'around_electronics', 'check_mean_voltage', 'choose_route', 'settle_route',
            'through_drive_counterparts']
 
@@ -192,14 +192,9 @@ def choose_route(fit: Sequence[Measurement], validation: Sequence[Measurement],
 #: The current errors tell the two routes apart when the worse route's RMS error is at
 #: least this multiple of the better one's (its own error, in quadrature, at least 0.75 of
 #: the better route's). Below it a misfit common to both (an effect the baseline lacks)
-#: dominates, and the measured mean voltage decides (:data:`VOLTAGE_MATCH_FRACTION`).
+#: dominates, and the mean-voltage route goes on: it has no electronics constants that
+#: could absorb part of that misfit and keep it through the effect refits.
 ROUTES_TOLD_APART = 1.25
-#: The electronics model describes the drive when it reproduces the measured
-#: coil_voltage_mean to within this fraction of the supply (RMS) on the fit window, at the
-#: baseline of the screen: a driver of the suite's form is reproduced to 0.2 % without an
-#: effect and 2.6 % with a strong unmodelled eddy current (it shifts the dip), drivers of
-#: other forms to 10-60 %.
-VOLTAGE_MATCH_FRACTION = 0.05
 
 
 @dataclass(frozen=True)
@@ -217,7 +212,8 @@ class RouteScreen:
     compared_on : str
         What the figures are taken on, in words.
     voltage : VoltageCheck or None
-        How well the electronics route's drive reproduces the measured mean coil voltage.
+        How well the electronics route's drive reproduces the measured mean coil voltage
+        (reported, not deciding).
     """
 
     rmse_a: dict[str, float]
@@ -234,20 +230,12 @@ class RouteScreen:
         return b >= ROUTES_TOLD_APART * a
 
     @property
-    def voltage_matched(self) -> bool:
-        """True when the electronics reproduce the measured mean voltage
-        (:data:`VOLTAGE_MATCH_FRACTION`)."""
-        v = self.voltage
-        return v is not None and v.rmse_v <= VOLTAGE_MATCH_FRACTION * v.supply_v
-
-    @property
     def chosen(self) -> str:
         """The route with the lower criterion when the current errors tell them apart,
-        else the electronics route when they reproduce the measured mean voltage; the
-        mean-voltage route on a tie or when neither is finite (it needs no electronics
+        else the mean-voltage route (also when neither is finite: it needs no electronics
         model)."""
         if not self.told_apart:
-            return ROUTE_ELECTRONICS if self.voltage_matched else ROUTE_MEAN_VOLTAGE
+            return ROUTE_MEAN_VOLTAGE
         mv, el = self.criterion[ROUTE_MEAN_VOLTAGE], self.criterion[ROUTE_ELECTRONICS]
         if math.isfinite(el) and (el < mv or not math.isfinite(mv)):
             return ROUTE_ELECTRONICS
@@ -271,15 +259,14 @@ class RouteScreen:
                 f'window, misses {self.compared_on} by '
                 f'{1e3 * self.rmse_a[self.chosen]:.3g} mA RMS on the chosen route against '
                 f'{1e3 * self.rmse_a[other]:.3g} mA {ROUTE_TEXT[other]}')
-        if self.told_apart:
-            return text
         v = self.voltage
+        check = f'; {v.statement()}' if v is not None else ''
+        if self.told_apart:
+            return text + check
         return text + (
             f' (within a factor {ROUTES_TOLD_APART:g}: a misfit common to both routes '
-            'dominates, so the measured mean voltage decided: '
-            + (v.statement() if v is not None else 'no electronics check')
-            + (', within ' if self.voltage_matched else ', beyond ')
-            + f'{100 * VOLTAGE_MATCH_FRACTION:g} % of the supply)')
+            'dominates, and the mean-voltage route goes on, with no electronics constants '
+            f'to absorb part of it{check})')
 
 
 def settle_route(route: Route, screen: RouteScreen) -> Route:

@@ -640,9 +640,9 @@ def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
     valve again, twice); each route's baseline is compared on the hold-out records (RMS
     error), else on the fit window (BIC, the electronics' constants counted). When the
     errors are too close to tell the routes apart (a misfit common to both dominates),
-    the electronics route is taken if it reproduces the measured mean voltage
-    (:class:`.mean_voltage.RouteScreen`). The chosen route goes on; the other one's error
-    is stated in the route's note.
+    the mean-voltage route goes on (:class:`.mean_voltage.RouteScreen`). The chosen route
+    goes on; the other one's error and how well the electronics reproduce the measured
+    mean voltage are stated in the route's note.
     """
     t0 = time.perf_counter()
     prep = prepare_data(inputs, settings, say)
