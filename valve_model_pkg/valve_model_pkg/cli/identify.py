@@ -4,6 +4,7 @@ Usage::
 
     valve_identify --fit FILE... [--validate FILE...] [--params YAML] -o DIR
                    [--quick] [--no-diagnosis] [--effects EFFECT...] [--seed N]
+                   [--route auto|mean-voltage|electronics]
                    [--threads N] [--no-plots] [--topic TOPIC] [--valve NAME]
                    [--map ROLE=TOPIC[.FIELD]...] [--voltage CH --current CH ...]
                    [--electronics YAML [--fit-electronics] | --choose-electronics]
@@ -14,9 +15,11 @@ rosbag2 bag directory (the suite's ``/valve/state``, or a user's own topics with
 ``DIR/imported/``). ``pwm`` and ``operation``
 records and PWM bags run the model's drive electronics from the commands and compare like
 with like (interval means); when every such record carries the mean coil voltage
-(``coil_voltage_mean``), the valve is fitted around the electronics through it instead, and
-the report says which route was taken. One such record without ``--validate`` has its last
-30 % held out for validation (docs/identification.md). The supply pressure comes from each file.
+(``coil_voltage_mean``), the valve may be fitted around the electronics through it
+instead: the data choose the route that describes the records better (``--route`` forces
+one), and the report says which route was taken, why, and the other route's error. One
+such record without ``--validate`` has its last 30 % held out for validation
+(docs/identification.md). The supply pressure comes from each file.
 Progress goes to stderr; DIR receives report.json, report.md with PNG plots and
 params.yaml (loadable by valve_simulate / valve_map), and for records through the drive
 electronics electronics.yaml (the electronics identified with it, for ``--electronics``).
@@ -60,6 +63,7 @@ class _MapAction(argparse.Action):
 
 
 def _parser() -> argparse.ArgumentParser:
+    from valve_model_pkg.identification.mean_voltage import ROUTE_CHOICES
     from valve_model_pkg.interface import TOPIC_STATE
     from valve_model_pkg.model.parameters import EFFECTS
 
@@ -96,6 +100,12 @@ def _parser() -> argparse.ArgumentParser:
                    help='candidate effects (default: all of ' + ', '.join(EFFECTS) + ')')
     p.add_argument('--quick', action='store_true',
                    help='smaller search effort (for tests and previews)')
+    p.add_argument('--route', choices=ROUTE_CHOICES, default='auto',
+                   help='how records through the drive electronics are fitted: auto (the '
+                        'data choose when they carry both the mean coil voltage and the PWM '
+                        'commands), mean-voltage (around the electronics through '
+                        'coil_voltage_mean) or electronics (through the model of the drive '
+                        'electronics); default auto')
     p.add_argument('--seed', type=int, default=0,
                    help='seed of the baseline search\'s global stage (default 0)')
     p.add_argument('--threads', type=positive_int, default=None, metavar='N',
@@ -128,7 +138,7 @@ def settings_from_args(args: argparse.Namespace) -> 'IdentifySettings':
         effects=tuple(args.effects) if args.effects is not None else None, quick=args.quick,
         seed=args.seed, threads=args.threads, electronics=args.electronics,
         electronics_fixed=not args.fit_electronics,
-        choose_electronics=args.choose_electronics)
+        choose_electronics=args.choose_electronics, route=args.route)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -9,19 +9,24 @@ record into one that drives the bare coil with the measured mean held over each 
 (:func:`.model_adapter.interval_segments`): the model's flux linkage then obeys the
 balance with the measured voltage integral over every interval, and its current is
 compared like with like (interval means against interval means). :func:`choose_route`
-takes this route when every record through the electronics carries the voltage, and says
-which route it took.
+offers this route when every record through the electronics carries the voltage; when
+they carry the main PWM commands too, the electronics route is its rival and the data
+choose between them (:class:`RouteScreen`, :func:`settle_route`); a route may be forced.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
+from ..errors import MeasurementFormatError
 from .measurement import Measurement
 
-__all__ = ['ROUTE_BARE_COIL', 'ROUTE_ELECTRONICS', 'ROUTE_MEAN_VOLTAGE', 'ROUTE_TEXT',
-           'Route', 'VoltageCheck', 'around_electronics', 'check_mean_voltage',
-           'choose_route', 'through_drive_counterparts']
+__all__ = ['ROUTES_TOLD_APART', 'ROUTE_AUTO', 'ROUTE_BARE_COIL', 'ROUTE_CHOICES',
+           'ROUTE_ELECTRONICS', 'ROUTE_FORCE', 'ROUTE_MEAN_VOLTAGE', 'ROUTE_TEXT',
+           'Route', 'RouteScreen', 'VoltageCheck',
+           'around_electronics', 'check_mean_voltage', 'choose_route', 'settle_route',
+           'through_drive_counterparts']
 
 #: Records through the drive electronics, fitted through the mean coil voltage.
 ROUTE_MEAN_VOLTAGE = 'mean_coil_voltage'
@@ -36,6 +41,12 @@ ROUTE_TEXT = {
                        'commands)',
     ROUTE_BARE_COIL: 'the bare coil driven by the measured voltage',
 }
+#: ``IdentifySettings.route`` (``valve_identify --route``): the data choose.
+ROUTE_AUTO = 'auto'
+#: ``IdentifySettings.route`` values that force a route, and the route each forces.
+ROUTE_FORCE = {'mean-voltage': ROUTE_MEAN_VOLTAGE, 'electronics': ROUTE_ELECTRONICS}
+#: Every value ``IdentifySettings.route`` takes.
+ROUTE_CHOICES = (ROUTE_AUTO, *ROUTE_FORCE)
 
 
 @dataclass(frozen=True)
@@ -53,6 +64,10 @@ class Route:
         the electronics after the valve.
     note : str
         The route in words, with the reason when the mean voltage is not used.
+    rival : Route or None
+        The electronics route beside the mean-voltage route when the records carry both
+        the mean voltage and the main PWM commands and no route is forced: the data
+        choose (:func:`settle_route`). None: the route is settled.
     """
 
     name: str
@@ -61,6 +76,7 @@ class Route:
     through_drive_fit: list[Measurement]
     through_drive_validation: list[Measurement]
     note: str
+    rival: Route | None = None
 
     @property
     def text(self) -> str:
@@ -92,44 +108,172 @@ def _lacking(records: Sequence[Measurement]) -> list[str]:
     return [m.name for m in records if m.drive is not None and not m.has_coil_voltage_mean]
 
 
-def choose_route(fit: Sequence[Measurement], validation: Sequence[Measurement]) -> Route:
-    """The mean-voltage route when every record through the electronics carries it.
+def _forced(force: str) -> str:
+    return f' (forced: route {force!r})'
 
-    Every record through the drive electronics (fit and validation) must carry a finite
-    ``coil_voltage_mean`` on every sample; then all of them are fitted around the
-    electronics (:func:`around_electronics`). Otherwise all run the electronics model,
-    and the note names the records that lack the voltage. States of the suite's own
-    simulator (bag metadata ``state_source: simulator``) run the electronics model that
-    made them: it is exact there, while the held mean leaves some mA where the drive
-    switches within an interval and the spool moves.
+
+def choose_route(fit: Sequence[Measurement], validation: Sequence[Measurement],
+                 force: str = ROUTE_AUTO) -> Route:
+    """The route of the valve fit, or the two routes the data choose between.
+
+    Records without drive electronics run the bare coil whatever ``force`` says. Records
+    through the electronics take the mean-voltage route only when every one of them (fit
+    and validation) carries a finite ``coil_voltage_mean`` on every sample; otherwise the
+    electronics route, and the note names the records that lack the voltage. When they
+    all carry it (and the main PWM commands, which every record through the electronics
+    has), the mean-voltage route is returned with the electronics route as its
+    :attr:`Route.rival`, for the data to choose (:func:`settle_route`). States of the
+    suite's own simulator (bag metadata ``state_source: simulator``) run the electronics
+    model that made them, without a contest: it is exact there, while the held mean leaves
+    some mA where the drive switches within an interval and the spool moves.
+
+    Parameters
+    ----------
+    fit, validation : sequence of Measurement
+        The records as read.
+    force : str
+        :data:`ROUTE_AUTO`, or a key of :data:`ROUTE_FORCE`.
+
+    Raises
+    ------
+    ValueError
+        ``force`` is not one of :data:`ROUTE_CHOICES`.
+    MeasurementFormatError
+        ``force`` is ``'mean-voltage'`` and a record through the electronics lacks a
+        complete ``coil_voltage_mean`` (the message names it).
     """
+    if force not in ROUTE_CHOICES:
+        raise ValueError(f'route: {force!r} is not one of {", ".join(ROUTE_CHOICES)}')
     fit, validation = list(fit), list(validation)
     through = [m for m in fit + validation if m.drive is not None]
     if not through:
         return Route(ROUTE_BARE_COIL, fit, validation, fit, validation,
-                     'valve fitted on the bare coil driven by the measured voltage')
-    if all(m.metadata.get('state_source') == 'simulator' for m in through):
-        return Route(ROUTE_ELECTRONICS, fit, validation, fit, validation,
-                     f'valve fitted {ROUTE_TEXT[ROUTE_ELECTRONICS]}: the records are states '
-                     "of the suite's own simulator, whose electronics model made them "
-                     'exactly (the mean coil voltage, held over each interval, would only '
-                     'approximate the drive within the intervals)')
+                     'valve fitted on the bare coil driven by the measured voltage'
+                     + ('' if force == ROUTE_AUTO else
+                        f' (route {force!r} not applied: no record runs through drive '
+                        'electronics)'))
+    electronics = Route(ROUTE_ELECTRONICS, fit, validation, fit, validation,
+                        f'valve fitted {ROUTE_TEXT[ROUTE_ELECTRONICS]}')
+    if ROUTE_FORCE.get(force) == ROUTE_ELECTRONICS:
+        return replace(electronics, note=electronics.note + _forced(force))
     lacking = _lacking(fit + validation)
+    if lacking and force != ROUTE_AUTO:
+        first = next(m for m in fit + validation
+                     if m.drive is not None and not m.has_coil_voltage_mean)
+        raise MeasurementFormatError(
+            first.source, None, f'route {force!r} needs a finite coil_voltage_mean on every '
+            'sample of every record through the drive electronics; this record has none '
+            'or gaps')
+    if force == ROUTE_AUTO and all(m.metadata.get('state_source') == 'simulator'
+                                   for m in through):
+        return replace(electronics, note=electronics.note + (
+            ": the records are states of the suite's own simulator, whose electronics "
+            'model made them exactly (the mean coil voltage, held over each interval, '
+            'would only approximate the drive within the intervals)'))
     if lacking:
         carry = [m.name for m in through if m.has_coil_voltage_mean]
         why = (f' ({", ".join(lacking)} lack a complete coil_voltage_mean, which '
                f'{", ".join(carry)} carry; the mean voltage is used only when every record '
                'through the electronics carries it)') if carry else ''
-        return Route(ROUTE_ELECTRONICS, fit, validation, fit, validation,
-                     f'valve fitted {ROUTE_TEXT[ROUTE_ELECTRONICS]}{why}')
+        return replace(electronics, note=electronics.note + why)
 
     def conv(ms: list[Measurement]) -> list[Measurement]:
         return [around_electronics(m) if m.drive is not None else m for m in ms]
-    return Route(ROUTE_MEAN_VOLTAGE, conv(fit), conv(validation), fit, validation,
-                 f'valve fitted {ROUTE_TEXT[ROUTE_MEAN_VOLTAGE]}: the measured '
-                 'coil_voltage_mean is held over each current interval on the bare coil, so '
-                 'the interval voltage balance holds with the measured voltage; interval '
-                 'means of the current are compared')
+    around = Route(ROUTE_MEAN_VOLTAGE, conv(fit), conv(validation), fit, validation,
+                   f'valve fitted {ROUTE_TEXT[ROUTE_MEAN_VOLTAGE]}: the measured '
+                   'coil_voltage_mean is held over each current interval on the bare coil, '
+                   'so the interval voltage balance holds with the measured voltage; '
+                   'interval means of the current are compared')
+    if force != ROUTE_AUTO:
+        return replace(around, note=around.note + _forced(force))
+    return replace(around, rival=electronics)
+
+
+#: The current errors tell the two routes apart when the worse route's RMS error is at
+#: least this multiple of the better one's (its own error, in quadrature, at least 0.75 of
+#: the better route's). Below it a misfit common to both (an effect the baseline lacks)
+#: dominates, and the mean-voltage route goes on: it has no electronics constants that
+#: could absorb part of that misfit and keep it through the effect refits.
+ROUTES_TOLD_APART = 1.25
+
+
+@dataclass(frozen=True)
+class RouteScreen:
+    """The two routes' baselines compared after the search on the search window.
+
+    Attributes
+    ----------
+    rmse_a : dict
+        RMS current error of each route's baseline [A] on the compared records, by route
+        name (:data:`ROUTE_MEAN_VOLTAGE`, :data:`ROUTE_ELECTRONICS`).
+    criterion : dict
+        The figure that decides, by route name: the RMS error on the hold-out records, or
+        the Bayesian information criterion on the fit window without them.
+    compared_on : str
+        What the figures are taken on, in words.
+    voltage : VoltageCheck or None
+        How well the electronics route's drive reproduces the measured mean coil voltage
+        (reported, not deciding).
+    """
+
+    rmse_a: dict[str, float]
+    criterion: dict[str, float]
+    compared_on: str
+    voltage: VoltageCheck | None = None
+
+    @property
+    def told_apart(self) -> bool:
+        """True when the current errors tell the routes apart (:data:`ROUTES_TOLD_APART`)."""
+        a, b = sorted(self.rmse_a[r] for r in (ROUTE_MEAN_VOLTAGE, ROUTE_ELECTRONICS))
+        if not (math.isfinite(a) and math.isfinite(b) and a > 0.0):
+            return True
+        return b >= ROUTES_TOLD_APART * a
+
+    @property
+    def chosen(self) -> str:
+        """The route with the lower criterion when the current errors tell them apart,
+        else the mean-voltage route (also when neither is finite: it needs no electronics
+        model)."""
+        if not self.told_apart:
+            return ROUTE_MEAN_VOLTAGE
+        mv, el = self.criterion[ROUTE_MEAN_VOLTAGE], self.criterion[ROUTE_ELECTRONICS]
+        if math.isfinite(el) and (el < mv or not math.isfinite(mv)):
+            return ROUTE_ELECTRONICS
+        return ROUTE_MEAN_VOLTAGE
+
+    def to_json(self) -> dict[str, object]:
+        """``report.json`` ``route.chosen_by_data``."""
+        v = self.voltage
+        return {'chosen': self.chosen, 'rmse_a': dict(self.rmse_a),
+                'criterion': dict(self.criterion), 'compared_on': self.compared_on,
+                'told_apart_by_the_current': self.told_apart,
+                'electronics_voltage_rmse_v': v.rmse_v if v is not None else None,
+                'statement': self.statement()}
+
+    def statement(self) -> str:
+        """The choice in words, with both routes' errors."""
+        other = (ROUTE_ELECTRONICS if self.chosen == ROUTE_MEAN_VOLTAGE
+                 else ROUTE_MEAN_VOLTAGE)
+        text = (f'route chosen by the data: the records carry both the mean coil voltage '
+                f'and the PWM commands; each route\'s baseline, searched on the search '
+                f'window, misses {self.compared_on} by '
+                f'{1e3 * self.rmse_a[self.chosen]:.3g} mA RMS on the chosen route against '
+                f'{1e3 * self.rmse_a[other]:.3g} mA {ROUTE_TEXT[other]}')
+        v = self.voltage
+        check = f'; {v.statement()}' if v is not None else ''
+        if self.told_apart:
+            return text + check
+        return text + (
+            f' (within a factor {ROUTES_TOLD_APART:g}: a misfit common to both routes '
+            'dominates, and the mean-voltage route goes on, with no electronics constants '
+            f'to absorb part of it{check})')
+
+
+def settle_route(route: Route, screen: RouteScreen) -> Route:
+    """The route ``screen`` chose among ``route`` and its :attr:`Route.rival`, settled, its
+    note saying why and the other route's error."""
+    chosen = route.rival if screen.chosen == ROUTE_ELECTRONICS else route
+    return replace(chosen, rival=None, note=f'{chosen.note}; {screen.statement()}')
 
 
 def through_drive_counterparts(route: Route, prepared: Sequence[Measurement]

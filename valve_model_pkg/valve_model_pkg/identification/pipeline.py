@@ -15,7 +15,9 @@ result:
 3. :func:`search_baseline` (:class:`~.search.SearchResult`): the direct search of the
    baseline parameters;
 4. :func:`alternate_electronics` (:class:`ElectronicsRounds`): the drive electronics and
-   the valve searched in turn (records through the electronics only);
+   the valve searched in turn (records through the electronics only); stages 2-4 run in
+   :func:`search_route`, which lets the data choose the route when the records carry both
+   the mean coil voltage and the PWM commands (:class:`RouteStart`);
 5. :func:`polish_baseline` (:class:`BaselineFit`): local polishes on the fit window until
    they no longer pay, the electronics' last fit;
 6. :func:`analyse_baseline` (:class:`BaselineAnalysis`): errors, residuals, intervals,
@@ -46,8 +48,9 @@ from .diagnosis import (
 )
 from .drive import DriveReport, fit_drive
 from .electronics_family import FamilyChoice, describe_form, select_family
-from .mean_voltage import (ROUTE_BARE_COIL, ROUTE_MEAN_VOLTAGE, Route, check_mean_voltage,
-                           choose_route, through_drive_counterparts)
+from .mean_voltage import (ROUTE_AUTO, ROUTE_BARE_COIL, ROUTE_CHOICES, ROUTE_ELECTRONICS,
+                           ROUTE_MEAN_VOLTAGE, Route, RouteScreen, check_mean_voltage,
+                           choose_route, settle_route, through_drive_counterparts)
 from .measurement import Measurement, hold_out, with_current_lsb
 from .problem import (
     ErrorFigures, FitData, ParameterSpace, baseline_space, effect_space, start_point,
@@ -164,6 +167,11 @@ class IdentifySettings:
         Without :attr:`electronics`: choose the form by the data (``--choose-electronics``;
         it adds about half of a quick run), or use the paper's driver's form and fit its
         constants (False, the default).
+    route : str
+        How records through the drive electronics are fitted (``--route``): ``'auto'``
+        lets the data choose when they carry both the mean coil voltage and the PWM
+        commands (:func:`search_route`); ``'mean-voltage'`` or ``'electronics'`` forces
+        that route (:func:`.mean_voltage.choose_route`).
     """
 
     params_file: str | None = None
@@ -197,11 +205,15 @@ class IdentifySettings:
     electronics: ElectronicsConfig | str | os.PathLike | None = None
     electronics_fixed: bool = True
     choose_electronics: bool = False
+    route: str = ROUTE_AUTO
 
     def __post_init__(self) -> None:
         if self.electronics is not None and not isinstance(self.electronics,
                                                            ElectronicsConfig):
             object.__setattr__(self, 'electronics', load_electronics(self.electronics))
+        if self.route not in ROUTE_CHOICES:
+            raise ParameterError(f'route: {self.route!r} is not one of '
+                                 f'{", ".join(ROUTE_CHOICES)}')
         unknown = [e for e in self.effects or () if e not in EFFECTS]
         if unknown:
             raise ParameterError(f'effects: {unknown[0]!r} is not an effect of the model; '
@@ -300,6 +312,7 @@ class Identification:
     route: str = ROUTE_BARE_COIL
     family: FamilyChoice | None = None
     electronics_source: str = ''
+    route_screen: RouteScreen | None = None
 
 
 def _lap(say: Say, what: str, t0: float) -> float:
@@ -364,11 +377,13 @@ def read_inputs(fit: Sequence[Record], validate: Sequence[Record],
     return Inputs(fit_list, val_list, base.replace(**neutral))
 
 
-def route_inputs(inputs: Inputs, say: Say) -> tuple[Inputs, Route]:
+def route_inputs(inputs: Inputs, settings: IdentifySettings, say: Say
+                 ) -> tuple[Inputs, Route]:
     """The records as the valve is fitted: around the drive electronics through their
     measured mean coil voltage when every record through them carries it
-    (:func:`.mean_voltage.choose_route`); returns the inputs and the route."""
-    route = choose_route(inputs.fit, inputs.validation)
+    (:func:`.mean_voltage.choose_route`, ``settings.route``); returns the inputs and the
+    route (with its rival when the data are to choose, :func:`search_route`)."""
+    route = choose_route(inputs.fit, inputs.validation, settings.route)
     say(route.note)
     return Inputs(route.fit, route.validation, inputs.base), route
 
@@ -699,6 +714,107 @@ def alternate_electronics(prep: Prepared, res: SearchResult, settings: IdentifyS
         if again.cost < c_best:
             u_best = again.u
     return ElectronicsRounds(u_best, drive)
+
+
+@dataclass
+class RouteStart:
+    """The route of the valve fit and its baseline search (:func:`search_route`).
+
+    Attributes
+    ----------
+    route : Route
+        The route, settled.
+    prep : Prepared
+        The route's data.
+    rounds : ElectronicsRounds
+        The search's optimum (after the electronics rounds on records through them).
+    screen : RouteScreen or None
+        Both routes' errors when the data chose the route.
+    elec : ElectronicsSettled or None
+        The drive electronics' form the route's data run through (None: none settled).
+    """
+
+    route: Route
+    prep: Prepared
+    rounds: ElectronicsRounds
+    screen: RouteScreen | None = None
+    elec: ElectronicsSettled | None = None
+
+
+def _route_criterion(data: FitData, params: ValveParameters, k: int, hold_out: bool
+                     ) -> tuple[float, float]:
+    """(RMSE [A], criterion) of ``params`` on ``data``: the criterion is the RMSE on
+    hold-out records, else the BIC ``n ln(mse) + k ln(n)`` over the compared samples."""
+    rmse = data.errors(params).rmse
+    if hold_out or not math.isfinite(rmse):
+        return rmse, rmse
+    n = sum(int(v.sum()) for v in data.valid)
+    return rmse, n * math.log(max(rmse, 1e-12) ** 2) + k * math.log(n)
+
+
+def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
+                 timings: dict[str, float], say: Say) -> RouteStart:
+    """Stages 2-4 on the route, or on both routes when the records carry both the mean
+    coil voltage and the PWM commands (``route.rival``): the data choose.
+
+    The screen costs one global search: the baseline is searched on the mean-voltage
+    route (the bare coil, cheap), the electronics route starts from that optimum
+    (:func:`alternate_electronics`: the drive constants with the valve held, then the
+    valve again, twice); each route's baseline is compared on the hold-out records (RMS
+    error), else on the fit window (BIC, the electronics' constants counted). When the
+    errors are too close to tell the routes apart (a misfit common to both dominates),
+    the mean-voltage route goes on (:class:`.mean_voltage.RouteScreen`). The chosen route
+    goes on; the other one's error and how well the electronics reproduce the measured
+    mean voltage are stated in the route's note.
+    """
+    t0 = time.perf_counter()
+    prep = prepare_data(inputs, settings, say, settings.electronics)
+    timings['phase_grid'] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    elec = settle_electronics(inputs, prep, settings, say)
+    prep = elec.prep
+    if elec.family is not None:
+        timings['electronics_family'] = _lap(say, 'electronics family', t0)
+    t0 = time.perf_counter()
+    res = search_baseline(prep, settings, say)
+    timings['baseline_search'] = _lap(say, 'baseline search', t0)
+    if elec.family is not None:
+        t0 = time.perf_counter()
+        elec = reselect_electronics(prep, elec, prep.space.params(res.u), settings, say)
+        prep = elec.prep
+        timings['electronics_family_2'] = _lap(say, 'electronics family at the baseline', t0)
+    t0 = time.perf_counter()
+    if route.rival is None:
+        rounds = alternate_electronics(prep, res, settings, say)
+        if prep.through_electronics:
+            timings['electronics'] = _lap(say, 'drive electronics', t0)
+        return RouteStart(route, prep, rounds, elec=elec)
+    say('route: the records carry the mean coil voltage and the PWM commands; the '
+        'electronics route starts from the mean-voltage optimum')
+    rival_inputs = Inputs(route.rival.fit, route.rival.validation, inputs.base)
+    rival_elec = settle_electronics(rival_inputs,
+                                    prepare_data(rival_inputs, settings, say,
+                                                 settings.electronics), settings, say)
+    rival = rival_elec.prep
+    rival_rounds = alternate_electronics(rival, res, settings, say)
+    hold = prep.validation is not None
+    rmse, crit = {}, {}
+    for name, p, u, k in ((ROUTE_MEAN_VOLTAGE, prep, res.u, 0),
+                          (ROUTE_ELECTRONICS, rival, rival_rounds.u,
+                           sum(rival_rounds.drive.carried.values()))):
+        rmse[name], crit[name] = _route_criterion(
+            p.validation if hold else p.fit, p.space.params(u), p.space.size + k, hold)
+    voltage = check_mean_voltage(rival.fit.full, rival.space.params(rival_rounds.u),
+                                 rival_rounds.drive.electronics)
+    screen = RouteScreen(rmse, crit, 'the hold-out records' if hold else
+                         'the fit window (BIC with the electronics constants counted)',
+                         voltage)
+    settled = settle_route(route, screen)
+    say(settled.note)
+    timings['route_screen'] = _lap(say, 'route screen', t0)
+    if settled.name == ROUTE_ELECTRONICS:
+        return RouteStart(settled, rival, rival_rounds, screen, rival_elec)
+    return RouteStart(settled, prep, ElectronicsRounds(res.u, None), screen, elec)
 
 
 @dataclass
@@ -1323,31 +1439,17 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
     """
     say = progress or (lambda s: None)
     t_start = time.perf_counter()
-    inputs, route = route_inputs(read_inputs(fit, validate, settings, base, say), say)
-    prep = prepare_data(inputs, settings, say, settings.electronics)
+    inputs, route = route_inputs(read_inputs(fit, validate, settings, base, say), settings,
+                                 say)
+    timings: dict[str, float] = {}
+    start = search_route(inputs, route, settings, timings, say)
+    route, prep, rounds = start.route, start.prep, start.rounds
     prep.notes.insert(0, route.note)
-    timings: dict[str, float] = {'phase_grid': time.perf_counter() - t_start}
-    t0 = time.perf_counter()
-    elec = settle_electronics(inputs, prep, settings, say)
-    prep = elec.prep
-    if elec.family is not None:
-        timings['electronics_family'] = _lap(say, 'electronics family', t0)
-    t0 = time.perf_counter()
-    res = search_baseline(prep, settings, say)
-    timings['baseline_search'] = _lap(say, 'baseline search', t0)
-    if elec.family is not None:
-        t0 = time.perf_counter()
-        elec = reselect_electronics(prep, elec, prep.space.params(res.u), settings, say)
-        timings['electronics_family_2'] = _lap(say, 'electronics family at the baseline', t0)
-    t0 = time.perf_counter()
-    rounds = alternate_electronics(prep, res, settings, say)
-    if prep.through_electronics:
-        timings['electronics'] = _lap(say, 'drive electronics', t0)
     t0 = time.perf_counter()
     baseline = polish_baseline(prep, rounds, settings, say)
     timings['baseline_polish'] = _lap(say, 'baseline polish', t0)
     timings['baseline_fit'] = sum(timings.get(k, 0.0) for k in (
-        'baseline_search', 'electronics', 'baseline_polish'))
+        'baseline_search', 'route_screen', 'electronics', 'baseline_polish'))
     t0 = time.perf_counter()
     analysis = analyse_baseline(prep, baseline, say)
     timings['baseline_analysis'] = _lap(say, 'baseline analysis', t0)
@@ -1375,5 +1477,6 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
         sim_val={'baseline': analysis.evaluated.current_val,
                  'augmented': augmented.current_val},
         convergence=baseline.convergence, drive=drive, at_bound=analysis.at_bound,
-        notes=prep.notes + analysis.notes, route=route.name, family=elec.family,
-        electronics_source=elec.source)
+        notes=prep.notes + analysis.notes, route=route.name, route_screen=start.screen,
+        family=start.elec.family if start.elec else None,
+        electronics_source=start.elec.source if start.elec else '')

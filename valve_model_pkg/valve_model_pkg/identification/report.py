@@ -17,7 +17,9 @@
                     "baseline_fit", "baseline_validation", "augmented_fit",
                     "augmented_validation"}, ...} | null,
       "route": {"name": "mean_coil_voltage|drive_electronics|bare_coil",
-                "text": "<how the valve was fitted, in words>"},
+                "text": "<how the valve was fitted, in words>",
+                "chosen_by_data": {"chosen", "rmse_a", "criterion", "compared_on",
+                                   "statement"} | null},
       "drive_electronics": {"values", "bounds", "ci95_pct", "form", "electronics",
                     ...} | null,
       "electronics_form": {"form", "constants", "source", "family": {"chosen",
@@ -126,7 +128,9 @@ def report_dict(ident: Identification) -> dict[str, object]:
         'augmented': _stage_dict(ident.augmented),
         'diagnosis': diag,
         'unlisted': unl.to_json() if unl is not None else None,
-        'route': {'name': ident.route, 'text': ROUTE_TEXT[ident.route]},
+        'route': {'name': ident.route, 'text': ROUTE_TEXT[ident.route],
+                  'chosen_by_data': (ident.route_screen.to_json()
+                                     if ident.route_screen is not None else None)},
         'start_parameters': _parameters(ident.start),
         'table2_measured': TABLE2_MEASURED,
         'search_bounds': {b.name: [b.low, b.high] for b in ident.space.bounds},
@@ -325,6 +329,8 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
         lines += [f'- {e}' for e in d['evidence']]
         lines += ['', f'Rule: {d["numbers"]["rule"]}.', '']
     lines += [f'**Valve fitted {rep["route"]["text"]}.**', '']
+    if rep['route'].get('chosen_by_data'):
+        lines += [f'**Route.** {rep["route"]["chosen_by_data"]["statement"]}.', '']
     conv = rep.get('baseline_convergence')
     if conv:
         lines += [f'**Baseline convergence.** {conv["statement"]}.', '']
