@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import logging
 import math
+import queue
 import struct
 import threading
 import time
@@ -324,6 +325,7 @@ class CanopenProtocol(DeviceProtocol):
                                    f'{self.node_id} was not set up again within '
                                    f'{timeout_s:g} s')
         try:
+            self._drop_late_answers()
             register = self._node.sdo.upload(0x1001, 0)[0]
         except (SdoCommunicationError, SdoAbortedError, can.CanError) as err:
             return ClearResult(False, (), before, f'canopen node {self.node_id} set up '
@@ -354,11 +356,23 @@ class CanopenProtocol(DeviceProtocol):
     def _nmt(self, command: int) -> None:
         self._send(self._nmt_frame(command))
 
+    def _drop_late_answers(self) -> None:
+        """Forget SDO answers that came after their request timed out (a device that was
+        still booting answers the reads it got then): one of them would be taken for the
+        answer to the next request ("Unexpected response"). Requests go one at a time, so
+        nothing waiting before a new request belongs to it."""
+        while True:
+            try:
+                self._node.sdo.responses.get_nowait()
+            except queue.Empty:
+                return
+
     def _wait_for_device(self, deadline: float) -> None:
         """Read the device type until the device answers (bounded, retried)."""
         last = ''
         while True:
             try:
+                self._drop_late_answers()
                 raw = self._node.sdo.upload(0x1000, 0)
                 device_type = struct.unpack_from('<I', raw.ljust(4, b'\0'))[0]
                 if device_type & 0xFFFF != 401:
@@ -386,6 +400,7 @@ class CanopenProtocol(DeviceProtocol):
 
     def _write(self, index: int, sub: int, data: bytes, what: str) -> None:
         try:
+            self._drop_late_answers()
             self._node.sdo.download(index, sub, data)
         except SdoAbortedError as err:
             raise self._abort(index, sub, what, err) from err
