@@ -35,7 +35,10 @@ def test_two_lockstep_runs_give_the_same_step_metrics(tmp_path: Path) -> None:
         # every quick goal, no pre-roll row, each starting when the demo says it took effect
         assert [round(st['setpoint_mm']) for st in run['steps']] == \
             [round(g * 1e3) for g, _ in demo_goals(quick=True)]
-        assert len(run['goal_times_s']) == len(run['steps'])
+        # the steps lie as far apart as the simulation times the demo held for the goals
+        goal_s, start_s = run['goal_times_s'], [st['start_s'] for st in run['steps']]
+        assert [b - a for a, b in zip(start_s, start_s[1:])] == \
+            pytest.approx([b - a for a, b in zip(goal_s, goal_s[1:])], abs=2e-6)
     for a, b in zip(first['steps'], second['steps']):
         assert a['setpoint_mm'] == b['setpoint_mm']
         assert a['start_s'] == pytest.approx(b['start_s'], abs=0.010)
