@@ -26,20 +26,19 @@ def _demo(out: Path) -> dict:
 
 
 @pytest.mark.slow   # two demo runs
-# serial: the simulation is deterministic, but the run report places the controller's
-# setpoint (std_msgs/Float64, no header) at the last joint state the recorder received
-# before it, so a recorder slowed by a CPU-bound test beside it can move a step's start
-# by a few control ticks: a limit of that placement, not of the lockstep.
-@pytest.mark.serial
 def test_two_lockstep_runs_give_the_same_step_metrics(tmp_path: Path) -> None:
     first, second = _demo(tmp_path / 'a'), _demo(tmp_path / 'b')
     for run in (first, second):
         assert run['clock'] == 'simulation (lockstep)'
         assert run['lockstep_timeouts'] == 0, run.get('last_lockstep_timeout')
         assert run['real_time_factor'] > 0.0
-        # every quick goal, no pre-roll row
+        # every quick goal, no pre-roll row, each starting when the demo says it took effect
         assert [round(st['setpoint_mm']) for st in run['steps']] == \
             [round(g * 1e3) for g, _ in demo_goals(quick=True)]
+        # the steps lie as far apart as the simulation times the demo held for the goals
+        goal_s, start_s = run['goal_times_s'], [st['start_s'] for st in run['steps']]
+        assert [b - a for a, b in zip(start_s, start_s[1:])] == \
+            pytest.approx([b - a for a, b in zip(goal_s, goal_s[1:])], abs=2e-6)
     for a, b in zip(first['steps'], second['steps']):
         assert a['setpoint_mm'] == b['setpoint_mm']
         assert a['start_s'] == pytest.approx(b['start_s'], abs=0.010)

@@ -323,6 +323,8 @@ def _drive_lockstep(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
         sup.say(f'simulation time in lockstep with the controller, {cap}')
         wall0 = time.monotonic()
         target = _run_to(w, sup, PRE_ROLL_S)
+        # each goal takes effect at the next tick after the held time it is acknowledged at
+        info['goal_times_s'] = []
         sup.say(f'{"goal":>8} {"position":>9} {"error":>7} {"chamber":>9} {"flow cmd":>9} '
                 f'{"duty":>6}  sim time, real-time factor')
         for goal_m, hold_s in cfg.goals:
@@ -330,6 +332,7 @@ def _drive_lockstep(sup: Supervisor, cfg: DemoConfig) -> tuple[int, dict]:
                     '(simulated)')
             if not _send_goal(w, sup, goal_m):
                 return 1, info
+            info['goal_times_s'].append(target)
             w.reset()
             target = _run_to(w, sup, target + hold_s)
             sup.say(w.step_line(goal_m, f'  t={w.clock_ns * 1e-9:6.2f}s rtf {w.rtf:4.2f}'))

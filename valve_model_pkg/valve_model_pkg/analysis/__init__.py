@@ -25,7 +25,7 @@ from .flow_prediction import (FLOW_PREDICTION_WINDOW_S, FlowPrediction, FlowPred
                               flow_prediction_error, window_means)
 from .run_report import (RunReport, TopicSummary, ValveSummary, topic_summaries,
                          valve_summary, write_run_report)
-from .steps import MIN_SETTLED_DWELL_S, SETTLING_BAND_M, StepResult, step_results
+from .steps import MIN_SETTLED_DWELL_S, SETTLING_BAND_M, StepResult, step_results, steps_at
 from .timebase import RunTimeBase, own_times_s, run_time_base
 from .tracking import (GOALS_FROM_ACKNOWLEDGEMENT, GoalTimes, RunTracking, TrackingError,
                        acknowledged_goal_times, run_tracking_error, tracking_error)
@@ -37,6 +37,6 @@ __all__ = [
     'SETTLING_BAND_M', 'StepResult', 'TopicSummary', 'TrackingError',
     'ValveSummary', 'acknowledged_goal_times', 'calibrate_flow_scale', 'flow_prediction_error',
     'full_opening_area_m2', 'map_opening_m', 'own_times_s', 'run_chamber',
-    'run_time_base', 'run_tracking_error', 'step_results', 'strictly_increasing',
+    'run_time_base', 'run_tracking_error', 'step_results', 'steps_at', 'strictly_increasing',
     'topic_summaries', 'tracking_error', 'valve_summary', 'window_means', 'write_run_report',
 ]

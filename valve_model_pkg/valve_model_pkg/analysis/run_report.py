@@ -25,7 +25,7 @@ from ..interface import (ATMOSPHERIC_PRESSURE_PA, TOPIC_DUTY_COMMAND, TOPIC_FLOW
                          TOPIC_STATE)
 from ..recording import TopicData, load_bag, sequence_gaps
 from .plots import Line, Panel, Span, moving_mean, plot_panels, with_gaps
-from .steps import MIN_SETTLED_DWELL_S, SETTLING_BAND_M, StepResult, step_results
+from .steps import MIN_SETTLED_DWELL_S, SETTLING_BAND_M, StepResult, step_results, steps_at
 from .timebase import RunTimeBase, own_times_s, run_time_base
 
 __all__ = ['RunReport', 'TopicSummary', 'write_run_report', 'topic_summaries',
@@ -193,8 +193,14 @@ class _Position(NamedTuple):
     steps: list[StepResult] | None
 
 
-def _position(data: Mapping[str, TopicData], clock: RunTimeBase) -> _Position:
-    """Piston position and setpoint; the steps from the setpoints on the run's clock."""
+def _position(data: Mapping[str, TopicData], clock: RunTimeBase,
+              info: Mapping) -> _Position:
+    """Piston position and setpoint; the steps from the setpoints on the run's clock.
+
+    A run that states when its goals took effect (``goal_times_s``: stamp-clock seconds,
+    one per entry of ``goals``) has its steps placed there; otherwise each setpoint (no
+    header) at the joint state received before it (:class:`RunTimeBase`).
+    """
     joints = data.get('/' + TOPIC_JOINT_STATES)
     if joints is None or not len(joints):
         return _Position(None, None)
@@ -207,8 +213,20 @@ def _position(data: Mapping[str, TopicData], clock: RunTimeBase) -> _Position:
         tsp = clock.times_s(setp)
         sp = setp['data'].astype(float)
         lines.append(Line(tsp, sp * 1e3, 'setpoint', '--'))
-        steps = step_results(tsp, sp, tj, pos)
+        known = _goal_steps(info, clock.origin_ns)
+        steps = step_results(tsp, sp, tj, pos) if known is None \
+            else steps_at(known[0], known[1], tj, pos)
     return _Position(Panel('position [mm]', lines), steps)
+
+
+def _goal_steps(info: Mapping, origin_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Start times [s from ``origin_ns``] and setpoints [m] of the run's goals, from
+    ``goal_times_s`` and ``goals``; None when the run does not state them."""
+    times, goals = info.get('goal_times_s'), info.get('goals')
+    if not times or not goals or len(times) != len(goals):
+        return None
+    start_ns = np.round(np.asarray(times, dtype=float) * 1e9).astype(np.int64) - origin_ns
+    return start_ns * 1e-9, np.array([g['position_mm'] * 1e-3 for g in goals], dtype=float)
 
 
 def _valve_panels(data: Mapping[str, TopicData], vtopic, state: TopicData, ts: np.ndarray,
@@ -296,6 +314,8 @@ def write_run_report(bag: str | Path, out: str | Path, title: str = 'valve suite
     run_info : mapping, optional
         What the run knows beyond the bag (the demo: clock, real-time factor, lockstep
         timeouts, backend, goals, ...): shown in ``## Run`` and copied into report.json.
+        With ``goal_times_s`` (the stamp-clock time [s] each of ``goals`` took effect)
+        the steps start there instead of at the recorded setpoints.
     valve : str
         Namespace of the valve whose topics are plotted ('' = none; the double
         cylinder's ``cap``).
@@ -324,7 +344,7 @@ def write_run_report(bag: str | Path, out: str | Path, title: str = 'valve suite
     ts = own_times_s(state, origin)
     info = dict(run_info or {})
     topics = topic_summaries(data, origin)
-    position = _position(data, run_time_base(data, origin))
+    position = _position(data, run_time_base(data, origin), info)
     steps = position.steps or []
     lines = [f'# {title}', '', f'Bag: `{bag}`', '', *_run_lines(info), *_topic_lines(topics)]
     if position.steps is not None:

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ['StepResult', 'step_results', 'SETTLING_BAND_M', 'MIN_SETTLED_DWELL_S']
+__all__ = ['StepResult', 'step_results', 'steps_at', 'SETTLING_BAND_M', 'MIN_SETTLED_DWELL_S']
 
 #: Half-width of the band a settled position stays in [m].
 SETTLING_BAND_M = 1e-3
@@ -90,30 +90,62 @@ def step_results(t_set: np.ndarray, setpoint: np.ndarray, t_pos: np.ndarray,
         return []
     change = np.flatnonzero(np.abs(np.diff(setpoint)) > 1e-9) + 1
     starts = np.concatenate([[0], change])
+    if not include_initial:
+        starts = starts[1:]
+    return steps_at(t_set[starts], setpoint[starts], t_pos, position, band_m)
+
+
+def steps_at(start_s: np.ndarray, setpoint_m: np.ndarray, t_pos: np.ndarray,
+             position: np.ndarray, band_m: float = SETTLING_BAND_M) -> list[StepResult]:
+    """Characterise steps whose start times are known, each until the next one's start.
+
+    A run that knows when each goal took effect (the lockstep demo: the simulation time it
+    held while the controller acknowledged the goal) places its steps there, independent
+    of when the recorder received the setpoints.
+
+    Parameters
+    ----------
+    start_s, setpoint_m : numpy.ndarray, shape (k,)
+        Start times [s, ascending, the positions' time base] and setpoints [m] of the steps.
+    t_pos, position : numpy.ndarray, shape (n,)
+        Piston position: times [s, ascending] and values [m].
+    band_m : float
+        Half-width of the settling band [m].
+
+    Returns
+    -------
+    list of StepResult
+        As :func:`step_results`: one per step with at least 5 position samples.
+    """
     results = []
-    for k, i0 in enumerate(starts):
-        if k == 0 and not include_initial:
-            continue
-        t0 = t_set[i0]
-        t1 = t_set[starts[k + 1]] if k + 1 < len(starts) else t_pos[-1]
-        sp = float(setpoint[i0])
-        sel = (t_pos >= t0) & (t_pos < t1)
-        if sel.sum() < _MIN_STEP_SAMPLES:
-            continue
-        tt, yy = t_pos[sel], position[sel]
-        err = yy - sp
-        previous = float(position[np.searchsorted(t_pos, t0) - 1]) if t0 > t_pos[0] else yy[0]
-        direction = np.sign(sp - previous) or 1.0
-        overshoot = max(0.0, float(np.max(direction * err)))
-        outside = np.flatnonzero(np.abs(err) > band_m)
-        dwell = min(MIN_SETTLED_DWELL_S, 0.5 * (t1 - t0))
-        if outside.size == 0:
-            settle = 0.0
-        elif outside[-1] + 1 < tt.size and t1 - tt[outside[-1] + 1] >= dwell:
-            settle = float(tt[outside[-1] + 1] - t0)
-        else:
-            settle = None
-        tail = tt >= t1 - 0.1 * (t1 - t0)
-        results.append(StepResult(float(t0), sp, float(yy[-1]), overshoot, settle,
-                                  float(np.mean(err[tail]))))
+    if position.size == 0:
+        return results
+    for k, (t0, sp) in enumerate(zip(start_s, setpoint_m)):
+        t1 = start_s[k + 1] if k + 1 < len(start_s) else t_pos[-1]
+        step = _step(float(t0), float(t1), float(sp), t_pos, position, band_m)
+        if step is not None:
+            results.append(step)
     return results
+
+
+def _step(t0: float, t1: float, sp: float, t_pos: np.ndarray, position: np.ndarray,
+          band_m: float) -> StepResult | None:
+    """One step's window [t0, t1) characterised; None with fewer than 5 samples."""
+    sel = (t_pos >= t0) & (t_pos < t1)
+    if sel.sum() < _MIN_STEP_SAMPLES:
+        return None
+    tt, yy = t_pos[sel], position[sel]
+    err = yy - sp
+    previous = float(position[np.searchsorted(t_pos, t0) - 1]) if t0 > t_pos[0] else yy[0]
+    direction = np.sign(sp - previous) or 1.0
+    overshoot = max(0.0, float(np.max(direction * err)))
+    outside = np.flatnonzero(np.abs(err) > band_m)
+    dwell = min(MIN_SETTLED_DWELL_S, 0.5 * (t1 - t0))
+    if outside.size == 0:
+        settle = 0.0
+    elif outside[-1] + 1 < tt.size and t1 - tt[outside[-1] + 1] >= dwell:
+        settle = float(tt[outside[-1] + 1] - t0)
+    else:
+        settle = None
+    tail = tt >= t1 - 0.1 * (t1 - t0)
+    return StepResult(t0, sp, float(yy[-1]), overshoot, settle, float(np.mean(err[tail])))
