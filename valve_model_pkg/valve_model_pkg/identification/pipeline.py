@@ -359,16 +359,18 @@ def read_inputs(fit: Sequence[Record], validate: Sequence[Record],
         The parameter file is refused.
     """
     from ..model.parameters import load_parameters
+    # The parameter file first: a refused file costs no reading of the records.
+    if base is None:
+        base = load_parameters(settings.params_file,
+                               allow_implausible=settings.allow_implausible)
     fit_list, val_list = _read(fit, settings), _read(validate, settings)
     for m in fit_list + val_list:
         if m.supply_pressure_pa is None:
             raise MeasurementFormatError(
                 m.source, None, 'metadata lacks supply_pressure_pa (gauge, Pa)')
+    for m in fit_list + val_list:
         for note in m.notes:
             say(f'{m.name}: {note}')
-    if base is None:
-        base = load_parameters(settings.params_file,
-                               allow_implausible=settings.allow_implausible)
     # Effects a parameter file may switch on are switched off for the baseline: the
     # baseline is the paper's model, the loop decides on effects.
     neutral = {}
