@@ -48,7 +48,8 @@ VARIANTS = (
             ('--backend', 'can', '--protocol', 'canopen')),
     Variant('j1939', 'make demo BACKEND=can PROTOCOL=j1939',
             ('--backend', 'can', '--protocol', 'j1939')),
-    Variant('dbc', 'make demo BACKEND=can PROTOCOL=dbc', ('--backend', 'can', '--protocol', 'dbc')),
+    Variant('dbc', 'make demo BACKEND=can PROTOCOL=dbc',
+            ('--backend', 'can', '--protocol', 'dbc')),
 )
 
 #: report.json's fields the page shows; a run keeps only these.
