@@ -59,7 +59,40 @@ def test_yaml_manifest_with_defaults_and_per_valve_options(records: Path) -> Non
     assert read_manifest(m2)[0].valve_id == 'A1'
 
 
+def test_route_electronics_and_topic_map_reach_the_identification_settings(
+        records: Path) -> None:
+    from valve_model_pkg.fleet.worker import settings_from_options
+    _write(records / 'driver.yaml', 'electronics: {}\n')
+    m = _write(records / 'fleet.yaml',
+               'valves:\n'
+               '  - valve_id: A1\n    fit: a/fit.csv\n    route: mean-voltage\n'
+               '    electronics: driver.yaml\n    fit_electronics: true\n'
+               '    map: "current=/coil/current; duty=/pwm.duty"\n'
+               '  - valve_id: B2\n    fit: a/fit.csv\n    choose_electronics: yes\n')
+    a, b = read_manifest(m)
+    assert a.options['electronics'] == str((records / 'driver.yaml').resolve())
+    sa, sb = settings_from_options(a.options), settings_from_options(b.options)
+    assert sa.route == 'mean-voltage' and not sa.electronics_fixed
+    assert sa.electronics is not None
+    assert sa.topic_map == ('current=/coil/current', 'duty=/pwm.duty')
+    assert sb.choose_electronics and sb.electronics is None and sb.route == 'auto'
+    # The options are part of what a resumed run compares.
+    assert a.fingerprint() != read_manifest(_write(
+        records / 'other.yaml', 'valves:\n  - {valve_id: A1, fit: a/fit.csv}\n'))[0].fingerprint()
+
+
 @pytest.mark.parametrize('name, text, where, words', [
+    ('m.yaml', 'valves: [{valve_id: A1, fit: a/fit.csv, route: sideways}]\n',
+     'm.yaml:1: route:', ["'sideways'", 'mean-voltage']),
+    ('m.yaml', 'valves: [{valve_id: A1, fit: a/fit.csv, electronics: none.yaml}]\n',
+     'm.yaml:1: electronics:', ["'none.yaml'", 'no such file']),
+    ('m.yaml', 'valves: [{valve_id: A1, fit: a/fit.csv, fit_electronics: true}]\n',
+     'm.yaml:1: fit_electronics:', ['electronics file']),
+    ('m.yaml', 'valves: [{valve_id: A1, fit: a/fit.csv, choose_electronics: true,\n'
+     '           electronics: known.yaml}]\n', 'm.yaml:1: choose_electronics:',
+     ['exclude']),
+    ('m.csv', 'valve_id,fit,map\nA1,a/fit.csv,current=/c;current=/d\n', 'm.csv:2: map:',
+     ['given twice']),
     ('m.csv', 'valve_id,fit\nA1,a/missing.csv\n', 'm.csv:2: fit:', ["'a/missing.csv'",
                                                                     'no such file']),
     ('m.csv', 'valve_id,fit,colour\nA1,a/fit.csv,red\n', 'm.csv:1: colour:', ['unknown']),

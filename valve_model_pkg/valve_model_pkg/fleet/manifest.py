@@ -14,10 +14,13 @@ YAML (a list of valves, or a mapping with ``valves`` and optional ``defaults``):
         fit: v001/fit_24v_step.csv          # a path or a list of paths
         validate: [v001/validate_15v_step.csv]
         params: known/v001.yaml             # optional per-valve options
+        route: mean-voltage
+        electronics: known/v001_driver.yaml
 
-Record paths (and ``params``) are relative to the manifest's folder. A refused manifest
-raises :class:`ManifestError`, whose message is one line naming the file, the line (CSV and
-YAML) and key, and the value.
+Record paths (and ``params``, ``electronics``) are relative to the manifest's folder. A
+refused manifest raises :class:`ManifestError`, whose message is one line naming the file,
+the line (CSV and YAML) and key, and the value. The options are ``valve_identify``'s
+(:data:`OPTION_KEYS`).
 """
 from __future__ import annotations
 
@@ -46,7 +49,17 @@ OPTION_KEYS: dict[str, tuple[type, str]] = {
     'plots': (bool, 'write the PNG plots into the valve folder'),
     'topic': (str, 'valve state topic in bag records'),
     'valve': (str, 'frame_id of the valve in multi-valve bags'),
+    'map': (str, 'ROLE=TOPIC[.FIELD] entries of bag records, separated by ";" '
+                 '(valve_identify --map)'),
+    'route': (str, 'auto, mean-voltage or electronics (valve_identify --route)'),
+    'electronics': (str, 'drive electronics description YAML (valve_identify --electronics)'),
+    'fit_electronics': (bool, 'the electronics file\'s constants are start values '
+                              '(valve_identify --fit-electronics)'),
+    'choose_electronics': (bool, 'the data choose the electronics\' form '
+                                 '(valve_identify --choose-electronics)'),
 }
+#: options naming a file, resolved relative to the manifest like the records
+_FILE_KEYS = ('params', 'electronics')
 _RECORD_KEYS = ('fit', 'validate')
 _ALL_KEYS = ('valve_id',) + _RECORD_KEYS + tuple(OPTION_KEYS)
 _TRUE = {'true', 'yes', '1', 'on'}
@@ -153,11 +166,36 @@ def _job(entry: dict[str, Any], defaults: dict[str, Any], path: Path, line: int 
             continue
         if kind is bool:
             options[key] = _bool(value, path, at(key), key)
-        elif key == 'params':
+        elif key in _FILE_KEYS:
             options[key] = _records(str(value), path, at(key), key, split=False)[0]
         else:
             options[key] = str(value).strip()
+    _check_options(options, path, at)
     return ValveJob(vid, fit, validate, options, line)
+
+
+def _check_options(options: dict[str, Any], path: Path, at: Any) -> None:
+    """Refuse what ``valve_identify`` would refuse: an unknown route, a malformed topic map,
+    ``fit_electronics`` without a file, ``choose_electronics`` beside one."""
+    from ..identification.mean_voltage import ROUTE_CHOICES
+    from ..identification.topic_map import parse_topic_map
+    route = options.get('route')
+    if route is not None and route not in ROUTE_CHOICES:
+        raise ManifestError(path, at('route'), 'route',
+                            f'{route!r} is not a route (known: {", ".join(ROUTE_CHOICES)})')
+    if 'map' in options:
+        entries = tuple(e.strip() for e in options['map'].split(';') if e.strip())
+        try:
+            parse_topic_map(entries)
+        except ValueError as err:
+            raise ManifestError(path, at('map'), 'map', str(err)) from None
+        options['map'] = ';'.join(entries)
+    if options.get('fit_electronics') and 'electronics' not in options:
+        raise ManifestError(path, at('fit_electronics'), 'fit_electronics',
+                            'true needs an electronics file (key electronics)')
+    if options.get('choose_electronics') and 'electronics' in options:
+        raise ManifestError(path, at('choose_electronics'), 'choose_electronics',
+                            'true and an electronics file exclude each other')
 
 
 def _read_csv(path: Path, defaults: dict[str, Any]) -> list[ValveJob]:

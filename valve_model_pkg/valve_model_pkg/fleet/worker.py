@@ -96,12 +96,17 @@ def _first_line(err: BaseException) -> str:
 
 def settings_from_options(opts: dict[str, Any]) -> 'IdentifySettings':
     """The :class:`~valve_model_pkg.identification.IdentifySettings` of a valve's manifest
-    options (``params``, ``quick``, ``diagnose``, ``topic``, ``valve``); what the manifest
-    does not name keeps ``valve_identify``'s default."""
+    options (:data:`~.manifest.OPTION_KEYS`); what the manifest does not name keeps
+    ``valve_identify``'s default."""
     from ..identification import IdentifySettings
-    kw: dict[str, Any] = {k: opts[k] for k in ('topic', 'valve') if k in opts}
+    kw: dict[str, Any] = {k: opts[k] for k in ('topic', 'valve', 'route', 'electronics')
+                          if k in opts}
+    if 'map' in opts:
+        kw['topic_map'] = tuple(e for e in opts['map'].split(';') if e)
     return IdentifySettings(params_file=opts.get('params'), quick=bool(opts.get('quick')),
-                            diagnose=bool(opts.get('diagnose', True)), **kw)
+                            diagnose=bool(opts.get('diagnose', True)),
+                            electronics_fixed=not opts.get('fit_electronics', False),
+                            choose_electronics=bool(opts.get('choose_electronics')), **kw)
 
 
 def run_valve(job: dict[str, Any]) -> dict[str, Any]:
