@@ -23,7 +23,8 @@ such record without ``--validate`` has its last 30 % held out for validation
 Progress goes to stderr; DIR receives report.json, report.md with PNG plots and
 params.yaml (loadable by valve_simulate / valve_map), and for records through the drive
 electronics electronics.yaml (the electronics identified with it, for ``--electronics``).
-Without ``--electronics`` the electronics' form (peak end, hold, release) is chosen by the
+Without ``--electronics`` the electronics have the suite's own form with their constants
+fitted, or with ``--choose-electronics`` the form (peak end, hold, release) chosen by the
 data; with it, the file's form and constants are used as given (``--fit-electronics``: its
 constants are start values of their fit). Exit status: 0 on success, 2 on
 refused input (one line naming file, line and reason), 1 on a failure inside.
