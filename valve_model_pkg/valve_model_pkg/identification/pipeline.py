@@ -52,6 +52,7 @@ from .mean_voltage import (ROUTE_AUTO, ROUTE_BARE_COIL, ROUTE_CHOICES, ROUTE_ELE
                            ROUTE_MEAN_VOLTAGE, Route, RouteScreen, check_mean_voltage,
                            choose_route, settle_route, through_drive_counterparts)
 from .measurement import Measurement, hold_out, with_current_lsb
+from .pwm_compare import pwm_comparison
 from .problem import (
     ErrorFigures, FitData, ParameterSpace, baseline_space, effect_space, start_point,
     unit_objective,
@@ -363,7 +364,8 @@ def read_inputs(fit: Sequence[Record], validate: Sequence[Record],
     if base is None:
         base = load_parameters(settings.params_file,
                                allow_implausible=settings.allow_implausible)
-    fit_list, val_list = _read(fit, settings), _read(validate, settings)
+    fit_list = [pwm_comparison(m) for m in _read(fit, settings)]
+    val_list = [pwm_comparison(m) for m in _read(validate, settings)]
     for m in fit_list + val_list:
         if m.supply_pressure_pa is None:
             raise MeasurementFormatError(

@@ -131,6 +131,7 @@ def report_dict(ident: Identification) -> dict[str, object]:
         'route': {'name': ident.route, 'text': ROUTE_TEXT[ident.route],
                   'chosen_by_data': (ident.route_screen.to_json()
                                      if ident.route_screen is not None else None)},
+        'current_comparison': _comparison(ident),
         'start_parameters': _parameters(ident.start),
         'table2_measured': TABLE2_MEASURED,
         'search_bounds': {b.name: [b.low, b.high] for b in ident.space.bounds},
@@ -150,6 +151,14 @@ def report_dict(ident: Identification) -> dict[str, object]:
         'units': {'iae': 'A s', 'rmse': 'A', 'nrmse_pct': '% of measured current range',
                   'parameters': 'SI (names of ValveParameters)'},
     })
+
+
+def _comparison(ident: Identification) -> dict[str, object] | None:
+    """How the current of pwm records through the electronics was compared (sample by
+    sample or in interval means, :func:`.pwm_compare.comparison_statement`)."""
+    from .pwm_compare import comparison_statement
+    st = comparison_statement(list(ident.fit_files) + list(ident.val_files))
+    return st.to_json() if st is not None else None
 
 
 def _electronics_form(ident: Identification) -> dict[str, object] | None:
@@ -331,6 +340,8 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
     lines += [f'**Valve fitted {rep["route"]["text"]}.**', '']
     if rep['route'].get('chosen_by_data'):
         lines += [f'**Route.** {rep["route"]["chosen_by_data"]["statement"]}.', '']
+    if rep.get('current_comparison'):
+        lines += [f'**Current comparison.** {rep["current_comparison"]["text"]}.', '']
     conv = rep.get('baseline_convergence')
     if conv:
         lines += [f'**Baseline convergence.** {conv["statement"]}.', '']
