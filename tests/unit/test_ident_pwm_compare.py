@@ -8,9 +8,9 @@ current is compared (identification/pwm_compare.py).
   chopper). That record comes from ``valve_simulate`` on purpose: the test judges whether
   identification reproduces the suite's own simulator, as the demo's bag is judged.
 * A record whose samples cannot follow the chopper's phase (the independent generator's
-  clocked hysteresis regulator at 20 kHz, sampled at 20 kHz) is compared in interval means,
-  and the report says so; a leakage inductance (20 mH, the generator's size) is then named
-  through the chopper, and the clean record of the same generator is answered ``none``.
+  20 kHz PI chopper or its clocked hysteresis regulator, sampled at 20 kHz) is compared in
+  interval means, and the report says so; a leakage inductance (20 mH, the generator's
+  size) is then named through the chopper, and a clean record is answered ``none``.
 """
 from __future__ import annotations
 
@@ -130,15 +130,19 @@ def test_a_clean_pwm_record_split_in_halves_is_fitted_below_2_pct(
     assert 'sample by sample' in (tmp_path / 'rep' / 'report.md').read_text(encoding='utf-8')
 
 
-def _generated(base: Path, effect: str) -> tuple[Path, Path]:
-    fit = pwm_dataset(base, seed=21, effect=effect, noise_a=NOISE_A, duration_s=0.4)
-    val = pwm_dataset(base, seed=22, effect=effect, noise_a=NOISE_A, duration_s=0.3)
+def _generated(base: Path, effect: str, electronics: str | None) -> tuple[Path, Path]:
+    fit = pwm_dataset(base, seed=21, effect=effect, noise_a=NOISE_A, duration_s=0.4,
+                      electronics=electronics)
+    val = pwm_dataset(base, seed=22, effect=effect, noise_a=NOISE_A, duration_s=0.3,
+                      electronics=electronics)
     return Path(fit['file']), Path(val['file'])
 
 
 @pytest.mark.slow
 def test_leakage_through_the_chopper_is_named(tmp_path: Path) -> None:
-    rep = _identify(*_generated(tmp_path, 'leakage_inductance'), tmp_path / 'rep')
+    # the generator's PI chopper close to the suite's driver (20 kHz, sampled at 20 kHz)
+    rep = _identify(*_generated(tmp_path, 'leakage_inductance', 'suite_like'),
+                    tmp_path / 'rep')
     assert rep['current_comparison']['kind'] == 'interval_means'
     assert rep['diagnosis']['effect'] == 'leakage_inductance'
     assert rep['augmented']['validation']['rmse'] < 0.8 * rep['baseline']['validation']['rmse']
@@ -147,6 +151,7 @@ def test_leakage_through_the_chopper_is_named(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_a_clean_generated_pwm_record_is_answered_none(tmp_path: Path) -> None:
-    rep = _identify(*_generated(tmp_path, 'none'), tmp_path / 'rep')
+    # the generator's own driver: a clocked hysteresis regulator, sampled at its clock
+    rep = _identify(*_generated(tmp_path, 'none', None), tmp_path / 'rep')
     assert rep['current_comparison']['kind'] == 'interval_means'
     assert rep['diagnosis']['effect'] == 'none'

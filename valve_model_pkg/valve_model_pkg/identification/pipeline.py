@@ -1281,8 +1281,11 @@ def refit_candidate(c: CandidateResult, job: RefitJob) -> CandidateResult:
     t1 = time.perf_counter()
     if job.prep.search is job.prep.fit:
         bar = job.bars[False]
+        # through the electronics the effect's amount is scanned first (rank_data): a
+        # leakage inductance through the chopper is sharp in its amount
         r = refit_effect(job.prep.space, bar.data, job.baseline.params, c.effect,
-                         job.effort, progress=None, screen=_fit_criterion(bar, c))
+                         job.effort, progress=None, screen=_fit_criterion(bar, c),
+                         rank_data=bar.data if job.prep.through_electronics else None)
         done = WindowRefit(r.params, r.cost, _screened(r, 'fit') if r.screened_out else '')
     else:
         done = _refit_on_window(c, job)

@@ -20,6 +20,8 @@
                 "text": "<how the valve was fitted, in words>",
                 "chosen_by_data": {"chosen", "rmse_a", "criterion", "compared_on",
                                    "statement"} | null},
+      "current_comparison": {"kind": "samples|interval_means|mixed", "interval_s",
+                "text"} | null,
       "drive_electronics": {"values", "bounds", "ci95_pct", "form", "electronics",
                     ...} | null,
       "electronics_form": {"form", "constants", "source", "family": {"chosen",
@@ -41,6 +43,11 @@ explains a structured residual; when it pays the effect is ``unlisted``. The mod
 simulate such a term, so it is never written to ``params.yaml`` (which then holds the
 baseline) and ``augmented`` stays the baseline; its errors before and after are in
 ``unlisted.errors``.
+
+``current_comparison`` says how the current of bench ``pwm`` records through the drive
+electronics was compared: sample by sample (the samples follow the chopper) or in interval
+means (:mod:`.pwm_compare`; the errors are then those of the means); null for other
+records.
 
 ``model_misfit`` is set when the answer is ``none`` but the baseline misses the record by
 a structured error well above the noise that no candidate explains: the model (valve or
