@@ -115,6 +115,20 @@ def test_the_held_out_half_starts_in_motion(clean_halves: tuple[Path, Path]) -> 
     assert fit.sampling == val.sampling == 'instant'
 
 
+def test_a_coil_voltage_sampled_in_step_with_the_chopper_is_not_a_bare_coil_input(
+        tmp_path: Path) -> None:
+    # at 20 kHz every sample of the 20 kHz chopper falls in its on-time: the column reads
+    # 24 V throughout the hold while the current is held at 0.5 A
+    from valve_model_pkg.cli.simulate import main as simulate_main
+    path = tmp_path / 'pwm20k.csv'
+    assert simulate_main(['--experiment', 'pwm', '--duration', '0.06', '--sample-rate',
+                          '20000', '-o', str(path), '--no-plot', '-q']) == 0
+    m = read_csv(path)
+    assert m.through_electronics
+    assert any('miss the chopper' in n for n in m.notes)
+    assert pwm_comparison(m).sampling == 'interval_mean'
+
+
 def _identify(fit: Path, val: Path, out: Path, *extra: str) -> dict:
     assert identify_main(['--fit', str(fit), '--validate', str(val), '-o', str(out),
                           '--no-plots', '--quiet', *extra]) == 0
