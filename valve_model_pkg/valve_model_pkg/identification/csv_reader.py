@@ -31,6 +31,10 @@ _LOG = logging.getLogger(__name__)
 #: Largest current of a bare coil after a long on-phase, as a fraction of V / R_max: a
 #: lower plateau means a current chopper holds it (R_max = 22.5 ohm, the search bound).
 _BARE_COIL_R_MAX_OHM = 22.5
+#: Shortest on-phase of a pwm record's coil voltage searched for a held plateau [s]: a bare
+#: coil (tau = L / R, about 11 ms) still rises by 5 % of its level within the last fifth of
+#: 4 ms; a chopper holds it flat.
+_PWM_MIN_ON_S = 4e-3
 
 
 def read_csv(path: str | Path) -> Measurement:
@@ -123,6 +127,14 @@ def _pwm_input(spath: str, record: dataformat.TraceRecord, notes: list[str]
         notes.append('coil_voltage toggles faster than its samples resolve (the 20 kHz '
                      'current chopper): not used as a bare-coil input; the model runs '
                      'the drive electronics from the main PWM column instead')
+    elif use_coil and _held_plateau(record.t_s, coil, record.current_a,
+                                    _PWM_MIN_ON_S) is not None:
+        use_coil = False
+        level, volts = _held_plateau(record.t_s, coil, record.current_a, _PWM_MIN_ON_S)
+        notes.append(f'coil_voltage stays at {volts:.3g} V while the current holds '
+                     f'{level:.3g} A: its samples miss the chopper (sampled in step with '
+                     'it), so it is not used as a bare-coil input; the model runs the drive '
+                     'electronics from the main PWM column instead')
     elif coil is not None and not use_coil:
         notes.append('coil_voltage has missing values: not used; the model runs the '
                      'drive electronics from the main PWM column')
@@ -254,11 +266,31 @@ def _refuse_pwm_in_step(spath: str, t: np.ndarray, v: np.ndarray, i: np.ndarray)
             f'voltage column switches on {pulses} times: a PWM command. Record it as '
             "'pwm' (main PWM into the drive electronics) or 'operation'; it is not fitted as "
             'a bare coil')
+    held = _held_plateau(t, v, i)
+    if held is not None:
+        level, volts = held
+        raise MeasurementFormatError(
+            spath, None, f"experiment is 'step' (bare coil) but the current holds "
+            f'{level:.3g} A at {volts:.3g} V: a bare coil would need R > {volts / level:.0f} '
+            "ohm. A current chopper (the drive electronics) is in the loop: record it as "
+            "'pwm' or 'operation'")
+
+
+def _held_plateau(t: np.ndarray, v: np.ndarray, i: np.ndarray, min_on_s: float = 8e-3
+                  ) -> tuple[float, float] | None:
+    """``(current [A], voltage [V])`` of a flat current plateau at the end of an on-phase
+    of ``v`` at least ``min_on_s`` long [s], well below what a bare coil reaches (0.55 V /
+    22.5 ohm; zero current is no plateau): a current chopper the voltage column does not
+    show; else None."""
+    vmax = float(np.max(np.abs(v)))
+    if vmax <= 0.0:
+        return None
+    on = np.abs(v) > 0.5 * vmax
     # long on-phases: a bare coil's current keeps rising towards V/R; a chopper holds it low
     edges = np.flatnonzero(np.diff(on.astype(int))) + 1
     bounds = np.concatenate(([0], edges, [on.size]))
     for a, b in zip(bounds[:-1], bounds[1:]):
-        if not on[a] or t[b - 1] - t[a] < 8e-3:
+        if not on[a] or t[b - 1] - t[a] < min_on_s:
             continue
         tail = np.abs(i[a + int(0.8 * (b - a)):b])
         tail = tail[np.isfinite(tail)]
@@ -271,11 +303,8 @@ def _refuse_pwm_in_step(spath: str, t: np.ndarray, v: np.ndarray, i: np.ndarray)
         volts = float(np.median(np.abs(v[a:b])))
         # a held plateau well below what a bare coil reaches (zero current is no chopper)
         if flat and 0.05 < level < 0.55 * volts / _BARE_COIL_R_MAX_OHM:
-            raise MeasurementFormatError(
-                spath, None, f"experiment is 'step' (bare coil) but the current holds "
-                f'{level:.3g} A after {1e3 * (t[b - 1] - t[a]):.1f} ms at {volts:.3g} V: a '
-                f'bare coil would need R > {volts / level:.0f} ohm. A current chopper (the '
-                "drive electronics) is in the loop: record it as 'pwm' or 'operation'")
+            return level, volts
+    return None
 
 
 def _chopper_unresolved(v_coil: np.ndarray, v_main: np.ndarray) -> bool:

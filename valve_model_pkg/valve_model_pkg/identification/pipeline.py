@@ -52,6 +52,7 @@ from .mean_voltage import (ROUTE_AUTO, ROUTE_BARE_COIL, ROUTE_CHOICES, ROUTE_ELE
                            ROUTE_MEAN_VOLTAGE, Route, RouteScreen, check_mean_voltage,
                            choose_route, settle_route, through_drive_counterparts)
 from .measurement import Measurement, hold_out, with_current_lsb
+from .pwm_compare import pwm_comparison
 from .problem import (
     ErrorFigures, FitData, ParameterSpace, baseline_space, effect_space, start_point,
     unit_objective,
@@ -363,7 +364,8 @@ def read_inputs(fit: Sequence[Record], validate: Sequence[Record],
     if base is None:
         base = load_parameters(settings.params_file,
                                allow_implausible=settings.allow_implausible)
-    fit_list, val_list = _read(fit, settings), _read(validate, settings)
+    fit_list = [pwm_comparison(m) for m in _read(fit, settings)]
+    val_list = [pwm_comparison(m) for m in _read(validate, settings)]
     for m in fit_list + val_list:
         if m.supply_pressure_pa is None:
             raise MeasurementFormatError(
@@ -1279,8 +1281,11 @@ def refit_candidate(c: CandidateResult, job: RefitJob) -> CandidateResult:
     t1 = time.perf_counter()
     if job.prep.search is job.prep.fit:
         bar = job.bars[False]
+        # through the electronics the effect's amount is scanned first (rank_data): a
+        # leakage inductance through the chopper is sharp in its amount
         r = refit_effect(job.prep.space, bar.data, job.baseline.params, c.effect,
-                         job.effort, progress=None, screen=_fit_criterion(bar, c))
+                         job.effort, progress=None, screen=_fit_criterion(bar, c),
+                         rank_data=bar.data if job.prep.through_electronics else None)
         done = WindowRefit(r.params, r.cost, _screened(r, 'fit') if r.screened_out else '')
     else:
         done = _refit_on_window(c, job)

@@ -20,6 +20,8 @@
                 "text": "<how the valve was fitted, in words>",
                 "chosen_by_data": {"chosen", "rmse_a", "criterion", "compared_on",
                                    "statement"} | null},
+      "current_comparison": {"kind": "samples|interval_means|mixed", "interval_s",
+                "text"} | null,
       "drive_electronics": {"values", "bounds", "ci95_pct", "form", "electronics",
                     ...} | null,
       "electronics_form": {"form", "constants", "source", "family": {"chosen",
@@ -41,6 +43,11 @@ explains a structured residual; when it pays the effect is ``unlisted``. The mod
 simulate such a term, so it is never written to ``params.yaml`` (which then holds the
 baseline) and ``augmented`` stays the baseline; its errors before and after are in
 ``unlisted.errors``.
+
+``current_comparison`` says how the current of bench ``pwm`` records through the drive
+electronics was compared: sample by sample (the samples follow the chopper) or in interval
+means (:mod:`.pwm_compare`; the errors are then those of the means); null for other
+records.
 
 ``model_misfit`` is set when the answer is ``none`` but the baseline misses the record by
 a structured error well above the noise that no candidate explains: the model (valve or
@@ -131,6 +138,7 @@ def report_dict(ident: Identification) -> dict[str, object]:
         'route': {'name': ident.route, 'text': ROUTE_TEXT[ident.route],
                   'chosen_by_data': (ident.route_screen.to_json()
                                      if ident.route_screen is not None else None)},
+        'current_comparison': _comparison(ident),
         'start_parameters': _parameters(ident.start),
         'table2_measured': TABLE2_MEASURED,
         'search_bounds': {b.name: [b.low, b.high] for b in ident.space.bounds},
@@ -150,6 +158,14 @@ def report_dict(ident: Identification) -> dict[str, object]:
         'units': {'iae': 'A s', 'rmse': 'A', 'nrmse_pct': '% of measured current range',
                   'parameters': 'SI (names of ValveParameters)'},
     })
+
+
+def _comparison(ident: Identification) -> dict[str, object] | None:
+    """How the current of pwm records through the electronics was compared (sample by
+    sample or in interval means, :func:`.pwm_compare.comparison_statement`)."""
+    from .pwm_compare import comparison_statement
+    st = comparison_statement(list(ident.fit_files) + list(ident.val_files))
+    return st.to_json() if st is not None else None
 
 
 def _electronics_form(ident: Identification) -> dict[str, object] | None:
@@ -331,6 +347,8 @@ def _markdown(rep: dict, ident: Identification, plots: list[str]) -> str:
     lines += [f'**Valve fitted {rep["route"]["text"]}.**', '']
     if rep['route'].get('chosen_by_data'):
         lines += [f'**Route.** {rep["route"]["chosen_by_data"]["statement"]}.', '']
+    if rep.get('current_comparison'):
+        lines += [f'**Current comparison.** {rep["current_comparison"]["text"]}.', '']
     conv = rep.get('baseline_convergence')
     if conv:
         lines += [f'**Baseline convergence.** {conv["statement"]}.', '']
