@@ -30,6 +30,7 @@ Three steps after the baseline fit:
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
@@ -502,9 +503,13 @@ def _reference(fit: FitData, val: FitData | None, baseline: ValveParameters) -> 
 
 
 def _judge_candidate(c: CandidateResult, ref: Reference, fit: FitData, val: FitData | None,
-                     at_bound: list[str], space: ParameterSpace | None) -> None:
+                     at_bound: list[str], space: ParameterSpace | None,
+                     determined: Collection[str] | None = None) -> None:
     """Apply the keep rule to one refitted candidate: its errors, dBICs, the structure it
-    explains, ``kept`` and the reason in words (set on ``c``)."""
+    explains, ``kept`` and the reason in words (set on ``c``). A refit parameter at a
+    search bound counts against it only if the data determine it (``determined``; all
+    when None), as for the baseline: the damping of a step record, which the friction
+    force dwarfs, may sit at a bound without any misfit."""
     p = len(c.fields)
     # Independent samples are counted in the residual of the model under test (the
     # augmented one): the baseline's misfit is the very structure the candidate may
@@ -540,7 +545,8 @@ def _judge_candidate(c: CandidateResult, ref: Reference, fit: FitData, val: FitD
             reasons.append(f'validation error falls {100 * c.val_gain:.2f} %, less than '
                            f'{100 * MIN_VALIDATION_GAIN:g} %')
     if at_bound and space is not None:
-        still = [n for n in fit.at_bound(space, c.params) if n in space.names]
+        still = [n for n in fit.at_bound(space, c.params) if n in space.names
+                 and (determined is None or n in determined)]
         if still:
             reasons.append('its refit keeps baseline parameters at a search bound ('
                            + ', '.join(still) + '): a misfit, not an effect')
@@ -672,7 +678,8 @@ def _verdict_kept(kept: list[CandidateResult], st: Structure, baseline: ValvePar
 
 def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
            baseline: ValveParameters, *, baseline_at_bound: list[str] | None = None,
-           space: ParameterSpace | None = None) -> Diagnosis:
+           space: ParameterSpace | None = None,
+           determined: Collection[str] | None = None) -> Diagnosis:
     """Apply the keep rule (module notes) and decide the diagnosis.
 
     Parameters
@@ -687,6 +694,9 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
         Baseline parameters at a search bound that the data determine (a misfit).
     space : ParameterSpace, optional
         The baseline space (to tell whether a refit keeps them at the bound).
+    determined : collection of str, optional
+        Baseline parameters the data determine (narrow intervals): only these, at a
+        search bound in a candidate's refit, mark the refit a misfit (default: all).
 
     Returns
     -------
@@ -699,7 +709,7 @@ def select(candidates: list[CandidateResult], fit: FitData, val: FitData | None,
         if not c.refitted or c.params is None:
             c.reason = c.reason or 'not refitted (signature too weak)'
             continue
-        _judge_candidate(c, ref, fit, val, at_bound, space)
+        _judge_candidate(c, ref, fit, val, at_bound, space, determined)
     ranked = sorted(candidates, key=lambda c: -(c.val_gain if math.isfinite(c.val_gain)
                                                 else c.fit_gain if math.isfinite(c.fit_gain)
                                                 else -math.inf))
