@@ -19,7 +19,9 @@ import pytest
 
 from datagen.cache import step_dataset
 from valve_model_pkg.identification import IdentifySettings, identify, read_measurements
-from valve_model_pkg.identification.diagnosis import CandidateResult, select
+from valve_model_pkg.identification.diagnosis import (
+    CandidateResult, indistinguishable_runners_up, select,
+)
 from valve_model_pkg.identification.problem import FitData, baseline_space
 from valve_model_pkg.model.parameters import ValveParameters
 
@@ -60,6 +62,27 @@ def test_a_refit_at_a_bound_the_data_do_not_see_is_no_misfit(base_dir: Path) -> 
                      determined=determined + ['damping_n_s_per_m'])
     assert refused.effect == 'none'
     assert 'search bound (damping_n_s_per_m)' in refused.candidates[0].reason
+
+
+def _judged(effect: str, val_gain: float, dbic_val: float) -> CandidateResult:
+    return CandidateResult(effect=effect, fields=(), refitted=True, kept=True,
+                           val_gain=val_gain, dbic_val=dbic_val)
+
+
+def test_a_runner_up_the_hold_out_data_reject_is_told_apart() -> None:
+    friction = _judged('coulomb_friction', 0.65, -3481.0)
+    # gains close to the winner's (above 80 % of it)
+    rejected = _judged('leakage_inductance', 0.54, -497.0)       # 2984 worse on hold-out
+    tied = _judged('leakage_inductance', 0.54, -3475.0)          # within 10
+    better = _judged('leakage_inductance', 0.54, -3600.0)
+    assert indistinguishable_runners_up([friction, rejected]) == []
+    assert indistinguishable_runners_up([friction, tied]) == [tied]
+    assert indistinguishable_runners_up([friction, better]) == [better]
+    # a gain well below the winner's is told apart whatever its criterion
+    assert indistinguishable_runners_up([friction, _judged('x', 0.4, -3481.0)]) == []
+    # without hold-out data the gain alone decides
+    no_val = _judged('leakage_inductance', 0.54, float('nan'))
+    assert indistinguishable_runners_up([friction, no_val]) == [no_val]
 
 
 @pytest.mark.slow
