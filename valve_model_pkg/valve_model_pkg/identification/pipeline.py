@@ -1039,6 +1039,13 @@ class BaselineAnalysis:
     def stage(self) -> Stage:
         return self.evaluated.stage
 
+    @property
+    def determined(self) -> list[str]:
+        """Baseline parameters the data determine (95 % CI below :data:`MISFIT_CI95_PCT`):
+        at a search bound, only these are a sign of misfit, in the baseline or a refit."""
+        ci = self.stage.sensitivity.ci95_pct
+        return [n for n, v in ci.items() if v is not None and v < MISFIT_CI95_PCT]
+
 
 def analyse_baseline(prep: Prepared, base: BaselineFit, say: Say) -> BaselineAnalysis:
     """Errors, residual analysis and intervals of the baseline; the parameters at a search
@@ -1358,7 +1365,8 @@ def diagnose(prep: Prepared, baseline: BaselineFit, analysis: BaselineAnalysis,
     _refit_all(prep, analysis, baseline, candidates, settings, timings, say)
     t0 = time.perf_counter()
     diag = select(candidates, prep.fit, prep.validation, baseline.params,
-                  baseline_at_bound=analysis.misfit, space=prep.space)
+                  baseline_at_bound=analysis.misfit, space=prep.space,
+                  determined=analysis.determined)
     timings['selection'] = _lap(say, 'selection', t0)
     if diag.effect != 'none':
         t0 = time.perf_counter()
