@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -83,6 +84,17 @@ class TraceSetup:
     h_stop_s: float
     drive: InputTrace | None = None
     sampling: str = 'instant'
+
+    @cached_property
+    def coil_trace(self) -> InputTrace:
+        """The coil voltage ``seg_v`` from ``seg_t0_s`` on as the model's input (built once:
+        a search simulates the same record thousands of times)."""
+        return InputTrace.coil_voltage(self.seg_t0_s, self.seg_v)
+
+    @cached_property
+    def grid_s(self) -> np.ndarray:
+        """The output grid ``grid_t0_s + k grid_dt_s``, k < ``n_grid`` [s]."""
+        return self.grid_t0_s + self.grid_dt_s * np.arange(self.n_grid)
 
 
 def _segments(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -297,14 +309,14 @@ def simulate_measurement(raw: np.ndarray, setup: TraceSetup, *,
         return res.coil_current_a, res.spool_position_m
     if setup.n_grid == 0:
         res = simulate_trace_batch(
-            raw, InputTrace.coil_voltage(setup.seg_t0_s, setup.seg_v), setup.t_s,
+            raw, setup.coil_trace, setup.t_s,
             sampling=setup.sampling, supply_pressure_pa=setup.supply_pressure_pa,
             output_pressure_pa=setup.output_pressure_pa, h_free_s=float(h_free_s),
             h_stop_s=setup.h_stop_s, validate=False, parallel=parallel)
         return res.coil_current_a, res.spool_position_m
-    grid = setup.grid_t0_s + setup.grid_dt_s * np.arange(setup.n_grid)
+    grid = setup.grid_s
     res = simulate_trace_batch(
-        raw, InputTrace.coil_voltage(setup.seg_t0_s, setup.seg_v), grid,
+        raw, setup.coil_trace, grid,
         supply_pressure_pa=setup.supply_pressure_pa,
         output_pressure_pa=setup.output_pressure_pa, h_free_s=float(h_free_s),
         h_stop_s=setup.h_stop_s, validate=False, parallel=parallel)

@@ -54,8 +54,8 @@ from .mean_voltage import (ROUTE_AUTO, ROUTE_BARE_COIL, ROUTE_CHOICES, ROUTE_ELE
 from .measurement import Measurement, hold_out, with_current_lsb
 from .pwm_compare import pwm_comparison
 from .problem import (
-    ErrorFigures, FitData, ParameterSpace, baseline_space, effect_space, start_point,
-    unit_objective,
+    SEARCH_RATE_HZ, ErrorFigures, FitData, ParameterSpace, baseline_space, coarse_data,
+    effect_space, start_point, unit_objective,
 )
 from .residuals import ResidualReport, analyse_residuals
 from .search import SearchResult, SearchSettings, direct_search
@@ -520,6 +520,11 @@ class Prepared:
         The search's start point.
     notes : list of str
         Notes for the report.
+    coarse : FitData
+        ``search`` with fast step records compared at :data:`~.problem.SEARCH_RATE_HZ`
+        (:func:`~.problem.coarse_data`): the baseline search and the refits' profiles run
+        on it, the polishes, intervals and selection on every sample (``search`` itself
+        when no record is that fast).
     """
 
     fit: FitData
@@ -530,6 +535,11 @@ class Prepared:
     start: ValveParameters
     notes: list[str]
     electronics_fixed: bool = False
+    coarse: FitData | None = None
+
+    def __post_init__(self) -> None:
+        if self.coarse is None:
+            self.coarse = self.search
 
     @property
     def through_electronics(self) -> bool:
@@ -537,7 +547,7 @@ class Prepared:
 
     def use_electronics(self, electronics) -> None:
         """Set the identified drive electronics on every data set."""
-        for d in (self.fit, self.search, self.validation):
+        for d in (self.fit, self.search, self.coarse, self.validation):
             if d is not None:
                 d.electronics = electronics
 
@@ -573,7 +583,15 @@ def prepare_data(inputs: Inputs, settings: IdentifySettings, say: Say,
     if search_note:
         notes.append(search_note)
         say(search_note)
-    prep = Prepared(fit, val, search, search_note, space, start_point(space), notes)
+    coarse = coarse_data(search)
+    if coarse is not search:
+        note = (f'search stages (global stage, simplices, effect profiles) compare the step '
+                f'records at {SEARCH_RATE_HZ / 1e3:g} kHz; the polishes, intervals and '
+                'selection every sample')
+        notes.append(note)
+        say(note)
+    prep = Prepared(fit, val, search, search_note, space, start_point(space), notes,
+                    coarse=coarse)
     if electronics is not None:
         prep.use_electronics(electronics)
     return prep
@@ -671,7 +689,7 @@ def search_baseline(prep: Prepared, settings: IdentifySettings, say: Say) -> Sea
     """Direct search of the baseline parameters on the search data."""
     space = prep.space
     say('baseline: direct search over ' + ', '.join(space.names))
-    res = direct_search(unit_objective(space, prep.search), space.to_unit(prep.start),
+    res = direct_search(unit_objective(space, prep.coarse), space.to_unit(prep.start),
                         settings.baseline_effort(prep.through_electronics),
                         progress=say, label='baseline')
     say(f'baseline: cost {res.cost:.6g} A after {res.evaluations} simulations')
@@ -1277,6 +1295,23 @@ def _refit_on_window(c: CandidateResult, job: RefitJob) -> WindowRefit:
     return WindowRefit(r.params, cost, how)
 
 
+def _refit_coarse(c: CandidateResult, job: RefitJob) -> WindowRefit:
+    """Refit ``c`` on the coarse data (fast step records compared at
+    :data:`~.problem.SEARCH_RATE_HZ`): the screen after the coarse profile judges on the
+    fit data, and a refit that passes it is polished there (every sample)."""
+    bar = job.bars[False]
+    r: RefitResult = refit_effect(job.prep.space, job.prep.coarse.serial(),
+                                  job.baseline.params, c.effect, job.effort,
+                                  screen=_fit_criterion(bar, c))
+    if r.screened_out:
+        cost = sum(bar.data.errors(r.params).mae_per_file.values())
+        return WindowRefit(r.params, cost, _screened(r, 'fit'))
+    p_aug, cost = polish_candidate(r.space, bar.data, r.params, job.baseline.params,
+                                   job.settings)
+    return WindowRefit(p_aug, cost, f' (profiles at {SEARCH_RATE_HZ / 1e3:g} kHz, polished '
+                       'on every sample)')
+
+
 def _screened(r: RefitResult, where: str) -> str:
     return (f' (stopped after the coarse profile: {where} dBIC {r.screen_dbic:.1f}, not '
             f'below {SCREEN_DBIC:g}: cannot pay)')
@@ -1286,7 +1321,9 @@ def refit_candidate(c: CandidateResult, job: RefitJob) -> CandidateResult:
     """Refit one candidate (in its own thread, its simulations on that thread without the
     GIL) and record the result on ``c``."""
     t1 = time.perf_counter()
-    if job.prep.search is job.prep.fit:
+    if job.prep.coarse is not job.prep.search:
+        done = _refit_coarse(c, job)
+    elif job.prep.search is job.prep.fit:
         bar = job.bars[False]
         # through the electronics the effect's amount is scanned first (rank_data): a
         # leakage inductance through the chopper is sharp in its amount
@@ -1479,14 +1516,15 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
         timings['electronics'] = _lap(say, 'drive electronics (valve held)', t0)
     timings['total'] = time.perf_counter() - t_start
     say('time split: ' + ', '.join(f'{k} {v:.1f} s' for k, v in timings.items()))
-    fit_d, val_d, search = prep.fit, prep.validation, prep.search
+    fit_d, val_d, search, coarse = prep.fit, prep.validation, prep.search, prep.coarse
     return Identification(
         fit_files=fit_d.measurements, val_files=val_d.measurements if val_d else [],
         baseline=analysis.stage, augmented=augmented.stage,
         diagnosis=outcome.diagnosis if outcome else None, start=prep.start,
         space=prep.space, timings_s=timings,
         simulations=fit_d.simulations + (val_d.simulations if val_d else 0)
-        + (search.simulations if search is not fit_d else 0),
+        + (search.simulations if search is not fit_d else 0)
+        + (coarse.simulations if coarse is not search else 0),
         sim_fit={'baseline': analysis.evaluated.current_fit,
                  'augmented': augmented.current_fit},
         sim_val={'baseline': analysis.evaluated.current_val,

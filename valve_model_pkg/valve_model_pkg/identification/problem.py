@@ -316,6 +316,31 @@ LONG_RECORD_S = 0.5
 LONG_RECORD_RATE_HZ = 1000.0
 
 
+#: The search stages compare fast step records at this rate at most (:func:`coarse_data`):
+#: the kernel's cost grows with the output samples (a 40 ms step at 50 kHz costs 2.5 times
+#: its run at 10 kHz), and the stroke's dip and the rise (time constants of 1 ms and more)
+#: are drawn by every 100 us all the same. The polishes, criteria and selection compare
+#: every sample.
+SEARCH_RATE_HZ = 10000.0
+
+
+def _every_kth(m: Measurement, rate_hz: float) -> np.ndarray:
+    """Samples of every k-th of ``m``'s sample periods, k = its rate over ``rate_hz``."""
+    k = int(m.sample_rate_hz // rate_hz)
+    n = np.round((m.t_s - m.t_s[0]) * m.sample_rate_hz).astype(np.int64)
+    return n % k == 0
+
+
+def _search_decimation(m: Measurement, rate_hz: float) -> np.ndarray | None:
+    """Samples a search compares of a step record faster than ``rate_hz`` (None: all, or
+    as :func:`_decimation` keeps them)."""
+    if m.drive is not None or m.voltage_hold == 'interval_mean' or m.sampling != 'instant':
+        return None
+    if _decimation(m) is not None or m.sample_rate_hz <= 1.2 * rate_hz:
+        return None
+    return _every_kth(m, rate_hz)
+
+
 def _decimation(m: Measurement) -> np.ndarray | None:
     """Samples kept for fitting: all, or every k-th of a long, fast record."""
     if m.sampling == 'interval_mean' and (m.drive is not None
@@ -323,10 +348,7 @@ def _decimation(m: Measurement) -> np.ndarray | None:
         return None  # interval means are compared over the record's own intervals
     if m.duration_s < LONG_RECORD_S or m.sample_rate_hz <= 1.2 * LONG_RECORD_RATE_HZ:
         return None
-    k = int(m.sample_rate_hz // LONG_RECORD_RATE_HZ)
-    n = np.round((m.t_s - m.t_s[0]) * m.sample_rate_hz).astype(np.int64)
-    keep = n % k == 0
-    return keep
+    return _every_kth(m, LONG_RECORD_RATE_HZ)
 
 
 def _subset(m: Measurement, keep: np.ndarray) -> Measurement:
@@ -344,9 +366,14 @@ class FitData:
     ----------
     measurements : sequence of Measurement
         Fit or validation files.
+    max_rate_hz : float, optional
+        Compare step records faster than this at every k-th sample only (the searches'
+        data, :func:`coarse_data`); long records are compared at
+        :data:`LONG_RECORD_RATE_HZ` either way.
     """
 
-    def __init__(self, measurements: Sequence[Measurement]) -> None:
+    def __init__(self, measurements: Sequence[Measurement],
+                 max_rate_hz: float | None = None) -> None:
         if not measurements:
             raise IdentificationError('no measurement given')
         self.full = list(measurements)
@@ -354,6 +381,8 @@ class FitData:
         self.setups: list[TraceSetup] = []
         for m in self.full:
             keep = _decimation(m)
+            if keep is None and max_rate_hz is not None:
+                keep = _search_decimation(m, max_rate_hz)
             self.setups.append(prepare_trace(m, keep=keep))
             self.measurements.append(m if keep is None else _subset(m, keep))
         self.valid = [m.valid for m in self.measurements]
@@ -485,6 +514,17 @@ class FitData:
                             mae_per_file=mae)
 
 
+def coarse_data(data: FitData, rate_hz: float = SEARCH_RATE_HZ) -> FitData:
+    """``data`` with its step records faster than ``rate_hz`` compared at every k-th sample
+    (the searches' data; the same threads and electronics), or ``data`` itself when no
+    record is that fast."""
+    if all(_search_decimation(m, rate_hz) is None for m in data.full):
+        return data
+    out = FitData(data.full, max_rate_hz=rate_hz)
+    out.parallel, out.workers, out.electronics = data.parallel, data.workers, data.electronics
+    return out
+
+
 def unit_objective(space: ParameterSpace, data: FitData):
     """Batch objective over unit coordinates for :func:`search.direct_search`."""
     def fun(u: np.ndarray) -> np.ndarray:
@@ -497,5 +537,6 @@ def unit_objective(space: ParameterSpace, data: FitData):
     return fun
 
 
-__all__ += ['GAP', 'MIN_HOLDING_GAP_M', 'PAPER_SYMBOLS', 'equivalent_gap_m',
+__all__ += ['GAP', 'MIN_HOLDING_GAP_M', 'PAPER_SYMBOLS', 'SEARCH_RATE_HZ', 'coarse_data',
+            'equivalent_gap_m',
             'start_point', 'unit_objective']
