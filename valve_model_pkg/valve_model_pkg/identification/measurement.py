@@ -74,6 +74,25 @@ def _lead(period_s: float) -> float:
     return min(_LATCH_LEAD_S, 0.25 * period_s)
 
 
+def _merge_zero_length_periods(starts: Sequence[float], duty: Sequence[float],
+                               freq: Sequence[float]
+                               ) -> tuple[list[float], list[float], list[float]]:
+    """Period starts [s], duty [1] and frequency [Hz] with every start that does not follow
+    the kept one before by more than :data:`_AT_ZERO_S` merged into it (its duty and
+    frequency replace the earlier ones)."""
+    out_s: list[float] = []
+    out_d: list[float] = []
+    out_f: list[float] = []
+    for s, d, f in zip(starts, duty, freq):
+        if out_s and s - out_s[-1] <= _AT_ZERO_S:
+            out_d[-1], out_f[-1] = d, f
+            continue
+        out_s.append(float(s))
+        out_d.append(float(d))
+        out_f.append(float(f))
+    return out_s, out_d, out_f
+
+
 @dataclass(frozen=True)
 class DriveInput:
     """Main PWM commands through the drive electronics, as the model's ``pwm_commands``.
@@ -147,10 +166,16 @@ class DriveInput:
             Duty [1] and frequency [Hz] of each period.
         supply_v : float
             Drive supply voltage [V].
+
+        A period start that does not follow the one before by more than
+        :data:`_AT_ZERO_S` ends a period of zero length: the two are merged (the later
+        start's duty and frequency hold from the earlier start), so no zero-length period
+        reaches the model.
         """
         ts: list[float] = []
         dd: list[float] = []
         ff: list[float] = []
+        starts, duty, freq = _merge_zero_length_periods(starts, duty, freq)
         if 0.0 < starts[0] <= _AT_ZERO_S:
             starts = [0.0] + list(starts[1:])
         s0 = starts[0]
