@@ -78,6 +78,14 @@ KIND: dict[str, dict[str, bytes | int]] = {
         'current_1e6_a': (CSV_HEAD + _rows(20, '{t:.6g},24,0.1\n')
                           + '4e-4,24,1e6\n').encode(),
         'no_excitation': (CSV_HEAD + _rows(50, '{t:.6g},0,0\n')).encode(),
+        # 15 V on, the current stays 0 (a broken channel, a step that did not happen)
+        'current_zero_while_on': (CSV_HEAD + _rows(20, '{t:.6g},0,0\n')
+                                  + _rows(200, '{t:.6g},15,0\n')).encode(),
+        # the current stays within its +-2 mA noise while 15 V is on
+        'current_in_its_noise_while_on': (
+            CSV_HEAD + ''.join(f'{k * 2e-5:.6g},{15 if k >= 40 else 0},'
+                               f'{2e-3 * ((k * 7919) % 11 - 5) / 5:.6g}\n'
+                               for k in range(400))).encode(),
     },
     'flow_map': {
         'only_a_header': FLOW_HEAD.encode(),

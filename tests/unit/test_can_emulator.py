@@ -550,3 +550,43 @@ def test_adc_noise_is_on_the_reported_current_only() -> None:
         noisy.close()
     with pytest.raises(ValueError):
         EmulatorConfig(current_noise_a=-1e-3)
+
+
+class _StallingHost:
+    """The real-time clock of :meth:`ControllerEmulator.run` [s], advanced 1 ms a call,
+    with a host that sends its duty command every 10 ms of that clock. At ``stall_at_s``
+    the clock jumps by ``stall_s`` (the emulator's loop was descheduled); the host keeps
+    sending through the stall unless ``host_stops``, and the frames wait in the bus."""
+
+    def __init__(self, rig: Rig, stall_at_s: float, stall_s: float, host_stops: bool) -> None:
+        self.rig, self.t, self.next_command_t = rig, 0.0, 0.0
+        self.stall_at_s, self.stall_s, self.host_stops = stall_at_s, stall_s, host_stops
+
+    def __call__(self) -> float:
+        self.t += 1e-3
+        if self.stall_at_s is not None and self.t >= self.stall_at_s:
+            self.t += self.stall_s
+            self.stall_at_s = None
+            if self.host_stops:
+                self.next_command_t = float('inf')
+        while self.next_command_t <= self.t:
+            self.rig.host.send(self.rig.codec.encode(
+                COMMAND, {'Duty': 0.6, 'PwmFrequency': 50.0, 'Enable': 1, 'ClearFaults': 0,
+                          'HostId': 1}, self.rig.counter))
+            self.rig.counter = (self.rig.counter + 1) & 0xF
+            self.next_command_t += 0.01
+        return self.t
+
+
+@pytest.mark.parametrize('host_stops', [False, True])
+def test_a_stall_of_the_emulator_is_not_taken_for_silence_of_the_host(host_stops) -> None:
+    rig = Rig()
+    clock = _StallingHost(rig, stall_at_s=0.1, stall_s=0.3, host_stops=host_stops)
+    rig.emu.run(duration_s=0.5, clock=clock)
+    timeouts = [t.signals['CommandTimeout'] for t in rig.decoded(TELEMETRY)]
+    assert rig.emu.stats['overruns'] > 0           # the stall is counted
+    if host_stops:                                 # a host that stopped still trips it
+        assert timeouts[-1] == 1 and rig.emu.output_duty == 0.0
+    else:                                          # the commands waited in the bus
+        assert not any(timeouts) and rig.emu.output_duty == pytest.approx(0.6)
+    rig.close()

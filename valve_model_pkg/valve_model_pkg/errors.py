@@ -39,6 +39,7 @@ import os
 __all__ = [
     'ValveModelError',
     'ParameterError',
+    'KernelInputError',
     'DataFormatError',
     'InstrumentFormatError',
     'MapError', 'MapFormatError', 'MapParameterMismatchError', 'FlowMapFormatError',
@@ -75,6 +76,12 @@ class ParameterError(ValveModelError, ValueError):
     def __init__(self, message: str, *, key: str | None = None) -> None:
         super().__init__(message)
         self.key = key
+
+
+class KernelInputError(ValveModelError, ValueError):
+    """Rows handed to the model's compiled kernel that it cannot integrate: an input
+    interval or PWM period of zero length, sample times that do not increase (the message
+    names the array, the index and the value)."""
 
 
 # --- measured-data files ---------------------------------------------------------------

@@ -17,7 +17,9 @@ What the firmware does (see the package README for the frame table):
   counter is ignored and raises a fault flag for 1 s. The ``HostId`` of every valid
   command is remembered (``host_ids``); a second id within 1 s is logged.
 * Command watchdog: while enabled, no valid command for ``command_timeout_s`` closes the
-  valve (duty 0) and sets ``CommandTimeout`` until the next valid command.
+  valve (duty 0) and sets ``CommandTimeout`` until the next valid command. In real time a
+  command counts from the time it was in the bus, so a stall of the emulator's own loop
+  (counted as overruns) is not taken for silence of the host.
 * Drive mode (``ValveCommand.DriveMode``): ``normal`` runs the stepper's own electronics
   (the emulated hardware's), ``bench`` bypasses boost, chopper and capacitor
   (:func:`~valve_driver_pkg.emulator.config.bench_electronics`): the coil sees the supply
@@ -541,11 +543,14 @@ class ControllerEmulator(FaultHandling):
             now = clock() - t0
             if duration_s > 0.0 and now >= duration_s:
                 break
+            commands_before = self.stats['commands']
             try:
                 self.poll(0.0)
             except can.CanError as err:
                 logger.error('emulator: bus receive failed (%s); stopping', err)
                 raise
+            if self.stats['commands'] > commands_before:
+                self._commands_received_by(now)
             self.step(now, self.config.max_burst)
             # Wait for the next telemetry instant, handling commands as they come.
             next_t = self._next_telemetry_k * period
@@ -554,6 +559,16 @@ class ControllerEmulator(FaultHandling):
                 msg = self.bus.recv(remaining)
                 if msg is not None:
                     self.handle(msg)
+
+    def _commands_received_by(self, t_s: float) -> None:
+        """The commands just handled were in the bus by model time ``t_s``: the watchdog
+        counts from there. A loop that fell behind real time (a stall: the overruns count
+        it) handles frames that waited in the bus meanwhile at the model time it had
+        reached; its own lateness must not read as silence of the host. A host that stopped
+        sending leaves nothing in the bus, and the watchdog trips as before."""
+        with self._lock:
+            if self._last_command_t is not None and t_s > self._last_command_t:
+                self._last_command_t = t_s
 
     def start(self) -> ControllerEmulator:
         """Run :meth:`run` in a daemon thread (in-process use); returns self."""

@@ -35,7 +35,9 @@ from valve_model_pkg import dataformat
 
 from ..errors import MeasurementFormatError
 
-__all__ = ['DriveInput', 'MIN_SAMPLES', 'MIN_LSB_LEVELS', 'Measurement', 'check_excitation',
+__all__ = ['CurrentResponse', 'DriveInput', 'MIN_SAMPLES', 'MIN_LSB_LEVELS', 'Measurement',
+           'RESPONSE_NOISE_SIGMAS', 'RESPONSE_SHARE_OF_V_OVER_R', 'check_current_response',
+           'check_excitation', 'current_response',
            'check_time_axis', 'hold_out', 'mean_voltage_column', 'median_pressure', 'refused_bag',
            'with_current_lsb']
 
@@ -50,6 +52,16 @@ MIN_LSB_LEVELS = 8
 _MAX_LSB_STEPS = 1 << 16
 #: A coil voltage at or below this everywhere counts as no excitation [V].
 MIN_EXCITATION_V = 1e-3
+#: The current while the coil voltage is on must depart from its rest level by more than
+#: this many standard deviations of the record's noise (:func:`check_current_response`).
+RESPONSE_NOISE_SIGMAS = 5.0
+#: ... and by more than this share of the steady current V/R of the parameter set's coil
+#: resistance: less would take a coil of 100 times that resistance.
+RESPONSE_SHARE_OF_V_OVER_R = 0.01
+#: A sample counts as "voltage on" at or above this share of the record's largest |voltage|.
+_ON_SHARE = 0.5
+#: Percentile of |current - rest level| over the samples while on taken as the response.
+_RESPONSE_PERCENTILE = 90.0
 #: A command is given this long before the period start it must be latched at [s] (the
 #: model latches commands at the next period start).
 _LATCH_LEAD_S = 1e-6
@@ -60,6 +72,25 @@ _AT_ZERO_S = 1e-9
 
 def _lead(period_s: float) -> float:
     return min(_LATCH_LEAD_S, 0.25 * period_s)
+
+
+def _merge_zero_length_periods(starts: Sequence[float], duty: Sequence[float],
+                               freq: Sequence[float]
+                               ) -> tuple[list[float], list[float], list[float]]:
+    """Period starts [s], duty [1] and frequency [Hz] with every start that does not follow
+    the kept one before by more than :data:`_AT_ZERO_S` merged into it (its duty and
+    frequency replace the earlier ones)."""
+    out_s: list[float] = []
+    out_d: list[float] = []
+    out_f: list[float] = []
+    for s, d, f in zip(starts, duty, freq):
+        if out_s and s - out_s[-1] <= _AT_ZERO_S:
+            out_d[-1], out_f[-1] = d, f
+            continue
+        out_s.append(float(s))
+        out_d.append(float(d))
+        out_f.append(float(f))
+    return out_s, out_d, out_f
 
 
 @dataclass(frozen=True)
@@ -135,10 +166,16 @@ class DriveInput:
             Duty [1] and frequency [Hz] of each period.
         supply_v : float
             Drive supply voltage [V].
+
+        A period start that does not follow the one before by more than
+        :data:`_AT_ZERO_S` ends a period of zero length: the two are merged (the later
+        start's duty and frequency hold from the earlier start), so no zero-length period
+        reaches the model.
         """
         ts: list[float] = []
         dd: list[float] = []
         ff: list[float] = []
+        starts, duty, freq = _merge_zero_length_periods(starts, duty, freq)
         if 0.0 < starts[0] <= _AT_ZERO_S:
             starts = [0.0] + list(starts[1:])
         s0 = starts[0]
@@ -393,6 +430,133 @@ def check_excitation(source: str, voltage: np.ndarray, line_numbers: np.ndarray 
     raise MeasurementFormatError(
         source, None, f'has no excitation: the coil voltage is 0 V in all {voltage.size} '
         f'samples{where}; nothing to identify')
+
+
+@dataclass(frozen=True)
+class CurrentResponse:
+    """How far a record's current follows its coil voltage (:func:`current_response`).
+
+    Attributes
+    ----------
+    n_on : int
+        Samples with the voltage on (at least half the largest |voltage|).
+    voltage_on_v : float
+        Median |voltage| while on [V].
+    rest_a : float
+        Rest level of the current [A]: the median before the first sample on (0 when
+        fewer than :data:`MIN_SAMPLES` samples precede it).
+    response_a : float
+        The 90th percentile of |current - rest| over the samples on and the sample after
+        each (the current of a sample-and-hold record answers one sample later) [A].
+    noise_a : float
+        Standard deviation of the current's noise [A]: robust (MAD) over the rest samples,
+        or over the sample-to-sample differences / sqrt(2) without enough rest samples.
+    lsb_a : float
+        Quantisation step of the current [A] (0: none known).
+    expected_a : float or None
+        The steady current V/R of the coil resistance given [A]; None without one.
+    threshold_a : float
+        The response a current that follows its voltage exceeds [A]: the largest of
+        :data:`RESPONSE_NOISE_SIGMAS` noise deviations, two LSB and
+        :data:`RESPONSE_SHARE_OF_V_OVER_R` of ``expected_a``.
+    """
+
+    n_on: int
+    voltage_on_v: float
+    rest_a: float
+    response_a: float
+    noise_a: float
+    lsb_a: float
+    expected_a: float | None
+    threshold_a: float
+
+    @property
+    def responds(self) -> bool:
+        """True when the current departs from rest by more than the threshold."""
+        return self.response_a > self.threshold_a
+
+
+def _robust_sigma(x: np.ndarray) -> float:
+    """Standard deviation of Gaussian noise from the median absolute deviation."""
+    return 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size else 0.0
+
+
+def current_response(m: Measurement, resistance_ohm: float | None = None
+                     ) -> CurrentResponse | None:
+    """How far the current of ``m`` follows its coil voltage; None without voltage on.
+
+    Physics: a coil under a voltage V carries a current that rises towards V/R (eq. 5,
+    tau = L/R of milliseconds), so while the voltage is on the current leaves its rest
+    level by a good part of V/R within a few time constants. A record whose current stays
+    within its noise (or its quantisation step) of rest while on, or below
+    :data:`RESPONSE_SHARE_OF_V_OVER_R` of V/R, does not measure the coil's current.
+
+    Parameters
+    ----------
+    m : Measurement
+        The record (``voltage_v`` [V], ``current_a`` [A], ``current_lsb_a``).
+    resistance_ohm : float or None
+        Coil resistance R of the parameter set [ohm], for the scale V/R; None: the noise
+        and the quantisation alone set the threshold.
+    """
+    v = np.abs(np.asarray(m.voltage_v, dtype=float))
+    i = np.asarray(m.current_a, dtype=float)
+    finite_v = np.isfinite(v)
+    if not np.any(finite_v) or float(np.max(v[finite_v])) <= MIN_EXCITATION_V:
+        return None
+    on = finite_v & (v >= _ON_SHARE * float(np.max(v[finite_v])))
+    answer = on.copy()
+    answer[1:] |= on[:-1]
+    answer &= np.isfinite(i)
+    first_on = int(np.argmax(on))
+    rest = i[:first_on][np.isfinite(i[:first_on])]
+    rest_a = float(np.median(rest)) if rest.size >= MIN_SAMPLES else 0.0
+    if rest.size >= MIN_SAMPLES:
+        noise_a = _robust_sigma(rest)
+    else:
+        noise_a = _robust_sigma(np.diff(i[np.isfinite(i)])) / math.sqrt(2.0)
+    response_a = (float(np.percentile(np.abs(i[answer] - rest_a), _RESPONSE_PERCENTILE))
+                  if np.any(answer) else 0.0)
+    voltage_on_v = float(np.median(v[on]))
+    lsb_a = float(m.current_lsb_a or 0.0)
+    expected_a = (voltage_on_v / resistance_ohm
+                  if resistance_ohm is not None and resistance_ohm > 0.0 else None)
+    threshold_a = max(RESPONSE_NOISE_SIGMAS * noise_a, 2.0 * lsb_a,
+                      RESPONSE_SHARE_OF_V_OVER_R * expected_a if expected_a else 0.0)
+    return CurrentResponse(n_on=int(np.count_nonzero(on)), voltage_on_v=voltage_on_v,
+                           rest_a=rest_a, response_a=response_a, noise_a=noise_a,
+                           lsb_a=lsb_a, expected_a=expected_a, threshold_a=threshold_a)
+
+
+def check_current_response(m: Measurement, resistance_ohm: float | None = None) -> None:
+    """Refuse a record whose current does not respond to its coil voltage.
+
+    The criterion is :func:`current_response` (the physics and the threshold are stated
+    there): while the voltage is on, the current must leave its rest level by more than
+    the largest of :data:`RESPONSE_NOISE_SIGMAS` noise deviations, two quantisation steps
+    and :data:`RESPONSE_SHARE_OF_V_OVER_R` of V/R. A real but small current (a low
+    voltage, a large coil resistance) passes as long as it stands out of its noise.
+    Checked before any simulation: such a record (a broken current channel, a step that
+    did not happen) has nothing to identify.
+
+    Raises
+    ------
+    MeasurementFormatError
+        One line naming the record, the voltage, the response and the threshold.
+    """
+    r = current_response(m, resistance_ohm)
+    if r is None or r.responds:
+        return
+    scale = (f', {100 * RESPONSE_SHARE_OF_V_OVER_R:g} % of V/R = {r.expected_a:.3g} A'
+             if r.expected_a else '')
+    raise MeasurementFormatError(
+        m.source, None, f'the current does not respond to the coil voltage: while '
+        f'{r.voltage_on_v:.3g} V is on ({r.n_on} samples) the current leaves its rest level '
+        f'{1e3 * r.rest_a:.3g} mA by {1e3 * r.response_a:.3g} mA ({_RESPONSE_PERCENTILE:g}th '
+        f'percentile), not more than {1e3 * r.threshold_a:.3g} mA (the largest of '
+        f'{RESPONSE_NOISE_SIGMAS:g} x its noise {1e3 * r.noise_a:.3g} mA, 2 LSB '
+        f'{2e3 * r.lsb_a:.3g} mA{scale}); nothing to identify (a broken current channel or '
+        'an excitation that did not happen)')
 
 
 def median_pressure(values: np.ndarray | None, name: str, default: float | None,

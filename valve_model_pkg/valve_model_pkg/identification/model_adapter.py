@@ -26,7 +26,7 @@ import numpy as np
 
 from ..model import (DEFAULT_H_FREE_S, DEFAULT_H_STOP_S, PARAMETER_FIELDS,
                      ElectronicsConfig, InputTrace, simulate_trace_batch)
-from ..errors import ModelAdapterError
+from ..errors import KernelInputError, ModelAdapterError
 from .measurement import Measurement
 
 __all__ = ['TraceSetup', 'interval_segments', 'prepare_trace', 'simulate_measurement',
@@ -293,33 +293,73 @@ def simulate_measurement(raw: np.ndarray, setup: TraceSetup, *,
     -------
     current_a, position_m : numpy.ndarray, shape (n_runs, n_samples)
         Simulated terminal current [A] and spool position [m] at the measured times.
+
+    Notes
+    -----
+    A multi-second record is integrated with steps of up to 500 us while the spool rests
+    (:func:`prepare_trace`), which the coil's time constant L/R of milliseconds allows.
+    A parameter vector of the search with a far smaller incremental inductance (a low
+    permeability with strong saturation: L/R ~ 0.1 ms) makes that RK4 step unstable (it
+    diverges beyond 2.8 L/R) and the kernel refuses the run (``KernelInputError``); the
+    batch is then run row by row, and each row the step cannot integrate runs again with
+    :data:`~valve_model_pkg.model.DEFAULT_H_STOP_S`, then ``h_free_s``. The other rows
+    keep their results bit for bit (the rows of a batch are independent runs).
     """
     raw = np.ascontiguousarray(np.atleast_2d(raw), dtype=np.float64)
     if raw.shape[1] != len(PARAMETER_FIELDS):
         raise ModelAdapterError(
             f'parameter matrix has {raw.shape[1]} columns, the model has '
             f'{len(PARAMETER_FIELDS)} fields')
+    try:
+        return _simulate(raw, setup, setup.h_stop_s, h_free_s, parallel, electronics)
+    except KernelInputError:
+        if setup.h_stop_s <= DEFAULT_H_STOP_S:
+            raise
+    rows = [_simulate_row_stably(raw[r:r + 1], setup, h_free_s, electronics)
+            for r in range(raw.shape[0])]
+    return (np.concatenate([c for c, _ in rows]), np.concatenate([x for _, x in rows]))
+
+
+def _simulate_row_stably(raw_row: np.ndarray, setup: TraceSetup, h_free_s: float,
+                         electronics: ElectronicsConfig | None
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """One row with the setup's rest step, else with shorter ones (see
+    :func:`simulate_measurement`); the last refusal is raised."""
+    steps = [setup.h_stop_s, DEFAULT_H_STOP_S, min(h_free_s, DEFAULT_H_STOP_S)]
+    for k, h_stop_s in enumerate(steps):
+        try:
+            return _simulate(raw_row, setup, h_stop_s, h_free_s, False, electronics)
+        except KernelInputError:
+            if k == len(steps) - 1:
+                raise
+    raise AssertionError('unreachable')
+
+
+def _simulate(raw: np.ndarray, setup: TraceSetup, h_stop_s: float, h_free_s: float,
+              parallel: bool, electronics: ElectronicsConfig | None
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`simulate_measurement` with the rest step ``h_stop_s`` [s]."""
     n = raw.shape[0]
     if setup.drive is not None:
         res = simulate_trace_batch(
             raw, setup.drive, setup.t_s, electronics=electronics or ElectronicsConfig(),
             sampling=setup.sampling, supply_pressure_pa=setup.supply_pressure_pa,
             output_pressure_pa=setup.output_pressure_pa, h_free_s=float(h_free_s),
-            h_stop_s=setup.h_stop_s, validate=False, parallel=parallel)
+            h_stop_s=h_stop_s, validate=False, parallel=parallel)
         return res.coil_current_a, res.spool_position_m
     if setup.n_grid == 0:
         res = simulate_trace_batch(
             raw, setup.coil_trace, setup.t_s,
             sampling=setup.sampling, supply_pressure_pa=setup.supply_pressure_pa,
             output_pressure_pa=setup.output_pressure_pa, h_free_s=float(h_free_s),
-            h_stop_s=setup.h_stop_s, validate=False, parallel=parallel)
+            h_stop_s=h_stop_s, validate=False, parallel=parallel)
         return res.coil_current_a, res.spool_position_m
     grid = setup.grid_s
     res = simulate_trace_batch(
         raw, setup.coil_trace, grid,
         supply_pressure_pa=setup.supply_pressure_pa,
         output_pressure_pa=setup.output_pressure_pa, h_free_s=float(h_free_s),
-        h_stop_s=setup.h_stop_s, validate=False, parallel=parallel)
+        h_stop_s=h_stop_s, validate=False, parallel=parallel)
     cur, pos = res.coil_current_a, res.spool_position_m
     if setup.index is not None:
         return cur[:, setup.index], pos[:, setup.index]

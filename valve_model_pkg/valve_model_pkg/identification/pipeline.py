@@ -51,7 +51,7 @@ from .electronics_family import FamilyChoice, describe_form, select_family
 from .mean_voltage import (ROUTE_AUTO, ROUTE_BARE_COIL, ROUTE_CHOICES, ROUTE_ELECTRONICS,
                            ROUTE_MEAN_VOLTAGE, Route, RouteScreen, check_mean_voltage,
                            choose_route, settle_route, through_drive_counterparts)
-from .measurement import Measurement, hold_out, with_current_lsb
+from .measurement import Measurement, check_current_response, hold_out, with_current_lsb
 from .pwm_compare import pwm_comparison
 from .problem import (
     SEARCH_RATE_HZ, ErrorFigures, FitData, ParameterSpace, baseline_space, coarse_data,
@@ -355,7 +355,9 @@ def read_inputs(fit: Sequence[Record], validate: Sequence[Record],
     Raises
     ------
     MeasurementFormatError
-        A record cannot be read or lacks its supply pressure.
+        A record cannot be read, lacks its supply pressure, or its current does not
+        respond to its coil voltage (:func:`.measurement.check_current_response`, at the
+        scale V/R of the parameter set's coil resistance).
     ParameterError
         The parameter file is refused.
     """
@@ -370,6 +372,7 @@ def read_inputs(fit: Sequence[Record], validate: Sequence[Record],
         if m.supply_pressure_pa is None:
             raise MeasurementFormatError(
                 m.source, None, 'metadata lacks supply_pressure_pa (gauge, Pa)')
+        check_current_response(m, base.coil_resistance_ohm)
     for m in fit_list + val_list:
         for note in m.notes:
             say(f'{m.name}: {note}')

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..errors import KernelInputError
 from .aot import backend as _backend
 
 if TYPE_CHECKING:
@@ -36,6 +37,7 @@ __all__ = [
     'DEFAULT_H_FREE_S', 'DEFAULT_H_STOP_S', 'N_OUT', 'N_Y', 'N_D', 'N_S',
     'derive_parameters', 'new_drive_state', 'advance', 'command', 'step_batch',
     'pwm_batch', 'trace_batch', 'bank_advance', 'bank_sample', 'batch_threads',
+    'MIN_PERIOD_S', 'check_trace_rows',
 ]
 
 #: Default RK4 step while the spool moves, s.
@@ -308,7 +310,25 @@ def _thread_pool() -> ThreadPoolExecutor:
 
 
 def _run_rows(rows: Callable[..., None], n_rows: int, args: tuple, parallel: bool) -> None:
-    """Call ``rows(*args, r0, r1)`` over 0 <= r < n_rows, on several threads if allowed."""
+    """Call ``rows(*args, r0, r1)`` over 0 <= r < n_rows, on several threads if allowed.
+
+    Raises
+    ------
+    KernelInputError
+        The compiled rows divided by zero: an input they cannot integrate (a zero-length
+        interval or period) that the checks before the call did not catch.
+    """
+    try:
+        _run_rows_on_threads(rows, n_rows, args, parallel)
+    except ZeroDivisionError as err:
+        raise KernelInputError(
+            f'model kernel {getattr(rows, "__name__", "rows").lstrip("_")}: division by zero '
+            f'in a batch of {n_rows} runs: the input holds a zero-length interval or period, '
+            'or a parameter that is zero where the model divides by it') from err
+
+
+def _run_rows_on_threads(rows: Callable[..., None], n_rows: int, args: tuple,
+                         parallel: bool) -> None:
     workers = min(batch_threads(), n_rows) if parallel else 1
     if workers <= 1:
         rows(*args, 0, n_rows)
@@ -361,6 +381,48 @@ def pwm_batch(raw: np.ndarray, e: np.ndarray, supply_v: np.ndarray, duty: np.nda
     return avg
 
 
+#: Shortest main PWM period the kernel integrates [s]: a period start must move the time
+#: of a run (a period below the float resolution of t would end where it starts); 1 ns is
+#: above the resolution of any run shorter than 10^6 s and far below any drive's period.
+MIN_PERIOD_S = 1e-9
+
+
+def check_trace_rows(seg_t: np.ndarray, seg_period: np.ndarray, t_samp: np.ndarray) -> None:
+    """Refuse trace inputs the kernel cannot integrate, naming the array, index and value.
+
+    Parameters
+    ----------
+    seg_t : numpy.ndarray, shape (k,)
+        Input change times [s]: finite, from 0 on, strictly increasing (a zero-length
+        input interval is merged by the caller, never handed over).
+    seg_period : numpy.ndarray, shape (k,)
+        Main PWM period of each input [s]: at least :data:`MIN_PERIOD_S`, or ``inf``
+        without a main PWM.
+    t_samp : numpy.ndarray, shape (n,)
+        Sample times [s]: finite, from 0 on, strictly increasing.
+
+    Raises
+    ------
+    KernelInputError
+    """
+    for name, t in (('input change times', seg_t), ('sample times', t_samp)):
+        bad = np.flatnonzero(~np.isfinite(t) | (t < 0.0))
+        if bad.size:
+            raise KernelInputError(f'model kernel: {name}[{bad[0]}] = {float(t[bad[0]]):.9g} s '
+                                   'is not a finite time from 0 on')
+        step = np.flatnonzero(np.diff(t) <= 0.0)
+        if step.size:
+            k = int(step[0]) + 1
+            raise KernelInputError(
+                f'model kernel: {name}[{k}] = {float(t[k]):.9g} s does not follow '
+                f'{float(t[k - 1]):.9g} s: a zero-length interval (merge it before the run)')
+    bad = np.flatnonzero(~(seg_period >= MIN_PERIOD_S))
+    if bad.size:
+        raise KernelInputError(
+            f'model kernel: PWM period[{bad[0]}] = {float(seg_period[bad[0]]):.9g} s is shorter '
+            f'than {MIN_PERIOD_S:g} s: a period of (nearly) zero length')
+
+
 def trace_batch(raw: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.ndarray,
                 seg_duty: np.ndarray, seg_period: np.ndarray, p_sup: np.ndarray,
                 p_out: np.ndarray, t_samp: np.ndarray, h_free: float, h_stop: float,
@@ -379,6 +441,8 @@ def trace_batch(raw: np.ndarray, e: np.ndarray, seg_t: np.ndarray, seg_vs: np.nd
     """
     raw = _vec(raw)
     none = np.zeros(0)
+    check_trace_rows(np.asarray(seg_t, dtype=float), np.asarray(seg_period, dtype=float),
+                     np.asarray(t_samp, dtype=float))
     _run_rows(_backend().trace_rows, raw.shape[0],
               (raw, _vec(e), _vec(seg_t), _vec(seg_vs), _vec(seg_duty), _vec(seg_period),
                none if seg_psup is None else _vec(seg_psup),

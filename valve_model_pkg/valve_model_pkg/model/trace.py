@@ -38,6 +38,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .kernel import MIN_PERIOD_S
 from .parameters import ParameterError
 
 __all__ = ['InputTrace']
@@ -286,6 +287,11 @@ class InputTrace:
             raise ParameterError('duty must be in [0, 1]')
         if np.any(freq <= 0.0):
             raise ParameterError('pwm_frequency_hz must be positive')
+        too_fast = np.flatnonzero(freq > 1.0 / MIN_PERIOD_S)
+        if too_fast.size:
+            raise ParameterError(
+                f'pwm_frequency_hz[{too_fast[0]}] = {freq[too_fast[0]]:g} Hz: its period is '
+                f'shorter than {MIN_PERIOD_S:g} s (a period of zero length for the model)')
         sup, out = _pressures(t, supply_pressure_pa, output_pressure_pa)
         return cls('pwm_commands', t, volts, duty_a, freq, sup, out)
 
