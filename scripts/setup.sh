@@ -65,6 +65,7 @@ req_hash="$(cat "$ROOT"/requirements/*.txt | sha256sum | cut -d' ' -f1)"
 stamp="$VENV/.valve-requirements.sha256"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$req_hash" ]; then
   say "installing pinned ROS 2 Jazzy wheels and Python dependencies (first run: about a minute)"
+  step_start=$SECONDS
   "$VPY" -m pip install --quiet --disable-pip-version-check --upgrade "pip>=23" 2>&1 \
     | grep -v 'is ignored: it is neither' >&2 || true
   # pip's own exit status matters, not grep's: run it separately.
@@ -78,6 +79,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$req_hash" ]; then
     "$VPY" -m pip install --quiet "cmake==3.31.6"
   fi
   echo "$req_hash" > "$stamp"
+  say "dependencies installed ($((SECONDS - step_start)) s)"
 else
   say "dependencies up to date"
 fi
@@ -125,6 +127,7 @@ ws_hash="$(build_inputs | sha256sum | cut -d' ' -f1)"
 ws_stamp="$WS/install/.valve-build.sha256"
 if [ ! -f "$ws_stamp" ] || [ "$(cat "$ws_stamp")" != "$ws_hash" ]; then
   say "building the colcon workspace ros2_ws (valve_msgs, valve_model_pkg, valve_driver_pkg, valve_bringup)"
+  step_start=$SECONDS
   # A symlink install keeps links to every source file; a file that moved to another
   # package (or was deleted) leaves a dangling link that makes setuptools' copy fail.
   for d in "$WS/build" "$WS/install"; do
@@ -141,9 +144,10 @@ if [ ! -f "$ws_stamp" ] || [ "$(cat "$ws_stamp")" != "$ws_hash" ]; then
       --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$VPY" 1>&2
   ) || { finish_aot; die "colcon build failed; logs in $WS/log/latest"; }
   echo "$ws_hash" > "$ws_stamp"
-  say "workspace built"
+  say "workspace built ($((SECONDS - step_start)) s)"
 else
   say "workspace up to date"
 fi
 finish_aot
-say "ready: source ros2_ws/env.bash for a shell with the whole suite"
+# The whole set-up's wall time: a fresh clone's share of `make test` shows in its log.
+say "ready in ${SECONDS} s: source ros2_ws/env.bash for a shell with the whole suite"

@@ -111,7 +111,11 @@ def test_an_8bit_rigol_export_brings_its_step_to_the_measurement(tmp_path: Path)
 @pytest.fixture(scope='module')
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """One quick identification per record: clean, quantised and unquantised (one draw of
-    the noise), and quantised with eddy currents."""
+    the noise), and quantised with eddy currents.
+
+    The tests that judge them share one xdist group: a slow test is a work unit of its
+    own (tests/conftest.py), and units on two workers would each build this fixture.
+    """
     base = tmp_path_factory.mktemp('quantised')
     out = {}
     for key, effect, lsb in (('quantised', 'none', LSB_A), ('unquantised', 'none', 0.0),
@@ -123,6 +127,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group('quantised_runs')
 def test_a_clean_quantised_record_is_answered_none(runs: dict) -> None:
     ident = runs['quantised']
     assert ident.diagnosis.effect == 'none'
@@ -137,6 +142,7 @@ def test_a_clean_quantised_record_is_answered_none(runs: dict) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group('quantised_runs')
 def test_the_intervals_widen_with_the_quantisation(runs: dict) -> None:
     coarse = runs['quantised'].baseline.sensitivity.ci95_pct
     fine = runs['unquantised'].baseline.sensitivity.ci95_pct
@@ -145,5 +151,6 @@ def test_the_intervals_widen_with_the_quantisation(runs: dict) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group('quantised_runs')
 def test_an_effect_well_above_the_quantisation_is_named(runs: dict) -> None:
     assert runs['eddy'].diagnosis.effect == 'eddy_current'
