@@ -492,7 +492,8 @@ def widen_at_bound(r: RefitResult, data: FitData, effect: str, settings: SearchS
 
     When the effect's first field ends within :data:`BOUND_FRACTION` of its upper bound,
     the data determine it there (:func:`_determined_at_bound`) and it has a physical limit
-    above the bound (:func:`~.problem.amount_limit`), the bound grows by
+    above the bound (:func:`~.problem.amount_limit` of the space's base: the measured
+    values, which the refit may have moved to their own bounds), the bound grows by
     :data:`WIDEN_FACTOR` (at most to the limit) and the profiles run again over the new
     part of the range from the bound-hitting point; at most :data:`MAX_WIDENINGS` times.
     A widened refit that does not lower the cost is dropped (the refit at the bound stays).
@@ -504,7 +505,7 @@ def widen_at_bound(r: RefitResult, data: FitData, effect: str, settings: SearchS
     for _ in range(MAX_WIDENINGS):
         first = r.space.names.index(name)
         bound = r.space.bounds[first]
-        limit = amount_limit(name, r.params)
+        limit = amount_limit(name, r.space.base)
         if (r.space.to_unit(r.params)[first] < 1.0 - BOUND_FRACTION or limit is None
                 or not limit.value > bound.high or not _determined_at_bound(r, data, first)):
             break
