@@ -62,7 +62,7 @@ def test_friction_beyond_its_search_bound_is_found_by_widening(friction_record) 
     assert r.widened, 'the refit did not report reaching its bound'
     assert r.widened[0].startswith(
         f'coulomb_friction_n reached its search bound {default_high:g} N: widened to 9 N')
-    assert r.params.coulomb_friction_n == pytest.approx(TRUTH_FRICTION_N, rel=0.15)
+    assert r.params.coulomb_friction_n == pytest.approx(TRUTH_FRICTION_N, rel=0.1)
     assert r.space.bounds[r.space.names.index('coulomb_friction_n')].high > default_high
 
 
