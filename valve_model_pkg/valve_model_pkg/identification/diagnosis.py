@@ -507,7 +507,12 @@ def widen_at_bound(r: RefitResult, data: FitData, effect: str, settings: SearchS
         bound = r.space.bounds[first]
         limit = amount_limit(name, r.space.base)
         if (r.space.to_unit(r.params)[first] < 1.0 - BOUND_FRACTION or limit is None
-                or not limit.value > bound.high or not _determined_at_bound(r, data, first)):
+                or not _determined_at_bound(r, data, first)):
+            break
+        if not limit.value > bound.high:
+            r = replace(r, widened=r.widened + (
+                f'{name} reached its physical limit, {limit.why} {limit.value:.4g} {unit}: '
+                'not widened further',))
             break
         high = min(WIDEN_FACTOR * bound.high, limit.value)
         wide = with_upper_bound(r.space, name, high)
