@@ -3,7 +3,9 @@
 Step records of three valves from the independent truth model (tests/datagen), 0.3x to
 3x the paper's: a small fast 12 V valve (8 g spool, 0.15 mm stroke, tau 3.6 ms), a large
 slow 24 V valve (70 g spool, 0.8 mm stroke, 0.25 H, opening after 18 ms) and a valve of
-other magnetics (600 turns, mu_r 300, 4.5 ohm at 12 V); clean and with an effect. The user
+other magnetics (600 turns, mu_r 300, 4.5 ohm at 12 V); clean and with an effect (the
+large valve's 8 N friction lies beyond the 3 N default search bound: the refit widens
+it, below the spring's closing force k delta of about 20 N). The user
 gives Table 1 of their valve and their measured Table 2 values (8 % off the truth) as
 ``--params``; ``valve_identify`` must name the effect right (``none`` where none) and
 validate at another voltage below 3 % NRMSE. Each case is one identification run
@@ -85,17 +87,7 @@ def user_params(valve: TruthValve, path: Path, seed: int) -> Path:
     return path
 
 
-_KNOWN_SHORT = {
-    # Friction is named right, but with --quick the augmented fit validates at 3.24 %
-    # NRMSE on the 18 V record: the large valve's slow opening (18-36 ms) stays a little
-    # off at the quick effort.
-    'large_slow_friction': pytest.mark.xfail(
-        strict=True, reason='validation NRMSE 3.24 % > 3 % with --quick (effect right)'),
-}
-
-
-@pytest.mark.parametrize('name', [pytest.param(n, marks=_KNOWN_SHORT.get(n, ()))
-                                  for n in sorted(CASES)])
+@pytest.mark.parametrize('name', sorted(CASES))
 def test_a_valve_not_the_papers_is_identified_with_its_own_params(name: str,
                                                                   tmp_path: Path) -> None:
     case = CASES[name]

@@ -39,14 +39,15 @@ import numpy as np
 from ..model.parameters import EFFECTS, ValveParameters
 from .criteria import (DBIC_THRESHOLD, MIN_EXPLAINED, MIN_VALIDATION_GAIN, delta_bic,
                        effective_counts, noise_per_file, resolution_floors, structured_energy)
-from .problem import ErrorFigures, FitData, ParameterSpace, effect_space, unit_objective
+from .problem import (ErrorFigures, FitData, ParameterSpace, amount_limit, effect_space,
+                      unit_objective, with_upper_bound)
 from .residuals import drive_phase_masks, ljung_box
-from .search import SearchSettings, direct_search
+from .search import SearchResult, SearchSettings, direct_search
 from .sensitivity import noise_std, perturbed_values
 
 __all__ = ['CandidateResult', 'Diagnosis', 'RefitResult', 'score_signatures', 'refit_effect',
-           'select', 'second_effect', 'describe_misfit', 'describe_remaining', 'effect_scan',
-           'slow_effect', 'indistinguishable_runners_up']
+           'widen_at_bound', 'select', 'second_effect', 'describe_misfit',
+           'describe_remaining', 'effect_scan', 'slow_effect', 'indistinguishable_runners_up']
 
 #: Structured residual RMS (beyond noise), relative to the noise, that counts as structure.
 STRUCTURE_FRACTION = 0.3
@@ -160,6 +161,7 @@ class CandidateResult:
     structure_explained: float = math.nan
     kept: bool = False
     reason: str = ''
+    bound_widened: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, object]:
         def f(x: float) -> float | None:
@@ -177,6 +179,7 @@ class CandidateResult:
             'structure_explained_pct': f(100.0 * self.structure_explained),
             'kept': self.kept,
             'reason': self.reason,
+            'search_bound_widened': self.bound_widened,
         }
 
 
@@ -279,6 +282,8 @@ class RefitResult:
     screen_dbic : float
         The fit criterion's dBIC after the coarse profile when ``screen`` was given (nan
         otherwise); the refit stops there when it is not below :data:`SCREEN_DBIC`.
+    widened : tuple of str
+        One line per widening of the effect's search bound (:func:`widen_at_bound`).
     """
 
     params: ValveParameters
@@ -286,6 +291,7 @@ class RefitResult:
     space: ParameterSpace
     stopped: bool = False
     screen_dbic: float = math.nan
+    widened: tuple[str, ...] = ()
 
     @property
     def screened_out(self) -> bool:
@@ -431,7 +437,99 @@ def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, 
                          progress=progress, label=f'refit {effect} (fine)',
                          fixed=np.array([first]))
     best = res2 if res2.cost <= res.cost else res
-    return RefitResult(ext.params(best.u), best.cost, ext, screen_dbic=d)
+    return widen_at_bound(RefitResult(ext.params(best.u), best.cost, ext, screen_dbic=d),
+                          data, effect, settings, progress)
+
+
+#: An effect's refit whose amount ends within this share of its range from the upper search
+#: bound reached the bound (:func:`widen_at_bound`); as :meth:`FitData.at_bound`.
+BOUND_FRACTION = 0.01
+#: Factor of one widening of the upper bound, and the most widenings of one refit.
+WIDEN_FACTOR = 3.0
+MAX_WIDENINGS = 2
+#: The data determine an amount at its bound when stepping it back by a tenth of its range
+#: (everything else held) raises the cost by more than this share: along a direction the
+#: data do not see the cost stays flat, and a bound there is no reason to search further.
+DETERMINED_RISE = 1e-3
+
+_UNITS = {'coulomb_friction_n': 'N', 'leakage_inductance_h': 'H', 'eddy_conductance_s': 'S'}
+
+
+def _determined_at_bound(r: RefitResult, data: FitData, first: int) -> bool:
+    """True when the cost rises (:data:`DETERMINED_RISE`) as the amount steps back."""
+    u = r.space.to_unit(r.params)
+    back = u.copy()
+    back[first] = 0.9
+    cost = unit_objective(r.space, data)(np.vstack([u, back]))
+    return bool(cost[1] > cost[0] * (1.0 + DETERMINED_RISE))
+
+
+def _widened_profile(wide: ParameterSpace, data: FitData, params: ValveParameters,
+                     first: int, settings: SearchSettings,
+                     progress: Callable[[str], None] | None, label: str) -> SearchResult:
+    """The profiles of :func:`refit_effect` over the widened part of the range, from the
+    bound-hitting point ``params``: trial amounts from the old bound to the new one."""
+    u0 = wide.to_unit(params)
+    fractions = [float(u0[first] + (1.0 - u0[first]) * f)
+                 for f in (0.0, 0.25, 0.5, 0.75, 1.0)]
+    starts = []
+    for frac in fractions:
+        u = u0.copy()
+        u[first] = frac
+        starts.append(u)
+    fun = unit_objective(wide, data)
+    res = direct_search(fun, np.array(starts), replace(settings, restarts=0),
+                        progress=progress, label=label, fixed=np.array([first]))
+    res2 = direct_search(fun, _fine_starts(res.u, fractions, first),
+                         replace(settings, initial_step=0.5 * settings.initial_step),
+                         progress=progress, label=f'{label} (fine)', fixed=np.array([first]))
+    return res2 if res2.cost <= res.cost else res
+
+
+def widen_at_bound(r: RefitResult, data: FitData, effect: str, settings: SearchSettings,
+                   progress: Callable[[str], None] | None = None) -> RefitResult:
+    """Widen the upper search bound of an effect amount that its refit reached, and refit.
+
+    When the effect's first field ends within :data:`BOUND_FRACTION` of its upper bound,
+    the data determine it there (:func:`_determined_at_bound`) and it has a physical limit
+    above the bound (:func:`~.problem.amount_limit` of the space's base: the measured
+    values, which the refit may have moved to their own bounds), the bound grows by
+    :data:`WIDEN_FACTOR` (at most to the limit) and the profiles run again over the new
+    part of the range from the bound-hitting point; at most :data:`MAX_WIDENINGS` times.
+    A widened refit that does not lower the cost is dropped (the refit at the bound stays).
+    Each widening is said in ``r.widened``. A refit that never reaches its bound is
+    returned unchanged.
+    """
+    name = EFFECTS[effect].fields[0]
+    unit = _UNITS.get(name, '')
+    for _ in range(MAX_WIDENINGS):
+        first = r.space.names.index(name)
+        bound = r.space.bounds[first]
+        limit = amount_limit(name, r.space.base)
+        if (r.space.to_unit(r.params)[first] < 1.0 - BOUND_FRACTION or limit is None
+                or not _determined_at_bound(r, data, first)):
+            break
+        if not limit.value > bound.high:
+            r = replace(r, widened=r.widened + (
+                f'{name} reached its physical limit, {limit.why} {limit.value:.4g} {unit}: '
+                'not widened further',))
+            break
+        high = min(WIDEN_FACTOR * bound.high, limit.value)
+        wide = with_upper_bound(r.space, name, high)
+        res = _widened_profile(wide, data, r.params, first, settings, progress,
+                               f'refit {effect} (bound widened)')
+        note = (f'{name} reached its search bound {bound.high:.4g} {unit}: widened to '
+                f'{high:.4g} {unit} ({limit.why} {limit.value:.4g} {unit})')
+        if not res.cost < r.cost:
+            r = replace(r, widened=r.widened + (note + '; no lower cost there: kept at the '
+                                                'bound',))
+            break
+        p = wide.params(res.u)
+        note += f', refitted to {getattr(p, name):.4g} {unit}'
+        if progress:
+            progress(note)
+        r = replace(r, params=p, cost=float(res.cost), space=wide, widened=r.widened + (note,))
+    return r
 
 
 def _has_release(m: object) -> bool:
@@ -801,7 +899,7 @@ def second_effect(diag: Diagnosis, space: ParameterSpace, fit: FitData, val: Fit
     if not others:
         return
     other = others[0]
-    ext = effect_space(space, diag.effect)
+    ext = effect_space(space, diag.effect, at=diag.params)
     one_fit = fit.errors(diag.params)
     p = len(other.fields)
     floors = resolution_floors(fit)

@@ -1262,6 +1262,7 @@ class WindowRefit:
     params: ValveParameters
     cost: float
     how: str
+    widened: tuple[str, ...] = ()
 
 
 def _refit_on_window(c: CandidateResult, job: RefitJob) -> WindowRefit:
@@ -1290,12 +1291,13 @@ def _refit_on_window(c: CandidateResult, job: RefitJob) -> WindowRefit:
         p_aug, cost = polish_candidate(r.space, fit.serial(), r.params, job.baseline.params,
                                        job.settings)
         return WindowRefit(p_aug, cost,
-                           how + f' ({window} dBIC {dbic_s:.1f}: polished on the fit window)')
+                           how + f' ({window} dBIC {dbic_s:.1f}: polished on the fit window)',
+                           r.widened)
     cost = float(fit.serial().cost(r.params.to_vector()[None, :])[0])
     if not r.stopped and not r.screened_out:
         how += (f' ({window} dBIC {dbic_s:.1f}, not below {DBIC_THRESHOLD:g}: cannot pay, '
                 'not polished on the fit window, evaluated as found)')
-    return WindowRefit(r.params, cost, how)
+    return WindowRefit(r.params, cost, how, r.widened)
 
 
 def _refit_coarse(c: CandidateResult, job: RefitJob) -> WindowRefit:
@@ -1312,7 +1314,7 @@ def _refit_coarse(c: CandidateResult, job: RefitJob) -> WindowRefit:
     p_aug, cost = polish_candidate(r.space, bar.data, r.params, job.baseline.params,
                                    job.settings)
     return WindowRefit(p_aug, cost, f' (profiles at {SEARCH_RATE_HZ / 1e3:g} kHz, polished '
-                       'on every sample)')
+                       'on every sample)', r.widened)
 
 
 def _screened(r: RefitResult, where: str) -> str:
@@ -1333,19 +1335,21 @@ def refit_candidate(c: CandidateResult, job: RefitJob) -> CandidateResult:
         r = refit_effect(job.prep.space, bar.data, job.baseline.params, c.effect,
                          job.effort, progress=None, screen=_fit_criterion(bar, c),
                          rank_data=bar.data if job.prep.through_electronics else None)
-        done = WindowRefit(r.params, r.cost, _screened(r, 'fit') if r.screened_out else '')
+        done = WindowRefit(r.params, r.cost, _screened(r, 'fit') if r.screened_out else '',
+                           r.widened)
     else:
         done = _refit_on_window(c, job)
     c.refitted = True
     c.params = done.params
     c.parameters = {f: getattr(done.params, f) for f in c.fields}
     c.fit_cost = done.cost
+    c.bound_widened = list(done.widened)
     dt = time.perf_counter() - t1
     job.timings[f'refit_{c.effect}'] = dt
     job.say(f'refit {c.effect}: cost {done.cost:.6g} A (baseline '
             f'{job.baseline.convergence.final_cost_a:.6g} A), '
             + ', '.join(f'{k} = {v:.4g}' for k, v in c.parameters.items())
-            + f'{done.how}; {dt:.1f} s')
+            + f'{done.how}; {dt:.1f} s' + ''.join(f' ({w})' for w in done.widened))
     return c
 
 
@@ -1355,7 +1359,7 @@ def augmented_stage(prep: Prepared, diag: Diagnosis) -> EvaluatedStage:
     ev = evaluate_stage(diag.params, prep.fit, prep.validation)
     aug_space = prep.space
     for eff in diag.kept_effects:
-        aug_space = effect_space(aug_space, eff)
+        aug_space = effect_space(aug_space, eff, at=diag.params)
     ev.stage.sensitivity = analyse_sensitivity(
         aug_space, prep.fit, diag.params,
         at_bound=[n for n in prep.fit.at_bound(aug_space, diag.params)
@@ -1408,6 +1412,8 @@ def diagnose(prep: Prepared, baseline: BaselineFit, analysis: BaselineAnalysis,
                   baseline_at_bound=analysis.misfit, space=prep.space,
                   determined=analysis.determined)
     timings['selection'] = _lap(say, 'selection', t0)
+    diag.evidence += [f'{c.effect}: {w}' for c in candidates
+                      if c.effect == diag.effect for w in c.bound_widened]
     if diag.effect != 'none':
         t0 = time.perf_counter()
         second_effect(diag, prep.space, prep.fit, prep.validation,

@@ -20,13 +20,14 @@ import os
 import threading
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
 
 from ..model import ElectronicsConfig
 from ..model import PARALLEL_MIN_BATCH
+from ..model.magnetics import MU_0
 from ..model.parameters import EFFECTS, ValveParameters
 from ..errors import IdentificationError
 from .measurement import Measurement
@@ -238,20 +239,67 @@ def start_point(space: ParameterSpace) -> ValveParameters:
     return space.base.replace(**changes)
 
 
-def effect_space(space: ParameterSpace, effect: str) -> ParameterSpace:
-    """``space`` plus the parameters of one effect (bounds from the model's registry)."""
+def effect_space(space: ParameterSpace, effect: str,
+                 at: ValveParameters | None = None) -> ParameterSpace:
+    """``space`` plus the parameters of one effect (bounds from the model's registry).
+
+    With ``at``, an upper bound below ``at``'s value of the field (a refit widened it:
+    :func:`~.diagnosis.widen_at_bound`) rises to that value, so the point stays inside.
+    """
     spec = EFFECTS[effect]
     extra = []
     for name in spec.fields:
         lo, hi = spec.bounds[name]
-        neutral = spec.neutral[name]
+        if at is not None:
+            hi = max(hi, float(getattr(at, name)))
         # Effects switched off at 0 are searched linearly from 0 (log cannot reach it).
-        if lo <= 0.0:
-            extra.append(ParameterBound(name, lo, hi, log=False))
-        else:
-            extra.append(ParameterBound(name, lo, hi, log=True))
-        del neutral
+        extra.append(ParameterBound(name, lo, hi, log=lo > 0.0))
     return ParameterSpace(space.base, space.bounds + tuple(extra), space.hold)
+
+
+def with_upper_bound(space: ParameterSpace, name: str, high: float) -> ParameterSpace:
+    """``space`` with the upper search bound of ``name`` moved to ``high``."""
+    bounds = tuple(replace(b, high=high) if b.name == name else b for b in space.bounds)
+    return ParameterSpace(space.base, bounds, space.hold)
+
+
+@dataclass(frozen=True)
+class AmountLimit:
+    """The physical upper limit of an effect's amount, beyond which its search bound is
+    never widened (:func:`amount_limit`).
+
+    Attributes
+    ----------
+    value : float
+        The limit, in the field's unit.
+    why : str
+        What the limit is, in words.
+    """
+
+    value: float
+    why: str
+
+
+def amount_limit(name: str, params: ValveParameters) -> AmountLimit | None:
+    """The physical limit of an effect amount ``name`` for the valve ``params``; None for
+    the amounts whose registry bound is already the limit (restitution below 1, copper
+    heating, saturation), which are never widened.
+
+    Coulomb friction stays below the spring's closing force ``k delta`` (beyond it the
+    spool cannot return to its seat); a leakage inductance below the coil's own inductance
+    at the open gap, ``L(0) = N^2 mu_0 A_e / s`` (eq. 4); an eddy-loss conductance below the
+    coil's own, ``1/R`` (a lumped loss path that shunts more current than the winding no
+    longer describes eddy currents).
+    """
+    if name == 'coulomb_friction_n':
+        return AmountLimit(params.spring_stiffness_n_per_m * params.spring_pretension_m,
+                           "the spring's closing force k delta")
+    if name == 'leakage_inductance_h':
+        l0 = params.coil_turns ** 2 * MU_0 * params.core_area_m2 / equivalent_gap_m(params)
+        return AmountLimit(l0, "the coil's inductance at the open gap L(0)")
+    if name == 'eddy_conductance_s':
+        return AmountLimit(1.0 / params.coil_resistance_ohm, "the coil's conductance 1/R")
+    return None
 
 
 @dataclass(frozen=True)
@@ -537,6 +585,6 @@ def unit_objective(space: ParameterSpace, data: FitData):
     return fun
 
 
-__all__ += ['GAP', 'MIN_HOLDING_GAP_M', 'PAPER_SYMBOLS', 'SEARCH_RATE_HZ', 'coarse_data',
-            'equivalent_gap_m',
+__all__ += ['AmountLimit', 'GAP', 'MIN_HOLDING_GAP_M', 'PAPER_SYMBOLS', 'SEARCH_RATE_HZ',
+            'amount_limit', 'coarse_data', 'equivalent_gap_m', 'with_upper_bound',
             'start_point', 'unit_objective']
