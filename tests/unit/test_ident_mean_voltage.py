@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from datagen.cache import operation_dataset
+from datagen.cache import operation_dataset, step_dataset
 from suite_bags import header, write_rosbag2
 from valve_model_pkg.cli.identify import _parser, settings_from_args
 from valve_model_pkg.errors import MeasurementFormatError, ParameterError
-from valve_model_pkg.identification import IdentifySettings
+from valve_model_pkg.identification import IdentifySettings, identify, write_report
 from valve_model_pkg.identification.bag_reader import read_bag
 from valve_model_pkg.identification.csv_reader import read_csv
 from valve_model_pkg.identification.mean_voltage import (ROUTE_ELECTRONICS,
@@ -316,3 +316,22 @@ def test_a_driver_like_the_suites_own_keeps_the_electronics_route(
     assert 'route chosen by the data' in md and 'through the measured mean coil voltage' in md
     rmse = rep['baseline']['validation']['rmse']
     assert rmse < 1.5 * noise, f'validation RMSE {1e3 * rmse:.2f} mA'
+
+
+def test_a_bare_coil_fit_with_a_hold_out_through_the_electronics_keeps_the_mean_voltage(
+        short_record: Path, tmp_path: Path) -> None:
+    """No fit record runs through the drive electronics: their constants have nothing to
+    be fitted on, so the electronics route is not tried and none are identified after the
+    valve; the hold-out record is still compared through its mean coil voltage."""
+    steps = step_dataset(tmp_path, effect='none')
+    notes: list[str] = []
+    ident = identify(steps['fit'], [short_record],
+                     IdentifySettings(quick=True, diagnose=False), progress=notes.append)
+    write_report(ident, tmp_path / 'out', plots=False)
+    report = json.loads((tmp_path / 'out' / 'report.json').read_text(encoding='utf-8'))
+    assert report['route']['name'] == 'mean_coil_voltage'
+    assert any('electronics route is not tried' in n for n in notes), notes
+    assert not (tmp_path / 'out' / 'electronics.yaml').exists()
+    assert report['drive_electronics'] is None
+    # the truth valve is the model's, its noise 3 mA: the hold-out fits near the noise
+    assert report['baseline']['validation']['rmse'] < 10e-3

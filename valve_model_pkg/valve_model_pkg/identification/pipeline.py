@@ -821,6 +821,14 @@ def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
                                     prepare_data(rival_inputs, settings, say,
                                                  settings.electronics), settings, say)
     rival = rival_elec.prep
+    if not rival.through_electronics:
+        # only hold-out records run through the electronics: no fit record carries what
+        # their constants would be fitted on, so the electronics route cannot be judged
+        settled = replace(route, rival=None, note=f'{route.note}; the electronics route is '
+                          'not tried: no fit record runs through the drive electronics')
+        say(settled.note)
+        timings['route_screen'] = _lap(say, 'route screen', t0)
+        return RouteStart(settled, prep, ElectronicsRounds(res.u, None), None, elec)
     rival_rounds = alternate_electronics(rival, res, settings, say)
     hold = prep.validation is not None
     rmse, crit = {}, {}
@@ -1519,7 +1527,7 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
         outcome = diagnose(prep, baseline, analysis, settings, timings, say)
     augmented = outcome.augmented if outcome else analysis.evaluated
     drive = analysis.drive
-    if route.name == ROUTE_MEAN_VOLTAGE:
+    if route.name == ROUTE_MEAN_VOLTAGE and through_drive_counterparts(route, prep.fit.full):
         t0 = time.perf_counter()
         drive = electronics_after_valve(route, prep, augmented.stage.params, settings, say)
         timings['electronics'] = _lap(say, 'drive electronics (valve held)', t0)
