@@ -910,6 +910,14 @@ def second_effect(diag: Diagnosis, space: ParameterSpace, fit: FitData, val: Fit
                          effective_counts(fit, params), p, floors)
     p2 = refit_effect(ext, fit.serial(), diag.params, other.effect, settings,
                       screen=fit_dbic).params
+    # The pair is judged against the same refit with the second effect switched off: a
+    # refit moves the claimed effect's parameters too, and that further optimisation of
+    # the one-effect model is no evidence for the second effect.
+    p1 = _without_effect(p2, other.effect)
+    if sum(fit.errors(p1).mae_per_file.values()) < sum(one_fit.mae_per_file.values()):
+        say(f'second effect {other.effect}: the refit also improves the {diag.effect} '
+            f'model with {other.effect} switched off; the pair is judged against that')
+        diag.params, one_fit = p1, fit.errors(p1)
     dfit = fit_dbic(p2)
     dval = math.nan
     gain_val = math.nan
@@ -941,6 +949,11 @@ def second_effect(diag: Diagnosis, space: ParameterSpace, fit: FitData, val: Fit
         diag.evidence.append(
             f'second effect tried on top of {diag.effect}: {other.effect} does not pay for '
             f'its parameters again (dBIC fit {dfit:.1f}, validation {dval:.1f})')
+
+
+def _without_effect(params: ValveParameters, effect: str) -> ValveParameters:
+    """``params`` with ``effect`` switched off (its neutral values), all else kept."""
+    return params.replace(**EFFECTS[effect].neutral)
 
 
 #: A structured baseline misfit at least this many times the noise that no candidate
