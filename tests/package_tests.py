@@ -26,7 +26,8 @@ _CLAIMED = {
     # The top of the package graph holds the checks of the whole repository.
     'valve_bringup': ('test_supervisor.py', 'test_setup.py', 'test_core_is_ros_free.py',
                       'test_package_graph.py', 'test_package_xml.py',
-                      'test_package_tests.py', 'test_bench_loop_*.py'),
+                      'test_package_tests.py', 'test_bench_loop_*.py',
+                      'test_bench_step_check.py'),
 }
 PACKAGES = ('valve_msgs', 'valve_model_pkg', 'valve_driver_pkg', 'valve_bringup')
 

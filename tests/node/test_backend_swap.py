@@ -23,21 +23,39 @@ def _stamp_s(msg: ValveState) -> float:
 
 def _at_duty(ros, probe: StateProbe, duty: float, settle_s: float,
              span_s: float) -> list[ValveState]:
-    """The states of ``span_s`` of stamp time that follow ``settle_s`` after the first state
-    in force at ``duty`` (the windows are the stream's own time, not the test's)."""
+    """The states of ``span_s`` of stamp time during which ``duty`` stayed in force, from
+    ``settle_s`` after it (again) took force (the windows are the stream's own time, not
+    the test's). A state at another duty after the first one at ``duty`` restarts the
+    window; while a duty above 0 is commanded such a state must show the valve
+    de-energised: on a loaded machine a command may reach the CAN device late, whose
+    watchdog then closes the valve, as it must."""
     probe.messages.clear()
     probe.keep_messages = True
+    interruptions: list[float] = []
 
     def window() -> list[ValveState]:
-        first = next((m for m in probe.messages if abs(m.duty - duty) < 1e-9), None)
-        if first is None:
+        msgs = list(probe.messages)
+        first_on = next((i for i, m in enumerate(msgs) if abs(m.duty - duty) < 1e-9), None)
+        if first_on is None:
             return []
-        t0 = _stamp_s(first) + settle_s
-        return [m for m in probe.messages if _stamp_s(m) >= t0]
+        start = first_on
+        interruptions.clear()
+        for i in range(first_on, len(msgs)):
+            if abs(msgs[i].duty - duty) >= 1e-9:
+                interruptions.append(msgs[i].duty)
+                start = i + 1
+        tail = msgs[start:]
+        if not tail:
+            return []
+        t0 = _stamp_s(tail[0]) + settle_s
+        return [m for m in tail if _stamp_s(m) >= t0]
     ros.wait_for(lambda: (w := window()) and _stamp_s(w[-1]) - _stamp_s(w[0]) >= span_s,
                  60.0, f'{span_s:g} s of valve/state after {settle_s:g} s at duty {duty:g}')
     probe.keep_messages = False
-    return window()
+    out = window()
+    if duty != 0.0:
+        assert all(d == 0.0 for d in interruptions), interruptions
+    return out
 
 
 def _mean(values) -> float:
