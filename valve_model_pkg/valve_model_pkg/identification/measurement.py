@@ -511,7 +511,11 @@ def current_response(m: Measurement, resistance_ohm: float | None = None
     first_on = int(np.argmax(on))
     rest = i[:first_on][np.isfinite(i[:first_on])]
     rest_a = float(np.median(rest)) if rest.size >= MIN_SAMPLES else 0.0
-    if rest.size >= MIN_SAMPLES:
+    if m.drive is not None:
+        # through drive electronics the current moves with the chopper and the valve before
+        # the first command too: its spread there is no noise figure
+        noise_a = 0.0
+    elif rest.size >= MIN_SAMPLES:
         noise_a = _robust_sigma(rest)
     else:
         noise_a = _robust_sigma(np.diff(i[np.isfinite(i)])) / math.sqrt(2.0)
