@@ -914,10 +914,11 @@ def second_effect(diag: Diagnosis, space: ParameterSpace, fit: FitData, val: Fit
     # refit moves the claimed effect's parameters too, and that further optimisation of
     # the one-effect model is no evidence for the second effect.
     p1 = _without_effect(p2, other.effect)
-    if sum(fit.errors(p1).mae_per_file.values()) < sum(one_fit.mae_per_file.values()):
+    p1_fit = fit.errors(p1)
+    if sum(p1_fit.mae_per_file.values()) < sum(one_fit.mae_per_file.values()):
         say(f'second effect {other.effect}: the refit also improves the {diag.effect} '
             f'model with {other.effect} switched off; the pair is judged against that')
-        diag.params, one_fit = p1, fit.errors(p1)
+        diag.params, one_fit = p1, p1_fit
     dfit = fit_dbic(p2)
     dval = math.nan
     gain_val = math.nan

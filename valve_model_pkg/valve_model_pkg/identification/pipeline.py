@@ -1450,11 +1450,15 @@ def diagnose(prep: Prepared, baseline: BaselineFit, analysis: BaselineAnalysis,
 # --- after the valve: the electronics for the simulator ----------------------------------
 
 def electronics_after_valve(route: Route, prep: Prepared, params: ValveParameters,
-                            settings: IdentifySettings, say: Say) -> DriveReport:
+                            settings: IdentifySettings, say: Say) -> DriveReport | None:
     """The drive electronics of records fitted around them (the mean-voltage route),
     identified with the valve held at ``params`` on the same fit span, for the simulator
-    and the map; their notes say how well they reproduce the measured mean coil voltage."""
-    records = refine_phases(through_drive_counterparts(route, prep.fit.full), params, say)
+    and the map; their notes say how well they reproduce the measured mean coil voltage.
+    None when no fit record runs through the electronics."""
+    records = through_drive_counterparts(route, prep.fit.full)
+    if not records:
+        return None
+    records = refine_phases(records, params, say)
     drive = fit_drive(_fit_data(records, settings), params,
                       effort=settings.final_drive_effort)
     drive.notes.insert(0, 'identified after the valve (fitted around the electronics '
@@ -1527,10 +1531,12 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
         outcome = diagnose(prep, baseline, analysis, settings, timings, say)
     augmented = outcome.augmented if outcome else analysis.evaluated
     drive = analysis.drive
-    if route.name == ROUTE_MEAN_VOLTAGE and through_drive_counterparts(route, prep.fit.full):
+    if route.name == ROUTE_MEAN_VOLTAGE:
         t0 = time.perf_counter()
-        drive = electronics_after_valve(route, prep, augmented.stage.params, settings, say)
-        timings['electronics'] = _lap(say, 'drive electronics (valve held)', t0)
+        after = electronics_after_valve(route, prep, augmented.stage.params, settings, say)
+        if after is not None:
+            drive = after
+            timings['electronics'] = _lap(say, 'drive electronics (valve held)', t0)
     timings['total'] = time.perf_counter() - t_start
     say('time split: ' + ', '.join(f'{k} {v:.1f} s' for k, v in timings.items()))
     fit_d, val_d, search, coarse = prep.fit, prep.validation, prep.search, prep.coarse
