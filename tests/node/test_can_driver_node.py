@@ -11,6 +11,7 @@ import re
 import signal
 
 import can
+import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from hypothesis import HealthCheck, given, settings
@@ -177,6 +178,13 @@ def test_lifecycle_commands_and_clamping(start_node, ros) -> None:
         assert window[-1].pwm_frequency == pytest.approx(50.0)
         sequences = [s.sequence for s in client.states]
         assert sequences == list(range(sequences[0], sequences[0] + len(sequences)))
+        # stamped when their frame was on the bus (the emulator's 1 kHz model clock), not
+        # when the driver got to them: whole milliseconds apart (1 us: float64 epoch time)
+        stamps = np.array([s.header.stamp.sec + 1e-9 * s.header.stamp.nanosec
+                           for s in window])
+        steps_ms = np.diff(stamps) * 1e3
+        assert np.all(steps_ms > 0.5), steps_ms.min()
+        assert np.allclose(steps_ms, np.round(steps_ms), atol=1e-3), steps_ms
 
         # out of range: clamped, reported, never sent raw; NaN: rejected, node alive
         client.command(1.7, 50.0)

@@ -36,6 +36,7 @@ from collections.abc import Callable
 import can
 
 from valve_driver_pkg.canbus.factory import open_bus
+from valve_driver_pkg.canbus.frame_time import CLOCK_APART_S, frame_time_s
 from valve_driver_pkg.devices.base import DeviceProtocol
 from valve_driver_pkg.devices.commands import CommandState
 from valve_driver_pkg.devices.derived import DerivedOpening
@@ -64,8 +65,6 @@ MAX_BACKOFF_FACTOR = 16
 BUS_OFF_RESTART_S = 0.2
 #: How long one set-up may take (configure, and again after a device boot-up) [s].
 _SETUP_TIMEOUT_S = 5.0
-#: A frame timestamp this far from the wall clock belongs to another clock [s].
-_CLOCK_APART_S = 3600.0
 
 
 class DeviceDriverCore(DriverCoreBase):
@@ -247,8 +246,10 @@ class DeviceDriverCore(DriverCoreBase):
         A device frame older than the device's silence limit when it is handled (its
         timestamp: the interface's receive time, or the sender's on ``tcp_loopback``) is
         stale: counted (``stale_frames``), neither proof of life nor published. A timestamp
-        more than :data:`_CLOCK_APART_S` from the wall clock is another clock's (some
-        adapters count from their own start) and is not judged.
+        more than :data:`CLOCK_APART_S` from the wall clock is another clock's (some
+        adapters count from their own start) and is not judged. A published state is
+        stamped with the frame's time (:func:`~valve_driver_pkg.canbus.frame_time.
+        frame_time_s`).
         """
         outcome = self.protocol.on_frame(msg)
         if not outcome.from_device:
@@ -256,8 +257,9 @@ class DeviceDriverCore(DriverCoreBase):
         now = time.monotonic()
         wall = time.time()
         age = wall - msg.timestamp if msg.timestamp else 0.0
+        stamp = frame_time_s(msg.timestamp, wall)
         with self._lock:
-            if self.liveness.limit_s < age < _CLOCK_APART_S:
+            if self.liveness.limit_s < age < CLOCK_APART_S:
                 self._tally.count('stale_frames')
                 self._tally.mark('stale_frame', now)
                 return
@@ -271,7 +273,7 @@ class DeviceDriverCore(DriverCoreBase):
                 sample = self._states.sample(outcome.reading, CommandContext(
                     duty_sent, pwm_hz if sends_freq else self.config.pwm_frequency_hz,
                     sends_freq, self.commands.supply_pa, self.commands.output_pa),
-                    now, wall)
+                    now - (wall - stamp), stamp)
         if back:
             logger.info('%s is back', self.protocol.label)
             self._check_levels()

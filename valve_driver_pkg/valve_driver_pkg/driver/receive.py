@@ -36,6 +36,7 @@ from collections.abc import Callable
 
 import can
 
+from valve_driver_pkg.canbus.frame_time import frame_time_s
 from valve_driver_pkg.driver.bus_link import BusLink
 from valve_driver_pkg.driver.config import DriverConfig
 from valve_driver_pkg.driver.diagnostics import Tally
@@ -205,7 +206,7 @@ class ReceiveTracker:
                 self._reject(err.reason, err.detail)
             return
         if frame.name == TELEMETRY:
-            self._on_telemetry(frame.signals, frame.counter)
+            self._on_telemetry(frame.signals, frame.counter, msg.timestamp)
         elif frame.name == PERIOD:
             with self._lock:
                 self._on_period(frame.signals, frame.counter)
@@ -303,7 +304,10 @@ class ReceiveTracker:
         self.last_status = dict(signals)
         self.last_status_mono = time.monotonic()
 
-    def _on_telemetry(self, signals: dict, counter: int) -> None:
+    def _on_telemetry(self, signals: dict, counter: int, timestamp_s: float) -> None:
+        """One ValveTelemetry frame: accounted, and handed on as a sample stamped with the
+        frame's time (:func:`~valve_driver_pkg.canbus.frame_time.frame_time_s`)."""
+        wall = time.time()
         with self._lock:
             state, changed = self._track_telemetry(signals, counter)
             current_mean, voltage_mean = self._take_mean(counter)
@@ -315,7 +319,7 @@ class ReceiveTracker:
         average, duty, pwm_hz, supply, output, velocity = state
         flow = self._mass_flow(average, supply, output) if self._mass_flow else 0.0
         self._on_sample(ValveSample(
-            t_s=time.time(), coil_voltage_v=float(signals['CoilVoltage']),
+            t_s=frame_time_s(timestamp_s, wall), coil_voltage_v=float(signals['CoilVoltage']),
             coil_current_a=float(signals['CoilCurrent']),
             spool_position_m=float(signals['SpoolPosition']), spool_velocity_m_s=velocity,
             position_avg_m=average, mass_flow_kg_s=flow, duty=duty, pwm_frequency_hz=pwm_hz,

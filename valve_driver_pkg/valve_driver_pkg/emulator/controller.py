@@ -122,6 +122,8 @@ class ControllerEmulator(FaultHandling):
         self._f_lo, self._f_hi = self.codec.signal_range(COMMAND, 'PwmFrequency')
         self._w_lo, self._w_hi = self.codec.signal_range(TELEMETRY_MEAN, 'MeanInterval')
         self._model_t = 0.0
+        # wall clock [s since the epoch] minus model time while run() keeps them together
+        self._wall_minus_model: float | None = None
         self._next_telemetry_k = 0
         self._next_status_t = 0.0
         self._telemetry_counter = 0
@@ -388,6 +390,14 @@ class ControllerEmulator(FaultHandling):
             logger.debug('emulator send failed: %s', err)
             return False
 
+    def _stamp(self) -> float:
+        """The timestamp of a frame sent now: the wall time of the model instant its values
+        belong to while running in real time (as a controller's clock would stamp it; the
+        emulator's own stalls must not bunch them), else the wall clock."""
+        if self._wall_minus_model is None:
+            return time.time()
+        return self._model_t + self._wall_minus_model
+
     def _silent(self) -> bool:
         return (self.faults.is_active(EmulatorFault.SILENT)
                 or self.faults.is_active(EmulatorFault.BUS_OFF))
@@ -417,7 +427,7 @@ class ControllerEmulator(FaultHandling):
         signals = {'CoilCurrentMean': clamp(current, self._i_lo, self._i_hi),
                    'CoilVoltageMean': clamp(voltage, self._v_lo, self._v_hi),
                    'MeanInterval': clamp(width, self._w_lo, self._w_hi)}
-        self._send(self.codec.encode(TELEMETRY_MEAN, signals, counter, timestamp=time.time()))
+        self._send(self.codec.encode(TELEMETRY_MEAN, signals, counter, timestamp=self._stamp()))
 
     def _send_telemetry(self) -> None:
         faults = self.faults
@@ -453,7 +463,7 @@ class ControllerEmulator(FaultHandling):
             'FaultActive': int(self._fault_active()),
             'CommandTimeout': int(self._timed_out),
         }
-        msg = self.codec.encode(TELEMETRY, signals, counter, timestamp=time.time())
+        msg = self.codec.encode(TELEMETRY, signals, counter, timestamp=self._stamp())
         if faults.hits(EmulatorFault.CORRUPT_CHECKSUM):
             msg.data[7] ^= 0x5A
         if faults.hits(EmulatorFault.WRONG_LENGTH):
@@ -463,7 +473,7 @@ class ControllerEmulator(FaultHandling):
             self.stats['telemetry_sent'] += 1
         if faults.hits(EmulatorFault.UNKNOWN_ID):
             self._send(can.Message(arbitration_id=UNKNOWN_INJECTED_ID, data=bytes(8),
-                                   is_extended_id=False, timestamp=time.time()))
+                                   is_extended_id=False, timestamp=self._stamp()))
 
     def _send_period(self, s) -> None:
         average = clamp(float(s.position_avg_m), self._x_lo, self._x_hi)
@@ -474,7 +484,7 @@ class ControllerEmulator(FaultHandling):
             return
         msg = self.codec.encode(PERIOD, {'PositionAverage': average, 'DutyActive': duty,
                                          'PwmFrequencyActive': freq},
-                                self._period_counter, timestamp=time.time())
+                                self._period_counter, timestamp=self._stamp())
         self._period_counter = (self._period_counter + 1) & 0xF
         if self._send(msg):
             self._period_sent, self._period_sent_t = key, self._model_t
@@ -494,7 +504,7 @@ class ControllerEmulator(FaultHandling):
                    'HoldingCurrent': clamp(holding, *ranges['HoldingCurrent']),
                    'SupplyVoltageMeasured': clamp(self.config.supply_voltage_v,
                                                   *ranges['SupplyVoltageMeasured'])}
-        msg = self.codec.encode(DRIVE, signals, self._drive_counter, timestamp=time.time())
+        msg = self.codec.encode(DRIVE, signals, self._drive_counter, timestamp=self._stamp())
         self._drive_counter = (self._drive_counter + 1) & 0xF
         if self._send(msg):
             self._drive_due = False
@@ -524,7 +534,7 @@ class ControllerEmulator(FaultHandling):
             'ControllerState': state,
         }
         try:
-            msg = self.codec.encode(STATUS, signals, self._status_counter, timestamp=time.time())
+            msg = self.codec.encode(STATUS, signals, self._status_counter, timestamp=self._stamp())
         except ProtocolEncodeError as err:   # a bug here must not stop the telemetry
             logger.error('emulator: %s', err)
             return
@@ -538,6 +548,8 @@ class ControllerEmulator(FaultHandling):
         """Run in real time until ``stop`` is set (or for ``duration_s`` > 0)."""
         stop = stop or self._stop
         t0 = clock() - self._model_t
+        if clock is time.monotonic:
+            self._wall_minus_model = t0 + time.time() - time.monotonic()
         period = self._telemetry_period_s
         while not stop.is_set():
             now = clock() - t0

@@ -38,6 +38,11 @@ watchdog (``command_timeout_s``) counts the node's time: with ``use_sim_time`` s
 time, so a simulation held in lockstep (no commands because no time passes) does not
 trip it.
 
+Each ``valve/state`` is stamped with the time its telemetry frame was on the bus (the
+frame's timestamp when it is the wall clock's: the interface's receive time, or the
+sender's on ``tcp_loopback``), not with the moment the node got to it; with
+``use_sim_time`` with the node's clock.
+
 Lifecycle: configure opens the bus and starts receiving; activate starts sending commands
 (duty 0 until a command arrives); deactivate commands duty 0 with the output disabled and
 stops sending; cleanup and shutdown close the bus (safe twice). ``autostart:=true``
@@ -54,6 +59,7 @@ from __future__ import annotations
 import dataclasses
 import gc
 import logging
+import math
 import sys
 import threading
 from dataclasses import dataclass
@@ -65,6 +71,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleState, Node, TransitionCallbackReturn
 from rclpy.task import Future
+from rclpy.time import Time
 from sensor_msgs.msg import FluidPressure
 from std_srvs.srv import Trigger
 from valve_msgs.msg import DutyCommand, ValveState
@@ -142,6 +149,7 @@ class CanDriverNode(Node):
         self._subs: list = []
         self._timers: list = []
         self._sequence = 0
+        self._stamp_on_frame_time = True
         self._frame_id = NodeOptions.valve_name
         self._hardware_id = ''
         self._status_prefix = self.get_fully_qualified_name().lstrip('/')
@@ -197,7 +205,8 @@ class CanDriverNode(Node):
             self._state_pub = self.create_lifecycle_publisher(ValveState, TOPIC_STATE,
                                                               STATE_DURABLE_QOS)
             self._core = core
-            if self.get_parameter('use_sim_time').value:
+            self._stamp_on_frame_time = not self.get_parameter('use_sim_time').value
+            if not self._stamp_on_frame_time:
                 core.host_command.watchdog_clock = self._ros_time_s
             core.open()
         except (ValveDriverError, OSError, ValueError, ImportError) as err:
@@ -378,8 +387,15 @@ class CanDriverNode(Node):
         pub = self._state_pub
         if pub is None:
             return
-        msg = state_message(sample, self.get_clock().now().to_msg(), self._frame_id,
-                            self._sequence, ValveState.SOURCE_CAN)
+        # On the wall clock a state is stamped when its frame was on the bus (the sample's
+        # time): the receive thread's lateness, which bunches frames under load, stays out
+        # of the time axis. On simulation time the node's clock is the time axis.
+        if self._stamp_on_frame_time and math.isfinite(sample.t_s) and sample.t_s > 0.0:
+            stamp = Time(nanoseconds=int(round(sample.t_s * 1e9))).to_msg()
+        else:
+            stamp = self.get_clock().now().to_msg()
+        msg = state_message(sample, stamp, self._frame_id, self._sequence,
+                            ValveState.SOURCE_CAN)
         self._sequence += 1
         self._publish(pub, msg)
 
