@@ -111,18 +111,20 @@ def test_an_8bit_rigol_export_brings_its_step_to_the_measurement(tmp_path: Path)
 @pytest.fixture(scope='module')
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """One quick identification per record: clean, quantised and unquantised (one draw of
-    the noise), and quantised with eddy currents.
+    the noise), and quantised with eddy currents. The unquantised record is judged only by
+    its baseline's intervals, which the diagnosis does not touch: it runs without one.
 
     The tests that judge them share one xdist group: a slow test is a work unit of its
     own (tests/conftest.py), and units on two workers would each build this fixture.
     """
     base = tmp_path_factory.mktemp('quantised')
     out = {}
-    for key, effect, lsb in (('quantised', 'none', LSB_A), ('unquantised', 'none', 0.0),
-                             ('eddy', 'eddy_current', LSB_A)):
+    for key, effect, lsb, diagnose in (('quantised', 'none', LSB_A, True),
+                                       ('unquantised', 'none', 0.0, False),
+                                       ('eddy', 'eddy_current', LSB_A, True)):
         truth = step_dataset(base, seed=1, effect=effect, noise_a=0.5e-3, lsb_a=lsb)
         out[key] = identify(truth['fit'], truth['validate'],
-                            IdentifySettings(quick=True, seed=1))
+                            IdentifySettings(quick=True, seed=1, diagnose=diagnose))
     return out
 
 
