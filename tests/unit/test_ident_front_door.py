@@ -4,6 +4,9 @@ refusals that come before any simulation. Fast: no identification run."""
 from __future__ import annotations
 
 import dataclasses
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -95,3 +98,20 @@ def test_a_record_without_its_supply_pressure_is_refused_before_any_fit(
         identify([rec])
     with pytest.raises(MeasurementFormatError, match='supply_pressure_pa'):
         identify(read_measurements([rec]))
+
+
+@pytest.mark.parametrize('env, affinity', [({'NUMBA_NUM_THREADS': '1'}, None),
+                                           ({}, 1)])
+def test_the_identification_keeps_to_the_threads_the_process_is_given(env, affinity) -> None:
+    """A fleet worker limited to one thread (NUMBA_NUM_THREADS) or a process pinned to one
+    CPU runs the identification's Python threads on one, not one per CPU of the machine."""
+    if affinity is not None and not hasattr(os, 'sched_setaffinity'):
+        pytest.skip('no CPU affinity on this platform')
+    code = ('import os\n'
+            f'if {affinity!r}: os.sched_setaffinity(0, {{min(os.sched_getaffinity(0))}})\n'
+            'from valve_model_pkg.identification import IdentifySettings\n'
+            'print(IdentifySettings().workers, IdentifySettings(threads=3).workers)\n')
+    environ = {k: v for k, v in os.environ.items() if k != 'NUMBA_NUM_THREADS'}
+    out = subprocess.run([sys.executable, '-c', code], env={**environ, **env},
+                         capture_output=True, text=True, timeout=120, check=True).stdout
+    assert out.split() == ['1', '3']

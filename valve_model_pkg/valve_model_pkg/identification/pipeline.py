@@ -40,6 +40,7 @@ import numpy as np
 from ..errors import MeasurementFormatError, ParameterError
 from ..interface import TOPIC_STATE
 from ..model import ElectronicsConfig, load_electronics
+from ..model.kernel import batch_threads
 from ..model.parameters import EFFECTS, ValveParameters
 from .criteria import DBIC_THRESHOLD, delta_bic, effective_counts, resolution_floors
 from .diagnosis import (
@@ -242,8 +243,9 @@ class IdentifySettings:
 
     @property
     def workers(self) -> int:
-        """Python threads of the identification (:attr:`threads`, else one per CPU)."""
-        return self.threads or os.cpu_count() or 1
+        """Python threads of the identification (:attr:`threads`, else the kernel's batch
+        threads: ``NUMBA_NUM_THREADS``, else one per CPU this process may run on)."""
+        return self.threads or batch_threads()
 
 
 #: Candidates whose signatures look alike on a current record (the friction force and

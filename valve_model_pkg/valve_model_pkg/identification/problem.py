@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import copy
 import math
-import os
 import threading
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
@@ -27,6 +26,7 @@ import numpy as np
 
 from ..model import ElectronicsConfig
 from ..model import PARALLEL_MIN_BATCH
+from ..model.kernel import batch_threads
 from ..model.magnetics import MU_0
 from ..model.parameters import EFFECTS, ValveParameters
 from ..errors import IdentificationError
@@ -332,14 +332,15 @@ class ErrorFigures:
 RESIDUAL_CACHE = 32
 #: Smallest batch :meth:`FitData.cost` splits over threads.
 _SPLIT_MIN_BATCH = 2
-_WORKERS = os.cpu_count() or 1
 _POOL: list[ThreadPoolExecutor] = []
 
 
 def _pool() -> ThreadPoolExecutor:
     """The identification's thread pool for small batches (created on first use)."""
     if not _POOL:
-        _POOL.append(ThreadPoolExecutor(max_workers=_WORKERS,
+        # the kernel's batch threads when first used: NUMBA_NUM_THREADS and the CPUs this
+        # process may run on (a fleet worker limited to one thread keeps to it)
+        _POOL.append(ThreadPoolExecutor(max_workers=batch_threads(),
                                         thread_name_prefix='valve-ident'))
     return _POOL[0]
 
@@ -447,7 +448,7 @@ class FitData:
         self.parallel = True
         #: Threads a small batch is split over (:meth:`cost`) and the drive electronics'
         #: candidates run on.
-        self.workers = _WORKERS
+        self.workers = batch_threads()
         #: Drive electronics of the records through the electronics (identified
         #: separately, :mod:`.drive`); the same for every run of a batch.
         self.electronics = ElectronicsConfig()
