@@ -14,7 +14,8 @@ import pytest
 from datagen.truth import TruthValve, simulate_truth
 from suite_bags import header, write_bag
 
-from valve_bringup.bench import BenchRecord, BenchStep, check_bench_bag, record_checked_step
+from valve_bringup.bench import (BenchRecord, BenchStep, bag_gaps, check_bench_bag,
+                                 record_checked_step)
 from valve_model_pkg.recording import build_typestore
 
 RECORD = BenchRecord('validate', 15.0)
@@ -114,3 +115,13 @@ def test_a_step_the_state_never_showed_is_recorded_again(tmp_path: Path, truth_s
         return BenchStep(bag, 'the valve state did not show the step' if len(calls) == 1
                          else None, 20.0, 0.0, 0.0, 0)
     assert record_checked_step(RECORD, tmp_path, 'S', (), record_step).name.endswith('_again')
+
+
+def test_the_instants_a_controller_skipped_are_said(tmp_path: Path, truth_step) -> None:
+    t, v, i = truth_step
+    assert bag_gaps(_bag(tmp_path / 'whole', t, v, i)).endswith('no gap')
+    keep = np.ones(t.size, bool)
+    keep[400:430] = False           # 30 states lost: a 31 ms gap
+    keep[900:905] = False           # 5 lost: 6 ms
+    said = bag_gaps(_bag(tmp_path / 'gappy', t[keep], v[keep], i[keep]))
+    assert said == '1465 states 1 ms apart, 2 gaps (largest 31 ms, 35 ms of states missing in all)'

@@ -30,7 +30,7 @@ from valve_model_pkg.model import load_parameters
 from valve_model_pkg.nodes.probe import StateProbe
 
 __all__ = ['BenchRecord', 'BenchStep', 'BENCH_RECORDS', 'BENCH_ADC_NOISE_A',
-           'DEFAULT_EFFECT_PARAMS', 'check_bench_bag', 'record_bench_step',
+           'DEFAULT_EFFECT_PARAMS', 'bag_gaps', 'check_bench_bag', 'record_bench_step',
            'record_checked_step', 'run_bench_loop']
 
 #: Effect parameters of the emulated valve when --effect-param is not given. Coil heating
@@ -253,6 +253,23 @@ def check_bench_bag(record: BenchRecord, bag: Path) -> str | None:
     return None
 
 
+def bag_gaps(bag: Path) -> str:
+    """Where the states of ``bag`` are further apart than 1.5 of their median spacing, in
+    words: the instants the controller skipped or the bus lost (the states are stamped when
+    their frame was on the bus, so a skip is a gap, not a bunch)."""
+    t = read_bag(bag).t_s
+    dt = np.diff(t)
+    if dt.size == 0:
+        return 'no state spacing'
+    step = float(np.median(dt))
+    gaps = dt[dt > 1.5 * step]
+    if gaps.size == 0:
+        return f'{t.size} states {1e3 * step:.3g} ms apart, no gap'
+    return (f'{t.size} states {1e3 * step:.3g} ms apart, {gaps.size} gaps (largest '
+            f'{1e3 * gaps.max():.3g} ms, {1e3 * (gaps.sum() - gaps.size * step):.3g} ms '
+            'of states missing in all)')
+
+
 def record_checked_step(record: BenchRecord, out: Path, stamp: str,
                         effect_args: tuple[str, ...],
                         record_step: Callable[..., BenchStep] = record_bench_step) -> Path:
@@ -285,6 +302,7 @@ def record_checked_step(record: BenchRecord, out: Path, stamp: str,
         step = record_step(record, bag, effect_args)
         problem = step.problem or check_bench_bag(record, bag)
         if problem is None:
+            say(f'{record.name}: {bag.name}: {bag_gaps(bag)}')
             return bag
         if attempt == 0:
             say(f'{record.name}: {bag.name} is no record of the step ({problem}); '
