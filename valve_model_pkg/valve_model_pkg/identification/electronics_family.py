@@ -50,7 +50,8 @@ from ..model import ElectronicsConfig
 from ..model.parameters import ValveParameters
 from .criteria import DBIC_THRESHOLD, MIN_VALIDATION_GAIN, delta_bic, effective_counts
 from .criteria import resolution_floors
-from .drive import AT_BOUND_FRACTION, DRIVE_BOUNDS, form_constants, search_constants
+from .drive import AT_BOUND_FRACTION, DRIVE_BOUNDS, form_choices, form_constants
+from .drive import search_constants
 from .problem import ParameterBound
 from .problem import FitData, ParameterSpace, unit_objective
 from .search import SearchSettings, direct_search
@@ -63,6 +64,7 @@ PEAK_OPTIONS: tuple[dict[str, str], ...] = tuple(
     {'peak_end': p} for p in ('dip', 'dip_rise', 'threshold', 'timer'))
 HOLD_OPTIONS: tuple[dict[str, str], ...] = (
     {'hold': 'pi', 'hold_decay': 'freewheel'}, {'hold': 'pi', 'hold_decay': 'fast'},
+    {'hold': 'hysteresis', 'hold_decay': 'freewheel'},
     {'hold': 'hysteresis', 'hold_decay': 'diode'},
     {'hold': 'hysteresis', 'hold_decay': 'fast'},
     {'hold': 'pwm', 'hold_decay': 'freewheel'})
@@ -100,8 +102,10 @@ def describe_form(cfg: ElectronicsConfig) -> str:
 
 
 def describe_constants(cfg: ElectronicsConfig) -> str:
-    """The form's constants that show in the current, as ``name = value`` in words."""
-    return ', '.join(f'{n} = {getattr(cfg, n):.4g}' for n in form_constants(cfg))
+    """The form's constants that show in the current (and its settings chosen from a few
+    values), as ``name = value`` in words."""
+    return ', '.join(f'{n} = {getattr(cfg, n):.4g}'
+                     for n in form_constants(cfg) + form_choices(cfg))
 
 
 @dataclass
@@ -146,7 +150,8 @@ class FormFit:
 
     @property
     def n_constants(self) -> int:
-        return len(form_constants(self.electronics))
+        """The form's constants and its settings chosen from a few values."""
+        return len(form_constants(self.electronics)) + len(form_choices(self.electronics))
 
     @property
     def at_bound(self) -> list[str]:
@@ -282,7 +287,7 @@ def screen_parts(data: FitData, params: ValveParameters, base: ElectronicsConfig
 def _constants_only(data: FitData, params: ValveParameters, cfg: ElectronicsConfig
                     ) -> FormFit:
     """The form's constants searched with the valve held at ``params``."""
-    drive = search_constants(_view(data, cfg), params, cfg, FORM_EFFORT)
+    drive = search_constants(_view(data, cfg), params, cfg, FORM_EFFORT, grid=True)
     return FormFit(drive.electronics, params, float(drive.cost))
 
 
@@ -290,7 +295,7 @@ def _refine_form(data: FitData, space: ParameterSpace, f: FormFit) -> FormFit:
     """The valve searched locally through ``f``'s form, then its constants again."""
     params, cost = _valve_search(data, space, [f.params], f.electronics)
     drive = search_constants(_view(data, f.electronics), params, f.electronics,
-                             FORM_EFFORT // 2)
+                             FORM_EFFORT // 2, grid=True)
     if drive.cost < cost:
         return FormFit(drive.electronics, params, float(drive.cost), refined=True,
                        prior=f.prior)
