@@ -614,18 +614,24 @@ class ElectronicsSettled:
         The forms compared and the choice (None: given, or no record through electronics).
     source : str
         Where the form comes from, in words ('' without records through the electronics).
+    choose : bool
+        The data are to choose the form at the baseline search's optimum
+        (:func:`reselect_electronics`).
     """
 
     prep: Prepared
     family: FamilyChoice | None
     source: str
+    choose: bool = False
 
 
 def settle_electronics(inputs: Inputs, prep: Prepared, settings: IdentifySettings,
                        say: Say) -> ElectronicsSettled:
-    """The drive electronics' form: the user's (:attr:`IdentifySettings.electronics`), the
-    data's choice (:mod:`.electronics_family`), or the paper's driver's; the data prepared
-    again through a chosen form (its PWM grids placed through it)."""
+    """The drive electronics' form: the user's (:attr:`IdentifySettings.electronics`) or the
+    paper's driver's; with :attr:`IdentifySettings.choose_electronics` the baseline search
+    runs through the paper's driver and :func:`reselect_electronics` lets the data choose
+    the form at its optimum (a form chosen at the valve's start values can hold the
+    valve's global search in a poor minimum)."""
     given = settings.electronics
     if not prep.through_electronics:
         if given is not None:
@@ -641,24 +647,18 @@ def settle_electronics(inputs: Inputs, prep: Prepared, settings: IdentifySetting
         source = f'given (--electronics): {describe_form(given)}; {how}'
         say('drive electronics ' + source)
         return ElectronicsSettled(prep, None, source)
-    if not settings.choose_electronics:
-        source = f'the paper\'s driver: {describe_form(ElectronicsConfig())}; constants fitted'
-        return ElectronicsSettled(prep, None, source)
-    say('drive electronics: screening the forms (peak end x hold x release)')
-    family = select_family(prep.search, prep.fit, prep.validation, prep.space,
-                           [prep.start, prep.space.base], settings.workers)
-    _say_family(family, say)
-    chosen = _start_electronics(family)
-    new = prepare_data(inputs, settings, lambda s: None, chosen)
-    new.notes.append(family.statement)
-    return ElectronicsSettled(new, family, 'chosen by the data: ' + describe_form(chosen))
+    source = f'the paper\'s driver: {describe_form(ElectronicsConfig())}; constants fitted'
+    if settings.choose_electronics:
+        say('drive electronics: the baseline search runs through the paper\'s driver; the '
+            'data choose the form at its optimum')
+        return ElectronicsSettled(prep, None, source, choose=True)
+    return ElectronicsSettled(prep, None, source)
 
 
 def _start_electronics(family: FamilyChoice) -> ElectronicsConfig:
-    """The electronics the baseline starts from: the chosen form with its constants; the
+    """The electronics the drive rounds start from: the chosen form with its constants; the
     prior form (the paper's driver) kept by the choice starts from its nominal constants,
-    as without the choice (its constants searched through a locally fitted valve can hold
-    the valve's global search in a poor minimum)."""
+    as without the choice."""
     return ElectronicsConfig() if family.chosen.prior else family.chosen.electronics
 
 
@@ -672,10 +672,10 @@ def _say_family(family: FamilyChoice, say: Say) -> None:
 
 def reselect_electronics(prep: Prepared, settled: ElectronicsSettled, params: ValveParameters,
                          settings: IdentifySettings, say: Say) -> ElectronicsSettled:
-    """The form chosen again with the valve at the baseline search's optimum (``params``):
-    the first choice compared forms at a valve searched only locally, this one at the valve
-    the record shows; the data keep their PWM grids."""
-    say('drive electronics: the forms screened again at the baseline search\'s optimum')
+    """The form chosen by the data with the valve at the baseline search's optimum
+    (``params``, :mod:`.electronics_family`); the data keep their PWM grids."""
+    say('drive electronics: screening the forms (peak end x hold x release) at the '
+        'baseline search\'s optimum')
     family = select_family(prep.search, prep.fit, prep.validation, prep.space, [params],
                            settings.workers)
     _say_family(family, say)
@@ -798,16 +798,14 @@ def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
     t0 = time.perf_counter()
     elec = settle_electronics(inputs, prep, settings, say)
     prep = elec.prep
-    if elec.family is not None:
-        timings['electronics_family'] = _lap(say, 'electronics family', t0)
     t0 = time.perf_counter()
     res = search_baseline(prep, settings, say)
     timings['baseline_search'] = _lap(say, 'baseline search', t0)
-    if elec.family is not None:
+    if elec.choose:
         t0 = time.perf_counter()
         elec = reselect_electronics(prep, elec, prep.space.params(res.u), settings, say)
         prep = elec.prep
-        timings['electronics_family_2'] = _lap(say, 'electronics family at the baseline', t0)
+        timings['electronics_family'] = _lap(say, 'electronics family at the baseline', t0)
     t0 = time.perf_counter()
     if route.rival is None:
         rounds = alternate_electronics(prep, res, settings, say)
@@ -829,6 +827,10 @@ def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
         say(settled.note)
         timings['route_screen'] = _lap(say, 'route screen', t0)
         return RouteStart(settled, prep, ElectronicsRounds(res.u, None), None, elec)
+    if rival_elec.choose:
+        rival_elec = reselect_electronics(rival, rival_elec, rival.space.params(res.u),
+                                          settings, say)
+        rival = rival_elec.prep
     rival_rounds = alternate_electronics(rival, res, settings, say)
     hold = prep.validation is not None
     rmse, crit = {}, {}
