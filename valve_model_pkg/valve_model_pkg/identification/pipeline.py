@@ -614,24 +614,22 @@ class ElectronicsSettled:
         The forms compared and the choice (None: given, or no record through electronics).
     source : str
         Where the form comes from, in words ('' without records through the electronics).
-    choose : bool
-        The data are to choose the form at the baseline search's optimum
-        (:func:`reselect_electronics`).
+    paper : Prepared or None
+        The data through the paper's driver when the data chose another form (the
+        baseline search runs through both: :func:`search_through_the_paper`).
     """
 
     prep: Prepared
     family: FamilyChoice | None
     source: str
-    choose: bool = False
+    paper: Prepared | None = None
 
 
 def settle_electronics(inputs: Inputs, prep: Prepared, settings: IdentifySettings,
                        say: Say) -> ElectronicsSettled:
-    """The drive electronics' form: the user's (:attr:`IdentifySettings.electronics`) or the
-    paper's driver's; with :attr:`IdentifySettings.choose_electronics` the baseline search
-    runs through the paper's driver and :func:`reselect_electronics` lets the data choose
-    the form at its optimum (a form chosen at the valve's start values can hold the
-    valve's global search in a poor minimum)."""
+    """The drive electronics' form: the user's (:attr:`IdentifySettings.electronics`), the
+    data's choice (:mod:`.electronics_family`), or the paper's driver's; the data prepared
+    again through a chosen form (its PWM grids placed through it)."""
     given = settings.electronics
     if not prep.through_electronics:
         if given is not None:
@@ -647,18 +645,25 @@ def settle_electronics(inputs: Inputs, prep: Prepared, settings: IdentifySetting
         source = f'given (--electronics): {describe_form(given)}; {how}'
         say('drive electronics ' + source)
         return ElectronicsSettled(prep, None, source)
-    source = f'the paper\'s driver: {describe_form(ElectronicsConfig())}; constants fitted'
-    if settings.choose_electronics:
-        say('drive electronics: the baseline search runs through the paper\'s driver; the '
-            'data choose the form at its optimum')
-        return ElectronicsSettled(prep, None, source, choose=True)
-    return ElectronicsSettled(prep, None, source)
+    if not settings.choose_electronics:
+        source = f'the paper\'s driver: {describe_form(ElectronicsConfig())}; constants fitted'
+        return ElectronicsSettled(prep, None, source)
+    say('drive electronics: screening the forms (peak end x hold x release)')
+    family = select_family(prep.search, prep.fit, prep.validation, prep.space,
+                           [prep.start, prep.space.base], settings.workers, grid=False)
+    _say_family(family, say)
+    chosen = _start_electronics(family)
+    new = prepare_data(inputs, settings, lambda s: None, chosen)
+    new.notes.append(family.statement)
+    return ElectronicsSettled(new, family, 'chosen by the data: ' + describe_form(chosen),
+                              None if family.chosen.prior else prep)
 
 
 def _start_electronics(family: FamilyChoice) -> ElectronicsConfig:
-    """The electronics the drive rounds start from: the chosen form with its constants; the
+    """The electronics the baseline starts from: the chosen form with its constants; the
     prior form (the paper's driver) kept by the choice starts from its nominal constants,
-    as without the choice."""
+    as without the choice (its constants searched through a locally fitted valve can hold
+    the valve's global search in a poor minimum)."""
     return ElectronicsConfig() if family.chosen.prior else family.chosen.electronics
 
 
@@ -672,10 +677,10 @@ def _say_family(family: FamilyChoice, say: Say) -> None:
 
 def reselect_electronics(prep: Prepared, settled: ElectronicsSettled, params: ValveParameters,
                          settings: IdentifySettings, say: Say) -> ElectronicsSettled:
-    """The form chosen by the data with the valve at the baseline search's optimum
-    (``params``, :mod:`.electronics_family`); the data keep their PWM grids."""
-    say('drive electronics: screening the forms (peak end x hold x release) at the '
-        'baseline search\'s optimum')
+    """The form chosen again with the valve at the baseline search's optimum (``params``):
+    the first choice compared forms at a valve searched only locally, this one at the valve
+    the record shows; the data keep their PWM grids."""
+    say('drive electronics: the forms screened again at the baseline search\'s optimum')
     family = select_family(prep.search, prep.fit, prep.validation, prep.space, [params],
                            settings.workers)
     _say_family(family, say)
@@ -697,6 +702,23 @@ def search_baseline(prep: Prepared, settings: IdentifySettings, say: Say) -> Sea
                         progress=say, label='baseline')
     say(f'baseline: cost {res.cost:.6g} A after {res.evaluations} simulations')
     return res
+
+
+def search_through_the_paper(elec: ElectronicsSettled, res: SearchResult,
+                             settings: IdentifySettings, say: Say
+                             ) -> tuple[SearchResult, ElectronicsSettled]:
+    """The baseline search again on the data through the paper's driver (nominal
+    constants, ``elec.paper``) when the data chose another form at the valve's start
+    values; the lower search cost goes on with its data. A form chosen at a valve far
+    from the record's can hold the global search in a poor minimum that the paper's
+    driver avoids; the form is chosen again at the optimum (:func:`reselect_electronics`)."""
+    say('baseline: the direct search again through the paper\'s driver')
+    paper = search_baseline(elec.paper, settings, say)
+    if paper.cost >= res.cost:
+        return res, elec
+    say(f'baseline: through the paper\'s driver {1e3 * paper.cost:.3g} mA against '
+        f'{1e3 * res.cost:.3g} mA through the chosen form: it goes on')
+    return paper, replace(elec, prep=elec.paper, paper=None)
 
 
 def _two_starts(u: np.ndarray, others: np.ndarray | None) -> np.ndarray:
@@ -798,14 +820,19 @@ def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
     t0 = time.perf_counter()
     elec = settle_electronics(inputs, prep, settings, say)
     prep = elec.prep
+    if elec.family is not None:
+        timings['electronics_family'] = _lap(say, 'electronics family', t0)
     t0 = time.perf_counter()
     res = search_baseline(prep, settings, say)
+    if elec.paper is not None:
+        res, elec = search_through_the_paper(elec, res, settings, say)
+        prep = elec.prep
     timings['baseline_search'] = _lap(say, 'baseline search', t0)
-    if elec.choose:
+    if elec.family is not None:
         t0 = time.perf_counter()
         elec = reselect_electronics(prep, elec, prep.space.params(res.u), settings, say)
         prep = elec.prep
-        timings['electronics_family'] = _lap(say, 'electronics family at the baseline', t0)
+        timings['electronics_family_2'] = _lap(say, 'electronics family at the baseline', t0)
     t0 = time.perf_counter()
     if route.rival is None:
         rounds = alternate_electronics(prep, res, settings, say)
@@ -827,10 +854,6 @@ def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
         say(settled.note)
         timings['route_screen'] = _lap(say, 'route screen', t0)
         return RouteStart(settled, prep, ElectronicsRounds(res.u, None), None, elec)
-    if rival_elec.choose:
-        rival_elec = reselect_electronics(rival, rival_elec, rival.space.params(res.u),
-                                          settings, say)
-        rival = rival_elec.prep
     rival_rounds = alternate_electronics(rival, res, settings, say)
     hold = prep.validation is not None
     rmse, crit = {}, {}
