@@ -42,7 +42,7 @@ from .search import SearchSettings, direct_search
 
 __all__ = ['DRIVE_BOUNDS', 'FORM_CONSTANTS', 'DriveReport', 'estimate_hold_current',
            'fit_drive', 'form_constants', 'hold_start', 'search_constants',
-           'DriveFit']
+           'DriveFit', 'COMPARATOR_CLOCKS_HZ', 'form_choices']
 
 #: Search ranges of the electronics constants (SI). Wide: a driver's hold current is set
 #: between a few hundred mA and an ampere or two, its release pulse by a capacitor or a
@@ -73,6 +73,15 @@ FORM_CONSTANTS: dict[tuple[str, str], tuple[str, ...]] = {
     ('release', 'zener'): ('zener_voltage_v',),
     ('release', 'diode'): (),
 }
+#: Clocks a hysteresis hold's comparator is tried at [Hz]. The clock shows in the
+#: interval-mean current through the phase of the ripple at each falling edge (the current
+#: the release starts from), but not smoothly: the cost jumps between neighbouring clocks,
+#: so the clock is chosen among these (and the start value), not searched.
+COMPARATOR_CLOCKS_HZ = (10e3, 20e3, 25e3, 40e3, 50e3, 100e3)
+#: Bands of the grid of :func:`hysteresis_grid` (about 11 % apart) [A].
+HYSTERESIS_BANDS_A = tuple(float(b) for b in np.geomspace(0.01, 0.05, 16))
+#: Offsets of the grid's set points from the hold read off the data [A].
+HYSTERESIS_HOLD_OFFSETS_A = tuple(float(x) for x in np.arange(-8e-3, 8.1e-3, 2e-3))
 #: Which phase of the record shows each constant: the hold phase (peak end and hold) or
 #: the fall after the main PWM's falling edge (release).
 _SHOWN_BY = {'peak_end': 'hold', 'hold': 'hold', 'release': 'falls'}
@@ -88,6 +97,13 @@ def form_constants(cfg: ElectronicsConfig, part: str | None = None) -> list[str]
             continue
         out += [n for n in FORM_CONSTANTS[(p, getattr(cfg, p))] if n not in out]
     return out
+
+
+def form_choices(cfg: ElectronicsConfig) -> list[str]:
+    """The settings of ``cfg``'s form chosen from a few values rather than searched (the
+    hysteresis comparator's clock, :data:`COMPARATOR_CLOCKS_HZ`)."""
+    return ['comparator_frequency_hz'] if cfg.current_control and cfg.hold == 'hysteresis' \
+        else []
 
 
 #: A value within this share of its log range from a bound counts as at the bound.
@@ -202,14 +218,45 @@ def _costs(data: FitData, raw: np.ndarray, configs: list[ElectronicsConfig]) -> 
 
 
 def search_constants(data: FitData, params: ValveParameters, base: ElectronicsConfig,
-                     effort: int) -> DriveFit:
+                     effort: int, grid: bool = False) -> DriveFit:
     """The constants of ``base``'s form that the records carry, from the hold read off the
     data and ``base``'s other values, searched with the valve held at ``params`` (``effort``
-    Nelder-Mead iterations; no intervals)."""
+    Nelder-Mead iterations; no intervals); with ``grid`` a hysteresis hold's clock, band
+    and set point first on a grid (:func:`hysteresis_grid`)."""
     base, _ = hold_start(data, params, base)
     carried = _carried(data, base)
     bounds = [ParameterBound(n, *DRIVE_BOUNDS[n]) for n in carried if carried[n]]
+    return _search_clocked(data, params, base, bounds, effort, grid)
+
+
+def _search_clocked(data: FitData, params: ValveParameters, base: ElectronicsConfig,
+                    bounds: list[ParameterBound], effort: int, grid: bool) -> DriveFit:
+    """The bounded search of :func:`_search_drive`; for a hysteresis hold with ``grid``
+    first its comparator's clock and band (:func:`hysteresis_grid`), the search then starting
+    from the best point of the grid."""
+    if grid and form_choices(base) and effort > 0:
+        base = hysteresis_grid(data, params, base).electronics
     return _search_drive(data, params, base, bounds, effort)
+
+
+def hysteresis_grid(data: FitData, params: ValveParameters, base: ElectronicsConfig
+                    ) -> DriveFit:
+    """A clocked hysteresis hold's comparator clock, band and set point on a grid, the valve
+    held at ``params``: clocks :data:`COMPARATOR_CLOCKS_HZ` and ``base``'s, bands
+    :data:`HYSTERESIS_BANDS_A`, set points ``base``'s +- :data:`HYSTERESIS_HOLD_OFFSETS_A`.
+
+    The current at each falling edge (where the release starts) is the phase of the
+    sampled limit cycle there, which jumps with these three: the cost has narrow valleys a
+    local search from a default value does not reach, but a grid of this spacing does.
+    """
+    clocks = sorted(set(COMPARATOR_CLOCKS_HZ) | {base.comparator_frequency_hz})
+    lo, hi = DRIVE_BOUNDS['holding_current_a']
+    cfgs = [base.replace(comparator_frequency_hz=f, hysteresis_band_a=b,
+                         holding_current_a=min(max(base.holding_current_a + dh, lo), hi))
+            for f in clocks for b in HYSTERESIS_BANDS_A for dh in HYSTERESIS_HOLD_OFFSETS_A]
+    costs = _costs(data, params.to_vector(), [base] + cfgs)
+    k = int(np.argmin(costs))
+    return DriveFit(([base] + cfgs)[k], float(costs[k]))
 
 
 def _search_drive(data: FitData, params: ValveParameters, base: ElectronicsConfig,
@@ -317,7 +364,8 @@ def fit_drive(data: FitData, params: ValveParameters, *, effort: int = 120,
         notes.append('not carried by these records (held at their given values): '
                      + ', '.join(missing))
     bounds = [ParameterBound(n, *DRIVE_BOUNDS[n]) for n in names]
-    best = _search_drive(data, params, base, [] if fixed else bounds, effort)
+    best = _search_drive(data, params, base, [], 0) if fixed else \
+        _search_clocked(data, params, base, bounds, effort, True)
     values = {n: float(getattr(best.electronics, n)) for n in carried}
     ci: dict[str, float | None] = {n: None for n in carried}
     at_bound = []

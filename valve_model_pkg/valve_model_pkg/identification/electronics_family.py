@@ -50,7 +50,8 @@ from ..model import ElectronicsConfig
 from ..model.parameters import ValveParameters
 from .criteria import DBIC_THRESHOLD, MIN_VALIDATION_GAIN, delta_bic, effective_counts
 from .criteria import resolution_floors
-from .drive import AT_BOUND_FRACTION, DRIVE_BOUNDS, form_constants, search_constants
+from .drive import AT_BOUND_FRACTION, DRIVE_BOUNDS, form_choices, form_constants
+from .drive import search_constants
 from .problem import ParameterBound
 from .problem import FitData, ParameterSpace, unit_objective
 from .search import SearchSettings, direct_search
@@ -63,6 +64,7 @@ PEAK_OPTIONS: tuple[dict[str, str], ...] = tuple(
     {'peak_end': p} for p in ('dip', 'dip_rise', 'threshold', 'timer'))
 HOLD_OPTIONS: tuple[dict[str, str], ...] = (
     {'hold': 'pi', 'hold_decay': 'freewheel'}, {'hold': 'pi', 'hold_decay': 'fast'},
+    {'hold': 'hysteresis', 'hold_decay': 'freewheel'},
     {'hold': 'hysteresis', 'hold_decay': 'diode'},
     {'hold': 'hysteresis', 'hold_decay': 'fast'},
     {'hold': 'pwm', 'hold_decay': 'freewheel'})
@@ -100,8 +102,10 @@ def describe_form(cfg: ElectronicsConfig) -> str:
 
 
 def describe_constants(cfg: ElectronicsConfig) -> str:
-    """The form's constants that show in the current, as ``name = value`` in words."""
-    return ', '.join(f'{n} = {getattr(cfg, n):.4g}' for n in form_constants(cfg))
+    """The form's constants that show in the current (and its settings chosen from a few
+    values), as ``name = value`` in words."""
+    return ', '.join(f'{n} = {getattr(cfg, n):.4g}'
+                     for n in form_constants(cfg) + form_choices(cfg))
 
 
 @dataclass
@@ -146,7 +150,8 @@ class FormFit:
 
     @property
     def n_constants(self) -> int:
-        return len(form_constants(self.electronics))
+        """The form's constants and its settings chosen from a few values."""
+        return len(form_constants(self.electronics)) + len(form_choices(self.electronics))
 
     @property
     def at_bound(self) -> list[str]:
@@ -279,18 +284,19 @@ def screen_parts(data: FitData, params: ValveParameters, base: ElectronicsConfig
     return out
 
 
-def _constants_only(data: FitData, params: ValveParameters, cfg: ElectronicsConfig
-                    ) -> FormFit:
-    """The form's constants searched with the valve held at ``params``."""
-    drive = search_constants(_view(data, cfg), params, cfg, FORM_EFFORT)
+def _constants_only(data: FitData, params: ValveParameters, cfg: ElectronicsConfig,
+                    grid: bool) -> FormFit:
+    """The form's constants searched with the valve held at ``params`` (``grid``: a
+    hysteresis hold's clock, band and set point first on a grid)."""
+    drive = search_constants(_view(data, cfg), params, cfg, FORM_EFFORT, grid=grid)
     return FormFit(drive.electronics, params, float(drive.cost))
 
 
-def _refine_form(data: FitData, space: ParameterSpace, f: FormFit) -> FormFit:
+def _refine_form(data: FitData, space: ParameterSpace, f: FormFit, grid: bool) -> FormFit:
     """The valve searched locally through ``f``'s form, then its constants again."""
     params, cost = _valve_search(data, space, [f.params], f.electronics)
     drive = search_constants(_view(data, f.electronics), params, f.electronics,
-                             FORM_EFFORT // 2)
+                             FORM_EFFORT // 2, grid=grid)
     if drive.cost < cost:
         return FormFit(drive.electronics, params, float(drive.cost), refined=True,
                        prior=f.prior)
@@ -304,8 +310,8 @@ def _same_form(a: ElectronicsConfig, b: ElectronicsConfig) -> bool:
 
 def fit_forms(data: FitData, space: ParameterSpace, params: ValveParameters,
               screen: dict[str, list[tuple[dict[str, str], float]]],
-              base: ElectronicsConfig, prior: ElectronicsConfig, workers: int
-              ) -> list[FormFit]:
+              base: ElectronicsConfig, prior: ElectronicsConfig, workers: int,
+              grid: bool = True) -> list[FormFit]:
     """The complete forms of the :data:`KEEP_PER_PART` best options of each part, their
     constants searched with the valve at ``params``; the :data:`FINALISTS` best, the best
     form with each kept option (so that two releases, say, are compared with the valve
@@ -321,7 +327,7 @@ def fit_forms(data: FitData, space: ParameterSpace, params: ValveParameters,
     if not any(_same_form(c, prior) for c in cfgs):
         cfgs.append(base.replace(**{k: getattr(prior, k) for k in (
             'peak_end', 'hold', 'hold_decay', 'release')}))
-    fits = sorted(_pool_map(lambda c: _constants_only(data, params, c), cfgs, workers),
+    fits = sorted(_pool_map(lambda c: _constants_only(data, params, c, grid), cfgs, workers),
                   key=lambda f: f.search_cost)
     for f in fits:
         f.prior = _same_form(f.electronics, prior)
@@ -332,7 +338,7 @@ def fit_forms(data: FitData, space: ParameterSpace, params: ValveParameters,
                                                for k, v in opt.items()))
             if best not in chosen:
                 chosen.append(best)
-    top = _pool_map(lambda f: _refine_form(data, space, f), chosen, workers)
+    top = _pool_map(lambda f: _refine_form(data, space, f, grid), chosen, workers)
     return sorted(top, key=lambda f: f.search_cost) + [f for f in fits if f not in chosen]
 
 
@@ -421,7 +427,8 @@ def choose_form(forms: list[FormFit], fit: FitData, val: FitData | None, workers
 
 def select_family(search: FitData, fit: FitData, val: FitData | None, space: ParameterSpace,
                   starts: list[ValveParameters], workers: int,
-                  base: ElectronicsConfig = ElectronicsConfig()) -> FamilyChoice:
+                  base: ElectronicsConfig = ElectronicsConfig(), grid: bool = True
+                  ) -> FamilyChoice:
     """Screen the parts, fit the complete forms of the best options, choose one.
 
     Parameters
@@ -439,10 +446,14 @@ def select_family(search: FitData, fit: FitData, val: FitData | None, space: Par
     base : ElectronicsConfig
         The prior form (the paper's driver), which another form must beat; the other
         parts' forms during the screen.
+    grid : bool
+        A hysteresis hold's clock, band and set point placed on a grid before their local
+        search in the complete forms (:func:`.drive.hysteresis_grid`; worth it at a valve
+        near the record's, where the ripple's phase is what is left).
     """
     start = valve_under(search, space, starts, base, workers)
     screen = screen_parts(search, start.params, start.base, workers)
-    forms = fit_forms(search, space, start.params, screen, start.base, base, workers)
+    forms = fit_forms(search, space, start.params, screen, start.base, base, workers, grid)
     chosen, same, text = choose_form(forms, fit, val, workers)
     words = {p: [(_option_words(p, o), c) for o, c in v] for p, v in screen.items()}
     return FamilyChoice(chosen, words, forms, same, text)
