@@ -39,8 +39,7 @@ import numpy as np
 
 from ..errors import MeasurementFormatError, ParameterError
 from ..interface import TOPIC_STATE
-from ..model import ElectronicsConfig, load_electronics
-from ..model.kernel import batch_threads
+from ..model import ElectronicsConfig, batch_threads, load_electronics
 from ..model.parameters import EFFECTS, ValveParameters
 from .criteria import DBIC_THRESHOLD, delta_bic, effective_counts, resolution_floors
 from .diagnosis import (

@@ -25,8 +25,7 @@ from typing import Sequence
 import numpy as np
 
 from ..model import ElectronicsConfig
-from ..model import PARALLEL_MIN_BATCH
-from ..model.kernel import batch_threads
+from ..model import PARALLEL_MIN_BATCH, batch_threads
 from ..model.magnetics import MU_0
 from ..model.parameters import EFFECTS, ValveParameters
 from ..errors import IdentificationError
