@@ -8,12 +8,31 @@ suite was measured (suites are often run at different times).
 """
 from __future__ import annotations
 
+import datetime as _dt
 import json
 import os
+import subprocess
 import time
 from pathlib import Path
 
 RESULTS_DIR = Path(__file__).resolve().parent / 'results'
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def git_commit() -> str:
+    """The short hash of the checked-out commit ('unknown' outside a git work tree)."""
+    try:
+        return subprocess.run(['git', '-C', str(ROOT), 'rev-parse', '--short', 'HEAD'],
+                              capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return 'unknown'
+
+
+def provenance_lines() -> list[str]:
+    """The list items a hand-run benchmark's Markdown page starts with: when (local time),
+    which code, what machine."""
+    return [f'- date: {_dt.datetime.now().strftime("%Y-%m-%d %H:%M")}',
+            f'- code: git {git_commit()}', f'- machine: {os.cpu_count()} cores, shared']
 
 
 def record(name: str, value: float | None, unit: str, ref_name: str | None,

@@ -19,10 +19,8 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -33,6 +31,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT / 'tests'))
 
+from common import provenance_lines  # noqa: E402
 from datagen.cache import operation_dataset  # noqa: E402
 from datagen.electronics import FORMS  # noqa: E402
 
@@ -102,11 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     work = Path(args.out)
     work.mkdir(parents=True, exist_ok=True)
-    commit = subprocess.run(['git', '-C', str(ROOT), 'rev-parse', '--short', 'HEAD'],
-                            capture_output=True, text=True).stdout.strip() or 'unknown'
     head = ['# The form chosen by the data on the generator\'s forms', '',
-            f'- date: {_dt.datetime.now().strftime("%Y-%m-%d %H:%M")}',
-            f'- code: git {commit}', f'- machine: {os.cpu_count()} cores, shared', '',
+            *provenance_lines(), '',
             'Records of test_identification_electronics.py (the paper\'s valve, no effect, '
             '1.5 s fit and 1.2 s validation record, 1 kHz interval means, 3 mA noise, no '
             '`coil_voltage_mean`); `identify(quick=True, diagnose=False)`. RMSE: the '

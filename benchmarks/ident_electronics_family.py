@@ -24,9 +24,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -38,6 +36,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT / 'tests'))
 
+from common import provenance_lines  # noqa: E402
 from datagen.electronics import FORMS  # noqa: E402
 from datagen.operation import write_operation_record  # noqa: E402
 
@@ -123,11 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     work = Path(args.out)
     work.mkdir(parents=True, exist_ok=True)
     before = _before()
-    commit = subprocess.run(['git', '-C', str(ROOT), 'rev-parse', '--short', 'HEAD'],
-                            capture_output=True, text=True).stdout.strip() or 'unknown'
     head = ['# Identification through drive electronics of other forms: after', '',
-            f'- date: {_dt.datetime.now().strftime("%Y-%m-%d %H:%M")}',
-            f'- code: git {commit}', f'- machine: {os.cpu_count()} cores, shared', '',
+            *provenance_lines(), '',
             'Records as in ident_electronics_before.md (the paper\'s valve, no effect, 2 s '
             'fit and 1.5 s validation record, 1 kHz interval means, 3 mA noise, no '
             '`coil_voltage_mean`). `valve_identify --quick --no-diagnosis`, the form chosen '

@@ -41,6 +41,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT / 'tests'))
 
+from common import git_commit  # noqa: E402
 from datagen.electronics import FORMS  # noqa: E402
 from datagen.operation import write_operation_record  # noqa: E402
 
@@ -213,14 +214,6 @@ def _table(cells: list[Cell], pending: list[tuple[str, str, bool]], meta: dict[s
     return '\n'.join(lines) + '\n'
 
 
-def _git_commit() -> str:
-    try:
-        return subprocess.run(['git', '-C', str(ROOT), 'rev-parse', '--short', 'HEAD'],
-                              capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return 'unknown'
-
-
 def _load() -> str:
     try:
         return Path('/proc/loadavg').read_text().split(' ')[0]
@@ -277,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     loads = [_load()]
     meta = {'date': _dt.datetime.now().strftime('%Y-%m-%d %H:%M'),
-            'code': f'git {_git_commit()} (valve_model_pkg as of that commit)',
+            'code': f'git {git_commit()} (valve_model_pkg as of that commit)',
             'machine': f'{os.cpu_count()} cores, shared',
             'load (1 min) at start': loads[0]}
     cells: list[Cell] = []
