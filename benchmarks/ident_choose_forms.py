@@ -2,7 +2,7 @@
 
 Run by hand (not part of ``make test`` or ``make bench``). For each form of the generator
 (``tests/datagen/electronics.py``; ``generator_default`` is its default circuit) a clean
-operational record pair as the tests build it (``datagen.cache.operation_dataset``: the
+operational record pair as the tests build it (``datagen.cache.electronics_pair``: the
 paper's valve, a 1.5 s fit and a 1.2 s validation record, 1 kHz interval-mean current,
 3 mA noise, no ``coil_voltage_mean``) is identified through the library entry with
 ``quick=True, diagnose=False`` and the form chosen by the data (``--choose-electronics``),
@@ -32,7 +32,7 @@ ROOT = HERE.parent
 sys.path.insert(0, str(ROOT / 'tests'))
 
 from common import provenance_lines  # noqa: E402
-from datagen.cache import operation_dataset  # noqa: E402
+from datagen.cache import ELECTRONICS_PAIR_NOISE_A, electronics_pair  # noqa: E402
 from datagen.electronics import FORMS  # noqa: E402
 
 from valve_model_pkg.identification import IdentifySettings, identify  # noqa: E402
@@ -43,18 +43,9 @@ from valve_model_pkg.identification.problem import FitData  # noqa: E402
 from valve_model_pkg.identification.residuals import DRIVE_PHASES  # noqa: E402
 from valve_model_pkg.identification.residuals import drive_phase_masks  # noqa: E402
 
-NOISE_A = 3e-3
+NOISE_A = ELECTRONICS_PAIR_NOISE_A
 FORM_ORDER = ('generator_default', 'dip_rise_pi_fast_cap_peak', 'timer_hysteresis_zener',
               'threshold_pwm_freewheel', 'dip_pi_slow_cap_unblocked', 'suite_like')
-
-
-def _records(base: Path, form: str) -> tuple[str, str]:
-    """The records of tests/unit/test_identification_electronics.py."""
-    fit = operation_dataset(base, seed=11, noise_a=NOISE_A, duration_s=1.5,
-                            electronics=form, valve_seed=11)
-    val = operation_dataset(base, seed=12, noise_a=NOISE_A, duration_s=1.2,
-                            electronics=form, valve_seed=11)
-    return str(fit['file']), str(val['file'])
 
 
 def misfit_shares(ident) -> dict[str, float]:
@@ -72,7 +63,7 @@ def misfit_shares(ident) -> dict[str, float]:
 
 
 def run_form(base: Path, form: str, choose: bool) -> dict[str, object]:
-    fit, val = _records(base, form)
+    fit, val = electronics_pair(base, form)
     start = time.perf_counter()
     ident = identify([fit], [val], IdentifySettings(quick=True, diagnose=False,
                                                     choose_electronics=choose))

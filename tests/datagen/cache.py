@@ -10,7 +10,8 @@ from pathlib import Path
 from .electronics import FORMS, DriveCircuit, DriveElectronics
 from .generate import generate_case
 
-__all__ = ['dataset', 'operation_dataset', 'pwm_dataset', 'step_dataset', 'electronics_named']
+__all__ = ['ELECTRONICS_PAIR_NOISE_A', 'dataset', 'electronics_pair', 'operation_dataset',
+           'pwm_dataset', 'step_dataset', 'electronics_named']
 
 _CACHE: dict[tuple[str, int, bool], dict[str, object]] = {}
 
@@ -93,6 +94,21 @@ def operation_dataset(base_dir: Path, *, seed: int = 1, effect: str = 'none',
 
 
 _PWM_CACHE: dict[tuple, dict[str, object]] = {}
+
+
+#: Noise of :func:`electronics_pair`'s records [A].
+ELECTRONICS_PAIR_NOISE_A = 3e-3
+
+
+def electronics_pair(base_dir: Path, form: str) -> tuple[str, str]:
+    """A fit (1.5 s) and a validation record (1.2 s) of one valve (the paper's, no effect)
+    through the generator's electronics ``form``, 1 kHz interval means with
+    :data:`ELECTRONICS_PAIR_NOISE_A` of noise and no mean voltage: the files' paths."""
+    fit = operation_dataset(base_dir, seed=11, noise_a=ELECTRONICS_PAIR_NOISE_A,
+                            duration_s=1.5, electronics=form, valve_seed=11)
+    val = operation_dataset(base_dir, seed=12, noise_a=ELECTRONICS_PAIR_NOISE_A,
+                            duration_s=1.2, electronics=form, valve_seed=11)
+    return str(fit['file']), str(val['file'])
 
 
 def pwm_dataset(base_dir: Path, *, seed: int = 1, effect: str = 'none',

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from datagen.cache import operation_dataset
+from datagen.cache import ELECTRONICS_PAIR_NOISE_A, electronics_pair
 from valve_model_pkg.cli.identify import main as identify_main
 from valve_model_pkg.errors import ParameterError
 from valve_model_pkg.identification import IdentifySettings, identify, write_report
@@ -25,7 +25,7 @@ from valve_model_pkg.model import ElectronicsConfig, load_electronics
 from valve_model_pkg.model.electronics import HOLD_FORMS, PEAK_ENDS, RELEASES
 from valve_model_pkg.model.parameters import load_parameters
 
-NOISE_A = 3e-3
+NOISE_A = ELECTRONICS_PAIR_NOISE_A
 
 # The generator's timer_hysteresis_zener form written as the suite's description: a 5 ms
 # timer, a 0.55 A +- 30 mA band clocked at 40 kHz with diode free-wheeling, a 36 V Zener.
@@ -42,14 +42,6 @@ electronics:
   release: zener
   zener_voltage_v: 36.0
 """
-
-
-def _records(base: Path, form: str) -> tuple[str, str]:
-    fit = operation_dataset(base, seed=11, noise_a=NOISE_A, duration_s=1.5,
-                            electronics=form, valve_seed=11)
-    val = operation_dataset(base, seed=12, noise_a=NOISE_A, duration_s=1.2,
-                            electronics=form, valve_seed=11)
-    return str(fit['file']), str(val['file'])
 
 
 def test_every_form_of_the_model_has_its_constants_and_words() -> None:
@@ -83,7 +75,7 @@ def test_settings_read_the_description_file(tmp_path: Path) -> None:
 
 def test_command_line_refuses_a_bad_electronics_file(tmp_path: Path,
                                                      capsys: pytest.CaptureFixture) -> None:
-    fit, _ = _records(tmp_path, 'timer_hysteresis_zener')
+    fit, _ = electronics_pair(tmp_path, 'timer_hysteresis_zener')
     bad = tmp_path / 'bad.yaml'
     bad.write_text('electronics:\n  zener_voltage_v: -3\n', encoding='utf-8')
     code = identify_main(['--fit', fit, '--electronics', str(bad), '--quiet',
@@ -98,7 +90,7 @@ def test_command_line_refuses_a_bad_electronics_file(tmp_path: Path,
 @pytest.mark.slow
 def test_matching_description_fits_to_the_noise_where_the_paper_form_misses(
         tmp_path: Path) -> None:
-    fit, val = _records(tmp_path, 'timer_hysteresis_zener')
+    fit, val = electronics_pair(tmp_path, 'timer_hysteresis_zener')
     path = tmp_path / 'thz.yaml'
     path.write_text(TIMER_HYSTERESIS_ZENER_YAML, encoding='utf-8')
     out = tmp_path / 'given'
@@ -126,7 +118,7 @@ def test_matching_description_fits_to_the_noise_where_the_paper_form_misses(
 @pytest.mark.slow
 def test_the_data_choose_the_form(tmp_path: Path) -> None:
     # dip and rise, a PI chopper with fast decay, a capacitor charged in the peak phase
-    fit, val = _records(tmp_path, 'dip_rise_pi_fast_cap_peak')
+    fit, val = electronics_pair(tmp_path, 'dip_rise_pi_fast_cap_peak')
     ident = identify([fit], [val], IdentifySettings(quick=True, diagnose=False,
                                                     choose_electronics=True))
     fam = ident.family
@@ -144,7 +136,7 @@ def test_the_generators_default_circuit_is_fitted_to_the_noise(tmp_path: Path) -
     # dip and rise, a hysteresis band of 20 mA clocked at 20 kHz with 0 V free-wheeling, a
     # capacitor charged while idle: the paper's form misses it by 4x the noise, and a
     # hysteresis hold from default constants does not find the clocked limit cycle
-    fit, val = _records(tmp_path, 'generator_default')
+    fit, val = electronics_pair(tmp_path, 'generator_default')
     ident = identify([fit], [val], IdentifySettings(quick=True, diagnose=False,
                                                     choose_electronics=True))
     chosen = ident.drive.electronics
