@@ -548,7 +548,7 @@ class ControllerEmulator(FaultHandling):
         """Run in real time until ``stop`` is set (or for ``duration_s`` > 0)."""
         stop = stop or self._stop
         t0 = clock() - self._model_t
-        if clock is time.monotonic:
+        if clock is time.monotonic:   # another clock (a test's) has no wall time to anchor
             self._wall_minus_model = t0 + time.time() - time.monotonic()
         period = self._telemetry_period_s
         while not stop.is_set():
