@@ -26,6 +26,9 @@ PARAMS = load_parameters()
     (1000.0 + 0.01, 1000.0 + 0.01),         # a sender's clock a little ahead
     (1000.0 - CLOCK_APART_S - 1.0, 1000.0),  # an adapter counting from its own start
     (1000.0 + CLOCK_APART_S + 1.0, 1000.0),
+    (float('nan'), 1000.0),                 # garbage from an interface: the receipt
+    (float('inf'), 1000.0),
+    (-5.0, 1000.0),
 ])
 def test_frame_time_is_the_frames_own_when_it_is_this_clocks(timestamp, expected) -> None:
     assert frame_time_s(timestamp, 1000.0) == expected
