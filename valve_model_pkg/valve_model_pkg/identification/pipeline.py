@@ -50,7 +50,8 @@ from .drive import DriveReport, fit_drive
 from .electronics_family import FamilyChoice, describe_form, select_family
 from .mean_voltage import (ROUTE_AUTO, ROUTE_BARE_COIL, ROUTE_CHOICES, ROUTE_ELECTRONICS,
                            ROUTE_MEAN_VOLTAGE, Route, RouteScreen, check_mean_voltage,
-                           choose_route, settle_route, through_drive_counterparts)
+                           choose_route, hold_error, settle_route,
+                           through_drive_counterparts)
 from .measurement import Measurement, check_current_response, hold_out, with_current_lsb
 from .pwm_compare import pwm_comparison
 from .problem import (
@@ -863,11 +864,14 @@ def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
                            sum(rival_rounds.drive.carried.values()))):
         rmse[name], crit[name] = _route_criterion(
             p.validation if hold else p.fit, p.space.params(u), p.space.size + k, hold)
-    voltage = check_mean_voltage(rival.fit.full, rival.space.params(rival_rounds.u),
+    rival_params = rival.space.params(rival_rounds.u)
+    voltage = check_mean_voltage(rival.fit.full, rival_params,
                                  rival_rounds.drive.electronics)
+    compared = rival.validation if hold else rival.fit
+    held = hold_error(compared.full, rival_params, rival_rounds.drive.electronics)
     screen = RouteScreen(rmse, crit, 'the hold-out records' if hold else
                          'the fit window (BIC with the electronics constants counted)',
-                         voltage)
+                         voltage, held)
     settled = settle_route(route, screen)
     say(settled.note)
     timings['route_screen'] = _lap(say, 'route screen', t0)
