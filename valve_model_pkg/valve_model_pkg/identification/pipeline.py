@@ -139,10 +139,11 @@ class IdentifySettings:
         Nelder-Mead iterations of a refit's polish on the fit window (records through the
         electronics, refits that paid on the search window).
     operation_baseline, operation_refit : SearchSettings
-        Effort of the baseline search and of the refits when the fit data run the drive
-        electronics (each simulated second costs ~20 ms there, against ~1 ms for a 40 ms
-        step): fewer simplices and iterations; the polish on the fit window shows
-        convergence all the same.
+        Effort of the baseline search when the fit data run the drive electronics, and of
+        the refits of operational records (:attr:`Prepared.operational`: through the
+        electronics or around them; each simulated second costs ~20 ms there, against
+        ~1 ms for a 40 ms step): fewer simplices and iterations; the polish on the fit
+        window shows convergence all the same.
     operation_local_iterations : int
         Nelder-Mead iterations of the local searches around the search's optimum on
         records through the electronics (valve re-search after the electronics, other
@@ -235,9 +236,10 @@ class IdentifySettings:
             s = self.baseline or (QUICK_BASELINE_EFFORT if self.quick else BASELINE_EFFORT)
         return replace(s, seed=self.seed) if self.seed else s
 
-    def refit_effort(self, through_electronics: bool) -> SearchSettings:
-        """Each refit's effort."""
-        if through_electronics:
+    def refit_effort(self, operational: bool) -> SearchSettings:
+        """Each refit's effort: operational records' (:attr:`Prepared.operational`) or step
+        records'."""
+        if operational:
             return self.operation_refit
         return self.refit or (QUICK_REFIT_EFFORT if self.quick else REFIT_EFFORT)
 
@@ -549,6 +551,13 @@ class Prepared:
     @property
     def through_electronics(self) -> bool:
         return self.fit.through_electronics
+
+    @property
+    def operational(self) -> bool:
+        """True for records searched on a window of the fit window (operational records,
+        through the electronics or around them): each refit then has the operational
+        effort (:meth:`IdentifySettings.refit_effort`), its profiles judged early."""
+        return self.through_electronics or self.search is not self.fit
 
     def use_electronics(self, electronics) -> None:
         """Set the identified drive electronics on every data set."""
@@ -1423,7 +1432,7 @@ def _refit_all(prep: Prepared, analysis: BaselineAnalysis, baseline: BaselineFit
     for c, why in skipped:
         c.reason = why
         say(f'refit {c.effect} skipped: {why}')
-    job = RefitJob(prep, baseline, settings.refit_effort(prep.through_electronics),
+    job = RefitJob(prep, baseline, settings.refit_effort(prep.operational),
                    refit_bars(prep, chosen, baseline, settings), settings, timings, say)
     t0 = time.perf_counter()
     workers = max(1, min(len(chosen), settings.workers))
@@ -1455,7 +1464,7 @@ def diagnose(prep: Prepared, baseline: BaselineFit, analysis: BaselineAnalysis,
     if diag.effect != 'none':
         t0 = time.perf_counter()
         second_effect(diag, prep.space, prep.fit, prep.validation,
-                      settings.refit_effort(prep.through_electronics), say)
+                      settings.refit_effort(prep.operational), say)
         timings['second_effect'] = _lap(say, 'second effect', t0)
     timings['diagnosis'] = time.perf_counter() - t_diag
     say(f'diagnosis: {diag.effect} (confidence {diag.confidence})')
