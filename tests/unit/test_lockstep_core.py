@@ -41,6 +41,24 @@ def test_gate_waits_for_every_valve_of_the_tick_and_ignores_older_stamps() -> No
     assert gate.timeouts == 0 and gate.ticks == 1
 
 
+def test_gate_counts_an_answer_that_came_before_its_tick_opened_and_flags_stale_ones() -> None:
+    """The t = 0 tick is answered while the simulation is held, before the gate opens it:
+    that answer counts; a tick's answer sent again after a newer one is stale."""
+    gate = LockstepGate(('cap', 'rod'), timeout_s=1.0)
+    gate.answer('cap', 0, wall_s=0.0)
+    gate.open_tick(0, wall_s=0.5)
+    assert gate.owed == {'rod'}
+    gate.answer('rod', 0, wall_s=0.6)
+    assert not gate.waiting
+    gate.open_tick(5 * MS, wall_s=0.7)
+    assert gate.owed == {'cap', 'rod'}
+    gate.answer('cap', 5 * MS, wall_s=0.71)
+    assert gate.is_stale('cap', 0) and not gate.is_stale('cap', 5 * MS)
+    assert not gate.is_stale('rod', 0)
+    gate.answer('cap', 0, wall_s=0.72)      # a stale answer does not lower the newest
+    assert gate.is_stale('cap', 0)
+
+
 def test_gate_timeout_is_counted_and_named_not_hidden() -> None:
     gate = LockstepGate(('',), timeout_s=0.5)
     gate.open_tick(10 * MS, wall_s=1.0)

@@ -231,6 +231,9 @@ class LockstepSimulationNode(Node):
         if reason is not None:
             self._inputs.reject(topic, 'bad_stamp', f'duty command rejected: {reason}' + keep)
             return
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if self._lockstep and self._gate.is_stale(name, stamp_ns):
+            return  # an older tick's answer, sent again: the newer command stays
         if freq == 0.0:
             freq = self._axis.sample(name).pwm_frequency_hz
         if not 0.0 <= duty <= 1.0:
@@ -239,7 +242,6 @@ class LockstepSimulationNode(Node):
                                 f'duty {duty!r} outside [0, 1]; clamped to {clamped:g}')
             duty = clamped
         self._axis.set_command(name, duty, freq)
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         was_waiting = self._gate.waiting
         self._gate.answer(name, stamp_ns, time.monotonic())
         if was_waiting and not self._gate.waiting:
@@ -312,6 +314,13 @@ class LockstepSimulationNode(Node):
                     self._last_resend = wall
                     self._publish_clock(self._axis.t_ns)
                 return
+            if self._lockstep and self._gate.tick_ns is None:
+                # the t = 0 tick (published at start) is answered like every other one
+                # before the first step: else the first 5 ms ran with whichever answers
+                # happened to be in when the hold ended
+                self._gate.open_tick(self._axis.t_ns, wall)
+                self._pacer.restart(wall, self._axis.t_ns)
+                continue
             if not self._pacer.may_step(wall, self._axis.t_ns):
                 return
             if wall - start > _BUDGET_S:

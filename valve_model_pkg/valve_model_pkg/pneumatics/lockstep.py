@@ -12,7 +12,9 @@ protocol over topics, for a step of ``step_ns`` and a control tick every
    ``flow_to_duty`` (``lockstep:=true``) answers each flow command with one
    ``valve/duty_command`` stamped with the flow command's stamp, computed with the output
    pressure stamped T (it waits for that pressure if the command overtook it).
-3. The simulation advances past T only when every valve has a duty command stamped >= T.
+3. The simulation advances past T only when every valve has a duty command stamped >= T
+   (the first tick, t = 0, included: its answers may come while the simulation is held);
+   an answer stamped older than the valve's newest is not applied.
    If one does not come within ``timeout_s`` of wall-clock time, the simulation goes on
    with the command in force and counts a *lockstep timeout* (diagnostics, report): the
    run is then no longer deterministic, and says so.
@@ -115,16 +117,25 @@ class LockstepGate:
     ticks: int = 0
     max_wait_s: float = 0.0
     last_timeout: str = ''
+    newest_ns: dict[str, int] = field(default_factory=dict)
 
     def open_tick(self, tick_ns: int, wall_s: float) -> None:
-        """A control tick was published: every valve owes its answer."""
+        """A control tick was published: every valve owes its answer, but one whose answer
+        to this tick came already (the first tick's, answered while the simulation was
+        held before it could open it)."""
         self.tick_ns = tick_ns
         self.waiting_since_s = wall_s
-        self.owed = set(self.names)
+        self.owed = {n for n in self.names if self.newest_ns.get(n, -1) < tick_ns}
         self.ticks += 1
+
+    def is_stale(self, name: str, stamp_ns: int) -> bool:
+        """True for an answer older than valve ``name``'s newest one (a tick's answer sent
+        again that overtook nothing): applying it would undo the newer command."""
+        return stamp_ns < self.newest_ns.get(name, -1)
 
     def answer(self, name: str, stamp_ns: int, wall_s: float) -> None:
         """Valve ``name``'s duty command stamped ``stamp_ns`` arrived."""
+        self.newest_ns[name] = max(stamp_ns, self.newest_ns.get(name, -1))
         if self.owed and self.tick_ns is not None and stamp_ns >= self.tick_ns:
             self.owed.discard(name)
             if not self.owed:
