@@ -54,6 +54,12 @@ def _start_and_match(start_node, ros, bag: Path, *params: str) -> Recording:
                  f'the recorder receiving valve/state\n{rec.output[-2000:]}')
     # the command publisher matched with the simulator and the recorder (DDS-level count)
     ros.wait_matched([commands.publisher], 'simulator and recorder', count=2, timeout_s=30.0)
+    # the recorder says what its subscriptions matched: the simulator's state writer, and
+    # every command writer the graph lists
+    ros.wait_for(lambda: diag.int(f'matched {STATE}', 0) == 1
+                 and diag.int(f'matched {DUTY}', 0) == probe.count_publishers(DUTY) >= 1,
+                 30.0,
+                 f'the recorder reporting its matched publishers: {diag.values}')
     return Recording(sim, rec, probe, commands, diag)
 
 

@@ -271,10 +271,13 @@ def lockstep_readiness(cfg: DemoConfig) -> Readiness:
 
 
 def _wait_until_up(w: DemoWatcher, sup: Supervisor, ready: Readiness) -> bool:
-    """Spin until the simulation's clock runs and the graph has every node's endpoints."""
+    """Spin until the simulation's clock runs, the graph has every node's endpoints and the
+    recorder's subscriptions have matched every publisher of them (the graph lists a
+    reader before the writers match it: a run started then loses its first messages)."""
     def missing() -> list[str]:
-        return [t for t, n in ready.subscribers if w.subscribers(t) < n] + \
+        graph = [t for t, n in ready.subscribers if w.subscribers(t) < n] + \
             [f'{t} (publisher)' for t, n in ready.publishers if w.publishers(t) < n]
+        return graph or w.recorder_unmatched([t for t, _ in ready.subscribers])
     deadline = time.monotonic() + SUITE_UP_TIMEOUT_S
     while w.clock_ns < 0 or missing():
         w.spin_for(0.1, sup)

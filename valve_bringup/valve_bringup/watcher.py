@@ -107,6 +107,9 @@ class DemoWatcher:
         Newest real-time factor of the simulation.
     sim_values : dict of str to str
         Newest values of the lockstep simulation's diagnostics.
+    recorder_values : dict of str to str
+        Newest values of the recorder's diagnostics (``matched T``: publishers of topic T
+        its subscription has matched).
     """
 
     def __init__(self, valve_ns: str = '') -> None:
@@ -122,6 +125,7 @@ class DemoWatcher:
         self.setpoint_m = math.nan
         self.rtf = math.nan
         self.sim_values: dict[str, str] = {}
+        self.recorder_values: dict[str, str] = {}
         self._flow_sum, self._flow_n = 0.0, 0
         self._duty_sum, self._duty_n = 0.0, 0
         # valve/state only tells that the backend is up: 1 kHz in this process would take
@@ -182,6 +186,8 @@ class DemoWatcher:
         for status in msg.status:
             if 'lockstep simulation' in status.name:
                 self.sim_values = {kv.key: kv.value for kv in status.values}
+            elif 'bag writer' in status.name:
+                self.recorder_values = {kv.key: kv.value for kv in status.values}
 
     # --- what the demo does -------------------------------------------------------------
     def run_until(self, t_s: float) -> None:
@@ -195,6 +201,19 @@ class DemoWatcher:
     def subscribers(self, topic: str) -> int:
         """Subscriptions to ``topic`` in the graph, this watcher's own included."""
         return self.probe.count_subscribers(topic)
+
+    def recorder_unmatched(self, topics: list[str]) -> list[str]:
+        """Of ``topics``, those whose publishers in the graph the recorder has not all
+        matched yet (``['recorder']`` before its first diagnostics; topics it does not
+        record are left out)."""
+        if not self.recorder_values:
+            return ['recorder (no diagnostics yet)']
+        out = []
+        for t in topics:
+            matched = self.recorder_values.get(f'matched {t}')
+            if matched is not None and int(matched) < self.publishers(t):
+                out.append(f'{t} (recorder matched {matched} of {self.publishers(t)})')
+        return out
 
     def publishers(self, topic: str) -> int:
         """Publishers of ``topic`` in the graph."""

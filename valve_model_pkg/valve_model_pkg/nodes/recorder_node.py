@@ -27,8 +27,9 @@ bag (summary + metadata.yaml); after SIGKILL the bag holds everything up to the 
 
 Publishes ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period_s``:
 messages received, written, flushed to disk, queue depth, gaps in the publishers' sequence
-numbers (messages DDS lost before the recorder took them) and publishers whose QoS the
-recorder's subscription cannot match.
+numbers (messages DDS lost before the recorder took them), publishers whose QoS the
+recorder's subscription cannot match, and per topic the messages received (``count T``)
+and the publishers its subscription has matched (``matched T``).
 
 CPU: rclpy's executor costs a few hundred microseconds of Python per cycle. The callback
 therefore takes every message waiting on its subscription, and the spin loop pauses
@@ -348,6 +349,12 @@ class RecorderNode(Node):
             flush_period_s=self._flush_period_s)
         status.values += key_values(**{f'count {t.name}': t.received
                                        for t in self._topics.values()})
+        # publishers each subscription has matched in DDS (the graph can list a reader
+        # before the writers match it): a lockstep run starts once every publisher is
+        # matched, so the bag holds the run from its first message
+        status.values += key_values(**{
+            f'matched {t.name}': t.subscription.get_publisher_count()
+            for t in self._topics.values() if t.subscription is not None})
         array = DiagnosticArray()
         array.header.stamp = self.get_clock().now().to_msg()
         array.status = [status]
