@@ -13,7 +13,8 @@ protocol over topics, for a step of ``step_ns`` and a control tick every
    ``valve/duty_command`` stamped with the flow command's stamp, computed with the output
    pressure stamped T (it waits for that pressure if the command overtook it).
 3. The simulation advances past T only when every valve has a duty command stamped >= T
-   (the first tick, t = 0, included: its answers may come while the simulation is held);
+   (the first tick, t = 0, included: its answers may come while the simulation is held;
+   with an external valve the valve's side holds that gate);
    an answer stamped older than the valve's newest is not applied.
    If one does not come within ``timeout_s`` of wall-clock time, the simulation goes on
    with the command in force and counts a *lockstep timeout* (diagnostics, report): the
