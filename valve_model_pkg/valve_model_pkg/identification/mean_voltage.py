@@ -18,9 +18,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 from ..errors import MeasurementFormatError
 from .measurement import Measurement
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ['HOLD_EXPLAINS_LEAD', 'ROUTES_TOLD_APART', 'ROUTE_AUTO', 'ROUTE_BARE_COIL',
            'ROUTE_CHOICES', 'ROUTE_ELECTRONICS', 'ROUTE_FORCE', 'ROUTE_MEAN_VOLTAGE', 'ROUTE_TEXT',
@@ -366,6 +370,23 @@ class VoltageCheck:
                 f'{self.supply_v:g} V supply) over {self.samples} samples')
 
 
+def _coil_voltage_means(m: Measurement, params: object, electronics: object,
+                        parallel: bool = True) -> np.ndarray:
+    """Interval-mean coil voltage [V] at ``m.t_s`` of ``m``'s PWM commands through
+    ``electronics``, the valve at ``params`` (eqs. 1-11 with the drive)."""
+    import numpy as np
+
+    from ..model import InputTrace, simulate_trace_batch
+    d = m.drive
+    res = simulate_trace_batch(
+        params, InputTrace.pwm_commands(d.t_s, d.duty, d.pwm_frequency_hz,
+                                        d.supply_voltage_v),
+        m.t_s, electronics=electronics, sampling='interval_mean',
+        supply_pressure_pa=float(m.supply_pressure_pa),
+        output_pressure_pa=float(m.output_pressure_pa), parallel=parallel)
+    return np.asarray(res.coil_voltage_v, dtype=float).reshape(-1)
+
+
 def check_mean_voltage(records: Sequence[Measurement], params: object,
                        electronics: object) -> VoltageCheck | None:
     """Simulate ``records`` through ``electronics`` with the valve at ``params`` and
@@ -387,22 +408,14 @@ def check_mean_voltage(records: Sequence[Measurement], params: object,
     """
     import numpy as np
 
-    from ..model import InputTrace, simulate_trace_batch
     errors, supply = [], 0.0
     for m in records:
         if m.drive is None or not m.has_coil_voltage_mean or m.supply_pressure_pa is None:
             continue
-        d = m.drive
-        res = simulate_trace_batch(
-            params, InputTrace.pwm_commands(d.t_s, d.duty, d.pwm_frequency_hz,
-                                            d.supply_voltage_v),
-            m.t_s, electronics=electronics, sampling='interval_mean',
-            supply_pressure_pa=float(m.supply_pressure_pa),
-            output_pressure_pa=float(m.output_pressure_pa))
-        sim = np.asarray(res.coil_voltage_v).reshape(-1)
+        sim = _coil_voltage_means(m, params, electronics)
         keep = m.t_s >= m.exclude_before_s
         errors.append((m.coil_voltage_mean_v - sim)[keep])
-        supply = max(supply, float(np.max(d.supply_voltage_v)))
+        supply = max(supply, float(np.max(m.drive.supply_voltage_v)))
     if not errors:
         return None
     err = np.concatenate(errors)
@@ -439,21 +452,13 @@ def hold_error(records: Sequence[Measurement], params: object, electronics: obje
     """
     import numpy as np
 
-    from ..model import InputTrace, simulate_trace_batch
     from .model_adapter import prepare_trace, simulate_measurement
     raw = params.to_vector()[None, :]
     errors = []
     for m in records:
         if m.drive is None or m.supply_pressure_pa is None:
             continue
-        d = m.drive
-        res = simulate_trace_batch(
-            params, InputTrace.pwm_commands(d.t_s, d.duty, d.pwm_frequency_hz,
-                                            d.supply_voltage_v),
-            m.t_s, electronics=electronics, sampling='interval_mean',
-            supply_pressure_pa=float(m.supply_pressure_pa),
-            output_pressure_pa=float(m.output_pressure_pa), parallel=False)
-        volts = np.asarray(res.coil_voltage_v, dtype=float).reshape(-1)
+        volts = _coil_voltage_means(m, params, electronics, parallel=False)
         through, _ = simulate_measurement(raw, prepare_trace(m), parallel=False,
                                           electronics=electronics)
         held_m = replace(m, drive=None, voltage_v=volts, voltage_hold='interval_mean')
