@@ -204,15 +204,15 @@ class DemoWatcher:
 
     def recorder_unmatched(self, topics: list[str]) -> list[str]:
         """Of ``topics``, those whose publishers in the graph the recorder has not all
-        matched yet (``['recorder']`` before its first diagnostics; topics it does not
-        record are left out)."""
+        matched yet (one entry naming the recorder before its first diagnostics; topics
+        it does not record are left out)."""
         if not self.recorder_values:
             return ['recorder (no diagnostics yet)']
         out = []
         for t in topics:
-            matched = self.recorder_values.get(f'matched {t}')
-            if matched is not None and int(matched) < self.publishers(t):
-                out.append(f'{t} (recorder matched {matched} of {self.publishers(t)})')
+            matched, listed = self.recorder_values.get(f'matched {t}'), self.publishers(t)
+            if matched is not None and int(matched) < listed:
+                out.append(f'{t} (recorder matched {matched} of {listed})')
         return out
 
     def publishers(self, topic: str) -> int:
