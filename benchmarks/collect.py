@@ -114,6 +114,15 @@ def row(record: dict) -> Row:
     return Row(record['name'], shown, reference, ratio_text, target, met)
 
 
+def previous(record: dict) -> str:
+    """The figure of the same name before this run, with its date and load, or a dash."""
+    before = record.get('previous')
+    if not before or before.get('value') is None:
+        return '-'
+    shown = f"{fmt_number(before['value'])} {record.get('unit') or ''}".strip()
+    return f'{shown} ({when(before)})'
+
+
 def _cell(text: str) -> str:
     return text.replace('|', '\\|').replace('\n', ' ')
 
@@ -141,12 +150,17 @@ def suite_section(suite: str, records: list[dict]) -> list[str]:
     head = ['benchmark', 'value', 'reference', 'ratio', 'target', 'met']
     if not one_stamp:
         head.append('measured, load')
+    with_previous = any(r.get('previous') for r in records)
+    if with_previous:
+        head.append('previous run')
     lines += ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
     for record in records:
         r = row(record)
         cells = [r.name, r.value, r.reference, r.ratio, r.target, r.met]
         if not one_stamp:
             cells.append(when(record))
+        if with_previous:
+            cells.append(previous(record))
         lines.append('| ' + ' | '.join(_cell(c) for c in cells) + ' |')
     lines.append('')
     notes = [(record['name'], record.get('notes')) for record in records if record.get('notes')]
@@ -177,7 +191,9 @@ def page(summary: dict) -> str:
         '1/5-minute load average then. The machine is shared: read a figure with its load.',
         '',
         '"met" says whether the figure met the target in that run; "not judged" marks an '
-        'informative figure. A figure a run did not produce says so in words.',
+        'informative figure. A figure a run did not produce says so in words. Where a suite '
+        'keeps the figures its results file held before the run, "previous run" shows them '
+        'beside the new ones, with their date and load.',
         '',
         f'Collected {summary["generated"][:16].replace("T", " ")} UTC on {m["cpus"]} CPUs, '
         f'Python {m["python"]} ({m["platform"]}).',
