@@ -22,6 +22,23 @@ def test_steps_past_a_tick_only_with_its_command_on_the_bus() -> None:
     assert gate.timeouts == 0
 
 
+def test_the_first_tick_waits_for_its_command_when_a_controller_publishes_one() -> None:
+    # Without the gate the first 5 ms ran with duty 0 or with the t = 0 answer, whichever
+    # reached the emulator first: two runs of the same demo differed in their first ticks.
+    gate = LockstepGateState(control_period_ns=5_000_000, timeout_s=2.0)
+    gate.gate_first_tick = True
+    assert not gate.may_step(0, 0.0)
+    assert 'duty command (none stamped' in gate.missing(0)
+    gate.tick_duty[0] = 0.14
+    gate.bus_duty = 0.0                           # the bus still carries the driver's duty 0
+    assert not gate.may_step(0, 0.1)
+    gate.bus_duty = 0.14
+    gate.tick_output_pa[0] = gate.bus_output_pa = 0.0
+    assert gate.may_step(0, 0.2)
+    assert gate.may_step(4_000_000, 0.2)
+    assert gate.timeouts == 0
+
+
 def test_a_tick_needs_its_pressure_stamped_on_ros_too() -> None:
     # The bus carrying the previous tick's pressure is no proof: the tick's own pressure
     # must have come on ROS (a message lost before a DDS match is sent again by the

@@ -44,6 +44,13 @@ A telemetry frame sent before the driver is on the bus reaches nobody and cannot
 again (the model has advanced past its time); the t = 0 frames are sent exactly once, so
 no state the simulation did not ask for can arrive once it asked for a step.
 
+The first control tick (t = 0) is gated like every other once a node publishes the
+valve's duty commands (a controller chain is in the graph): the simulation gates its own
+valves' t = 0 tick on their answers, and a model that took whatever the bus carried when
+the clock first moved would run the first 5 ms with duty 0 or with the t = 0 answer
+depending on which process the computer ran first. Without a duty publisher (the chain
+alone, no controller) the t = 0 tick runs on the command in force, duty 0.
+
 A tick whose command or pressure does not arrive within ``timeout_s`` of wall time is a
 *lockstep timeout*: the model goes on with the command in force, the bridge logs it (what
 was missing: the ROS message, or the frame on the bus) and counts it
@@ -93,6 +100,7 @@ class LockstepGateState:
         self.host_seen = False    # an enabling ValveCommand or a ValvePressure: driver active
         self.clock_seen = False   # a /clock from the simulation came after the host was seen
         self.started = False      # the t = 0 frames went out (the start handshake)
+        self.gate_first_tick = False  # a node publishes duty commands: t = 0 is gated too
 
     def start_due(self) -> bool:
         """Whether the t = 0 frames are to be sent now (True once, then never again).
@@ -120,8 +128,8 @@ class LockstepGateState:
         ``last_timeout``.
         """
         tick = self.tick_of(model_ns)
-        if tick == 0 or tick == self.released_tick:
-            return True  # the simulation does not wait at t = 0 either: duty 0 until 5 ms
+        if (tick == 0 and not self.gate_first_tick) or tick == self.released_tick:
+            return True  # no controller chain: the first tick runs with duty 0
         missing = self.missing(tick)
         if missing is None:
             self.waiting_since = None
@@ -177,7 +185,7 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
     whichever changes what the gate knows tries to advance the model.
     """
     import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import FluidPressure
     from valve_msgs.msg import DutyCommand
@@ -258,6 +266,10 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
 
     def on_clock(msg: Clock) -> None:
         t = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+        if model_ns[0] == 0 and not gate.gate_first_tick:
+            # Decided before the first step (on the executor's thread) and kept: a tick
+            # half run without its gate is not gated afterwards.
+            gate.gate_first_tick = node.count_publishers(duty_topic) > 0
         with lock:
             gate.clock_seen = gate.clock_seen or gate.host_seen
             if t > gate.target_ns:
@@ -284,7 +296,9 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
     node.create_subscription(Clock, TOPIC_CLOCK, on_clock, CLOCK_QOS)
     node.create_subscription(FluidPressure, pressure_topic, on_output_pressure, PRESSURE_QOS)
     node.create_subscription(DutyCommand, duty_topic, on_duty, COMMAND_QOS)
-    executor = SingleThreadedExecutor()
+    from valve_model_pkg.nodes.common import make_executor
+    # One round trip through the bridge per simulated millisecond: the C++ executor.
+    executor, _ = make_executor(node, events=True)
     executor.add_node(node)
     bus_thread = threading.Thread(target=bus_loop, name='emulator_bus', daemon=True)
     bus_thread.start()

@@ -150,6 +150,9 @@ class CanDriverNode(Node):
         self._timers: list = []
         self._sequence = 0
         self._stamp_on_frame_time = True
+        #: On simulation time the driver is in the lockstep chain: its work is the bus's
+        #: frames and message callbacks (nodes/common.make_executor).
+        self.message_driven = bool(self.get_parameter('use_sim_time').value)
         self._frame_id = NodeOptions.valve_name
         self._hardware_id = ''
         self._status_prefix = self.get_fully_qualified_name().lstrip('/')

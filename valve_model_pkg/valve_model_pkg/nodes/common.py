@@ -270,13 +270,18 @@ def make_executor(node: Node, events: bool = False):
     ``events=True`` asks for rclpy's EventsExecutor (``rclpy.experimental``, C++): a
     1 kHz node pays about half the CPU per tick of the SingleThreadedExecutor, which
     rebuilds its wait set in Python every time (benchmarks/bench_bank.py measures both).
-    It is used only on the wall clock (``use_sim_time`` false: its timers on a simulated
-    clock are not what this suite tests) and only where the rclpy build has it; otherwise
-    the SingleThreadedExecutor, as every other node. ``VALVE_EXECUTOR=single`` forces the
-    latter (a fallback, should the experimental executor misbehave somewhere).
+    It is used on the wall clock, and whatever ``events`` says for a node whose
+    ``message_driven`` attribute is true: the lockstep chain's nodes, whose work runs in
+    message callbacks (a round trip through every one of them per simulated millisecond)
+    and whose timers on the simulated clock only publish diagnostics; a node that ticks on
+    a simulated-clock timer keeps the Python executor. It is used only where the rclpy
+    build has it; otherwise the SingleThreadedExecutor, as every other node.
+    ``VALVE_EXECUTOR=single`` forces the latter (a fallback, should the experimental
+    executor misbehave somewhere).
     """
-    if events and os.environ.get('VALVE_EXECUTOR', '') != 'single' and \
-            not node.get_parameter('use_sim_time').value:
+    on_sim_time = bool(node.get_parameter('use_sim_time').value)
+    wanted = (events and not on_sim_time) or bool(getattr(node, 'message_driven', False))
+    if wanted and os.environ.get('VALVE_EXECUTOR', '') != 'single':
         try:
             from rclpy.experimental import EventsExecutor
         except ImportError:   # an rclpy without it: the Python executor
@@ -294,7 +299,7 @@ def spin_until_stopped(node: Node, stop: threading.Event, events: bool = False) 
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
     executor, kind = make_executor(node, events)
-    if events:
+    if events or getattr(node, 'message_driven', False):
         node.get_logger().info(f'executor: {kind}')
     executor.add_node(node)
     try:

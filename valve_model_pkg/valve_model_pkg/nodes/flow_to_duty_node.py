@@ -136,6 +136,8 @@ class FlowToDutyNode(Node):
             'with the latest one (counted) [s]', 0.001, 60.0)
         if self._lockstep:
             self._republish_s = 0.0
+        #: In lockstep every answer is a message callback (nodes/common.make_executor).
+        self.message_driven = self._lockstep
 
         self._map_path = map_file or _default_map_or_fail()
         self._params_path = params_file or str(default_parameters_path())

@@ -486,7 +486,7 @@ class LockstepSimulationNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until Ctrl-C or an external shutdown."""
-    run_node(LockstepSimulationNode, 'valve_lockstep_sim', args)
+    run_node(LockstepSimulationNode, 'valve_lockstep_sim', args, events_executor=True)
 
 
 if __name__ == '__main__':

@@ -123,6 +123,8 @@ class PositionControllerNode(Node):
             self, 'lockstep', False,
             'Simulation in lockstep: answer every joint state of a new tick at once with a '
             'flow command stamped with that tick (no timer); see valve_lockstep_sim')
+        #: In lockstep every answer is a message callback (nodes/common.make_executor).
+        self.message_driven = self._lockstep
         self._last_tick_ns = -1
         self._setpoint_m = declare_float(self, 'initial_setpoint_m', 0.0,
                                          'Setpoint until a goal arrives [m]', 0.0, 2.0)
