@@ -1,7 +1,9 @@
 """Simulation time in lockstep: the same demo twice gives the same step metrics, because the
 simulation waits for the controller at every control tick and the demo sends each goal
-while the simulation is held. Asserts the determinism (two short runs as fast as possible,
-same metrics), not a timing."""
+while the simulation is held. The second run spins the chain on the Python executor
+(``VALVE_EXECUTOR=single``), the first on the EventsExecutor: the executor sets the pace,
+not the run. Asserts the determinism (two short runs as fast as possible, the same
+metrics to the last digit), not a timing."""
 from __future__ import annotations
 
 import json
@@ -15,19 +17,25 @@ import pytest
 from valve_bringup.demo import demo_goals
 
 
-def _demo(out: Path) -> dict:
+def _demo(out: Path, executor: str) -> dict:
     env = dict(os.environ)
+    env.pop('VALVE_EXECUTOR', None)
+    if executor == 'single':
+        env['VALVE_EXECUTOR'] = 'single'
     proc = subprocess.run([sys.executable, '-m', 'valve_bringup.demo', '--out', str(out),
                            '--as-fast-as-possible', '--quick', '--hold', '1.5'],
                           env=env, capture_output=True, text=True, timeout=600)
     text = proc.stdout + proc.stderr
     assert proc.returncode == 0, text[-4000:]
+    for node in ('valve_lockstep_sim', 'flow_to_duty', 'position_controller'):
+        assert any(node in line and f'executor: {executor}' in line
+                   for line in text.splitlines()), (node, executor, text[-4000:])
     return json.loads((out / 'report' / 'report.json').read_text())
 
 
 @pytest.mark.slow   # two demo runs
 def test_two_lockstep_runs_give_the_same_step_metrics(tmp_path: Path) -> None:
-    first, second = _demo(tmp_path / 'a'), _demo(tmp_path / 'b')
+    first, second = _demo(tmp_path / 'a', 'events'), _demo(tmp_path / 'b', 'single')
     for run in (first, second):
         assert run['clock'] == 'simulation (lockstep)'
         assert run['lockstep_timeouts'] == 0, run.get('last_lockstep_timeout')
@@ -43,7 +51,7 @@ def test_two_lockstep_runs_give_the_same_step_metrics(tmp_path: Path) -> None:
         assert a['setpoint_mm'] == b['setpoint_mm']
         assert a['start_s'] == pytest.approx(b['start_s'], abs=0.010)
         for key in ('final_mm', 'overshoot_mm', 'steady_error_mm'):
-            assert a[key] == pytest.approx(b[key], abs=0.1), (key, a, b)
+            assert a[key] == b[key], (key, a, b)
         assert a['settled'] == b['settled']
         if a['settled']:
-            assert a['settling_s'] == pytest.approx(b['settling_s'], abs=0.010), (a, b)
+            assert a['settling_s'] == b['settling_s'], (a, b)
