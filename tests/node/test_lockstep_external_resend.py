@@ -129,4 +129,13 @@ def test_a_step_waiting_for_the_valve_sends_the_tick_again(start_node, ros):
     ros.wait_for(lambda: int(side.values.get('steps', '0')) >= 10, 30.0,
                  'the simulation at 10 ms')
     assert int(side.values['lockstep_timeouts']) == 0, side.values
+    assert int(side.values['stale_duty_answers']) == 0, side.values
+    # An answer to an older tick, coming again late: not applied, and counted.
+    old = DutyCommand(duty=1.0, pwm_frequency=50.0, sequence=side.sequence)
+    old.header.frame_id = side.node.get_fully_qualified_name()
+    side.sequence += 1
+    side.duty_pub.publish(old)   # stamped t = 0
+    ros.wait_for(lambda: int(side.values.get('stale_duty_answers', '0')) == 1, 30.0,
+                 'the stale answer counted')
+    assert int(side.values['rejected_messages']) == 0, side.values
     assert sim.alive(), sim.output[-2000:]

@@ -175,6 +175,7 @@ class LockstepSimulationNode(Node):
         self._holding = self._start_paused
         self._inputs = InputGuard(self.get_logger())
         self._commands = {n: SequenceTracker() for n in self._names}
+        self._stale_answers = 0   # older ticks' duty answers that came again: not applied
         self._sequence = {n: 0 for n in self._names}
         self._last_resend = 0.0
         # The last tick's messages, as published (sent again while a step waits for them)
@@ -233,7 +234,8 @@ class LockstepSimulationNode(Node):
             return
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         if self._lockstep and self._gate.is_stale(name, stamp_ns):
-            return  # an older tick's answer, sent again: the newer command stays
+            self._stale_answers += 1   # an older tick's answer, sent again: the newer stays
+            return
         if freq == 0.0:
             freq = self._axis.sample(name).pwm_frequency_hz
         if not 0.0 <= duty <= 1.0:
@@ -476,6 +478,7 @@ class LockstepSimulationNode(Node):
             start_handshake=('none' if self._handshake is None else 'gave up'
                              if self._handshake.gave_up else 'done'
                              if self._handshake.ready else 'waiting'),
+            stale_duty_answers=self._stale_answers,
             rejected_messages=self._inputs.total, **lost,
             **self._inputs.diagnostic_values())
         array = DiagnosticArray()
