@@ -20,7 +20,8 @@ and the data choose one, as they choose an effect:
    pay off only together with the freewheel diode), so the parts are not screened one
    at a time around the prior form.
 3. **Complete forms** (:func:`fit_forms`): the :data:`KEPT_FORMS` best forms of the
-   screen and the prior form (the paper's driver), their constants searched further;
+   screen, the best form with each hold and the prior form (the paper's driver), their
+   constants searched further;
    the :data:`FINALISTS` best, the best form with each release among them, and the prior
    form always, then search the valve locally and their constants again.
 4. **Choice** (:func:`choose_form`), as an effect is selected against the baseline: the
@@ -62,8 +63,8 @@ from .problem import FitData, ParameterSpace, unit_objective
 from .search import SearchSettings, direct_search
 
 __all__ = ['PEAK_OPTIONS', 'HOLD_OPTIONS', 'RELEASE_OPTIONS', 'FamilyChoice', 'FormFit',
-           'describe_form', 'select_family', 'valve_under', 'screen_forms', 'fit_forms',
-           'choose_form']
+           'describe_form', 'select_family', 'valve_under', 'screen_forms', 'screen_parts',
+           'fit_forms', 'choose_form']
 
 #: Options of each part, as the fields of ElectronicsConfig they set.
 PEAK_OPTIONS: tuple[dict[str, str], ...] = tuple(
@@ -77,14 +78,18 @@ HOLD_OPTIONS: tuple[dict[str, str], ...] = (
 RELEASE_OPTIONS: tuple[dict[str, str], ...] = tuple(
     {'release': r} for r in ('capacitor', 'capacitor_peak', 'zener', 'diode'))
 PARTS = {'peak_end': PEAK_OPTIONS, 'hold': HOLD_OPTIONS, 'release': RELEASE_OPTIONS}
-#: Complete forms of the screen whose constants are searched further.
-KEPT_FORMS = 8
+#: Options of each part kept from the screen around the best form (2 x 2 x 2 forms).
+KEEP_PER_PART = 2
+#: Best forms of the screen of every peak end x hold whose constants are searched further.
+KEPT_FORMS = 3
 #: Complete forms compared on the whole fit window and the hold-out data.
 FINALISTS = 3
 #: Nelder-Mead iterations: a release's constants before its valve search, constants of
-#: each form in the screen, constants of a kept form and a finalist's.
+#: each form in the screen of every peak end x hold, in the screen of each part around
+#: its best form, constants of a kept form and a finalist's.
 RELEASE_EFFORT = 30
-SCREEN_EFFORT = 10
+SCREEN_EFFORT = 5
+PART_EFFORT = 30
 FORM_EFFORT = 50
 VALVE_ITERATIONS = 100
 
@@ -286,25 +291,48 @@ def screen_forms(data: FitData, starts: list[ValveStart], workers: int) -> list[
     return sorted(_pool_map(one, jobs, workers), key=lambda f: f.search_cost)
 
 
+def _has(f: FormFit, option: dict[str, str]) -> bool:
+    return all(getattr(f.electronics, k) == v for k, v in option.items())
+
+
 def screen_words(forms: list[FormFit]) -> dict[str, list[tuple[str, float]]]:
     """Per part, each option in words with the lowest screen cost of a form with it [A],
     best first."""
     out: dict[str, list[tuple[str, float]]] = {}
     for part, opts in PARTS.items():
         costs = [(_option_words(part, o), min(
-            (f.search_cost for f in forms
-             if all(getattr(f.electronics, k) == v for k, v in o.items())),
+            (f.search_cost for f in forms if _has(f, o)),
             default=math.inf)) for o in opts]
         out[part] = sorted(costs, key=lambda x: x[1])
     return out
 
 
+def screen_parts(data: FitData, centre: FormFit, workers: int
+                 ) -> dict[str, list[tuple[dict[str, str], float]]]:
+    """Each part's options, the other parts at the ``centre`` form: the form's constants
+    searched (:data:`PART_EFFORT`) with the valve at ``centre``'s; per part the options
+    with their cost [A], best first."""
+    jobs = [(part, opt) for part, opts in PARTS.items() for opt in opts]
+
+    def one(job: tuple[str, dict[str, str]]) -> float:
+        cfg = centre.electronics.replace(**job[1])
+        return search_constants(_view(data, cfg), centre.params, cfg, PART_EFFORT).cost
+    costs = _pool_map(one, jobs, workers)
+    out: dict[str, list[tuple[dict[str, str], float]]] = {p: [] for p in PARTS}
+    for (part, opt), c in zip(jobs, costs):
+        out[part].append((opt, float(c)))
+    for part in out:
+        out[part].sort(key=lambda x: x[1])
+    return out
+
+
 def _constants_only(data: FitData, f: FormFit, grid: bool) -> FormFit:
-    """The form's constants searched further from the screen's, the valve held at its
-    release's valve (``grid``: a hysteresis hold's clock, band and set point first on a
-    grid)."""
+    """The form's constants searched further, the valve held at ``f``'s (``grid``: a
+    hysteresis hold's clock, band and set point first on a grid); a form of the screen
+    starts from its constants, a combination of options from the hold read off the data."""
+    screened = math.isfinite(f.search_cost)
     drive = search_constants(_view(data, f.electronics), f.params, f.electronics,
-                             FORM_EFFORT, grid=grid, read_hold=False)
+                             FORM_EFFORT, grid=grid, read_hold=not screened)
     if drive.cost < f.search_cost:
         return FormFit(drive.electronics, f.params, float(drive.cost))
     return FormFit(f.electronics, f.params, f.search_cost)
@@ -327,24 +355,38 @@ def _same_form(a: ElectronicsConfig, b: ElectronicsConfig) -> bool:
 
 
 def fit_forms(data: FitData, space: ParameterSpace, screened: list[FormFit],
+              parts: dict[str, list[tuple[dict[str, str], float]]],
               prior: ElectronicsConfig, workers: int, grid: bool = True) -> list[FormFit]:
-    """The :data:`KEPT_FORMS` best forms of the screen and the ``prior`` form's best, their
-    constants searched further at their release's valve; the :data:`FINALISTS` best, the
-    best form with each release among them (so that two releases are compared with the
+    """The complete forms of the :data:`KEEP_PER_PART` best options of each part around the
+    screen's best form (at its valve), the :data:`KEPT_FORMS` best forms of the screen and
+    the ``prior`` form, their constants searched further; the :data:`FINALISTS` best, the
+    best form with each kept option (so that two releases, say, are compared with the
     valve refitted through each) and the ``prior`` form refined (:func:`_refine_form`).
     Finalists first (by their cost), then the others."""
-    kept = screened[:KEPT_FORMS]
-    if not any(_same_form(f.electronics, prior) for f in kept):
-        kept = kept + [next(f for f in screened if _same_form(f.electronics, prior))]
-    fits = sorted(_pool_map(lambda f: _constants_only(data, f, grid), kept, workers),
+    centre = screened[0]
+    kept = [[o for o, _ in parts[p][:KEEP_PER_PART]] for p in PARTS]
+    forms = []
+    for combo in itertools.product(*kept):
+        changes: dict[str, str] = {}
+        for c in combo:
+            changes.update(c)
+        forms.append(FormFit(centre.electronics.replace(**changes), centre.params, math.inf))
+    forms += screened[:KEPT_FORMS]
+    forms.append(next(f for f in screened if _same_form(f.electronics, prior)))
+    unique: list[FormFit] = []
+    for f in forms:
+        if not any(_same_form(f.electronics, u.electronics) for u in unique):
+            unique.append(f)
+    fits = sorted(_pool_map(lambda f: _constants_only(data, f, grid), unique, workers),
                   key=lambda f: f.search_cost)
     for f in fits:
         f.prior = _same_form(f.electronics, prior)
     chosen = fits[:FINALISTS] + [f for f in fits[FINALISTS:] if f.prior]
-    for release in dict.fromkeys(f.electronics.release for f in fits):
-        best = next(f for f in fits if f.electronics.release == release)
-        if best not in chosen:
-            chosen.append(best)
+    for opts in kept:
+        for opt in opts:
+            best = next(f for f in fits if _has(f, opt))
+            if best not in chosen:
+                chosen.append(best)
     top = _pool_map(lambda f: _refine_form(data, space, f, grid), chosen, workers)
     return sorted(top, key=lambda f: f.search_cost) + [f for f in fits if f not in chosen]
 
@@ -460,7 +502,8 @@ def select_family(search: FitData, fit: FitData, val: FitData | None, space: Par
     """
     screened = screen_forms(search, valve_under(search, space, starts, base, workers),
                             workers)
-    forms = fit_forms(search, space, screened, base, workers, grid)
+    parts = screen_parts(search, screened[0], workers)
+    forms = fit_forms(search, space, screened, parts, base, workers, grid)
     chosen, same, text = choose_form(forms, fit, val, workers)
     words = screen_words(screened)
     return FamilyChoice(chosen, words, forms, same, text)
