@@ -9,21 +9,24 @@ and the data choose one, as they choose an effect:
    (a capacitor's voltage and decay time) absorbs a wrong valve that a release without
    constants (a freewheel diode) cannot: so each release option's constants are searched
    at the valve's start values and the valve is searched locally under the prior form
-   with that release. Each release's forms are then compared at its own valve.
-2. **Screen** (:func:`screen_forms`): every peak end x hold under each release (peak
-   end: dip, dip and rise, current threshold, timer; hold: PI chopper with slow or fast
-   decay, hysteresis band with 0 V, diode or fast decay, open-loop PWM; release:
-   capacitor charged while high or during the peak only, Zener clamp, freewheel diode:
-   4 x 6 x 4 = 96 forms), each form's constants searched briefly
-   (:data:`SCREEN_EFFORT`) with the valve held at its release's; cost on the search
-   window. The parts interact (a current-threshold peak end and an open-loop PWM hold
-   pay off only together with the freewheel diode), so the parts are not screened one
-   at a time around the prior form.
-3. **Complete forms** (:func:`fit_forms`): the :data:`KEPT_FORMS` best forms of the
-   screen, the best form with each hold and the prior form (the paper's driver), their
-   constants searched further;
-   the :data:`FINALISTS` best, the best form with each release among them, and the prior
-   form always, then search the valve locally and their constants again.
+   with that release.
+2. **Screens.** (a) :func:`screen_parts`: each part's options (peak end: dip, dip and
+   rise, current threshold, timer; hold: PI chopper with slow or fast decay, hysteresis
+   band with 0 V, diode or fast decay, open-loop PWM; release: capacitor charged while
+   high or during the peak only, Zener clamp, freewheel diode) in turn, the other parts
+   at the prior form with the release that fits best at the start values, at that
+   release's valve, each option's constants searched (:data:`PART_EFFORT`). (b)
+   :func:`screen_forms`: every peak end x hold under each release at that release's
+   valve (4 x 6 x 4 = 96 forms), each form's constants searched briefly
+   (:data:`SCREEN_EFFORT`). The parts interact (a current-threshold peak end and an
+   open-loop PWM hold pay off only together, and with the freewheel diode: each alone
+   around the prior form fits worse than the prior form), which (a) cannot see; (a)'s
+   longer search finds a hysteresis hold's narrow valley, which (b)'s misses.
+3. **Complete forms** (:func:`fit_forms`): the :data:`KEEP_PER_PART` best options of each
+   part of (a) combined, the :data:`KEPT_FORMS` best forms of (b) and the prior form
+   (the paper's driver), each form's constants searched with the valve held; the
+   :data:`FINALISTS` best, the best form with each kept option, and the prior form
+   always, then search the valve locally and their constants again.
 4. **Choice** (:func:`choose_form`), as an effect is selected against the baseline: the
    prior form stays unless another finalist beats it on the whole fit window by
    ``dBIC`` below ``DBIC_THRESHOLD`` (:func:`.criteria.delta_bic`, each form's constants
@@ -258,10 +261,23 @@ def _valve_search(data: FitData, space: ParameterSpace, starts: list[ValveParame
 @dataclass
 class ValveStart:
     """A release's valve: the valve searched locally through the prior form with that
-    release, and the form with the release's constants searched."""
+    release, and the form with the release's constants searched.
+
+    Attributes
+    ----------
+    params : ValveParameters
+        The valve after the local search.
+    base : ElectronicsConfig
+        The prior form with this release and its constants.
+    start_cost : float
+        Search-window cost at the valve's start values, before the valve search [A].
+    cost : float
+        Search-window cost after the valve search [A].
+    """
 
     params: ValveParameters
     base: ElectronicsConfig
+    start_cost: float
     cost: float
 
 
@@ -272,9 +288,9 @@ def valve_under(data: FitData, space: ParameterSpace, starts: list[ValveParamete
     order of :data:`RELEASE_OPTIONS`."""
     def one(opt: dict[str, str]) -> ValveStart:
         cfg = base.replace(**opt)
-        cfg = search_constants(_view(data, cfg), starts[0], cfg, RELEASE_EFFORT).electronics
-        params, cost = _valve_search(data, space, starts, cfg)
-        return ValveStart(params, cfg, cost)
+        drive = search_constants(_view(data, cfg), starts[0], cfg, RELEASE_EFFORT)
+        params, cost = _valve_search(data, space, starts, drive.electronics)
+        return ValveStart(params, drive.electronics, float(drive.cost), cost)
     return _pool_map(one, list(RELEASE_OPTIONS), workers)
 
 
@@ -354,31 +370,33 @@ def _same_form(a: ElectronicsConfig, b: ElectronicsConfig) -> bool:
                                                         'release'))
 
 
-def fit_forms(data: FitData, space: ParameterSpace, screened: list[FormFit],
+def fit_forms(data: FitData, space: ParameterSpace, centre: FormFit,
               parts: dict[str, list[tuple[dict[str, str], float]]],
-              prior: ElectronicsConfig, workers: int, grid: bool = True) -> list[FormFit]:
-    """The complete forms of the :data:`KEEP_PER_PART` best options of each part around the
-    screen's best form (at its valve), the :data:`KEPT_FORMS` best forms of the screen and
-    the ``prior`` form, their constants searched further; the :data:`FINALISTS` best, the
-    best form with each kept option (so that two releases, say, are compared with the
-    valve refitted through each) and the ``prior`` form refined (:func:`_refine_form`).
-    Finalists first (by their cost), then the others."""
-    centre = screened[0]
+              screened: list[FormFit], prior: ElectronicsConfig, workers: int,
+              grid: bool = True) -> list[FormFit]:
+    """The complete forms of the :data:`KEEP_PER_PART` best options of each part around
+    ``centre`` (at its valve) and the ``prior`` form there, and the :data:`KEPT_FORMS` best
+    forms of the screen of every peak end x hold (at their release's valve), their
+    constants searched further (a form found both ways: the lower cost); the
+    :data:`FINALISTS` best, the best form with each kept option (so that two releases,
+    say, are compared with the valve refitted through each) and the ``prior`` form
+    refined (:func:`_refine_form`). Finalists first (by their cost), then the others."""
     kept = [[o for o, _ in parts[p][:KEEP_PER_PART]] for p in PARTS]
     forms = []
     for combo in itertools.product(*kept):
         changes: dict[str, str] = {}
         for c in combo:
             changes.update(c)
-        forms.append(FormFit(centre.electronics.replace(**changes), centre.params, math.inf))
-    forms += screened[:KEPT_FORMS]
-    forms.append(next(f for f in screened if _same_form(f.electronics, prior)))
-    unique: list[FormFit] = []
-    for f in forms:
-        if not any(_same_form(f.electronics, u.electronics) for u in unique):
-            unique.append(f)
-    fits = sorted(_pool_map(lambda f: _constants_only(data, f, grid), unique, workers),
-                  key=lambda f: f.search_cost)
+        forms.append(centre.electronics.replace(**changes))
+    if not any(_same_form(c, prior) for c in forms):
+        forms.append(centre.electronics.replace(**{k: getattr(prior, k) for k in (
+            'peak_end', 'hold', 'hold_decay', 'release')}))
+    todo = [FormFit(c, centre.params, math.inf) for c in forms] + screened[:KEPT_FORMS]
+    fits: list[FormFit] = []
+    for f in sorted(_pool_map(lambda f: _constants_only(data, f, grid), todo, workers),
+                    key=lambda f: f.search_cost):
+        if not any(_same_form(f.electronics, g.electronics) for g in fits):
+            fits.append(f)
     for f in fits:
         f.prior = _same_form(f.electronics, prior)
     chosen = fits[:FINALISTS] + [f for f in fits[FINALISTS:] if f.prior]
@@ -500,10 +518,12 @@ def select_family(search: FitData, fit: FitData, val: FitData | None, space: Par
         search in the complete forms (:func:`.drive.hysteresis_grid`; worth it at a valve
         near the record's, where the ripple's phase is what is left).
     """
-    screened = screen_forms(search, valve_under(search, space, starts, base, workers),
-                            workers)
-    parts = screen_parts(search, screened[0], workers)
-    forms = fit_forms(search, space, screened, parts, base, workers, grid)
+    valves = valve_under(search, space, starts, base, workers)
+    first = min(valves, key=lambda v: v.start_cost)
+    centre = FormFit(first.base, first.params, first.cost)
+    parts = screen_parts(search, centre, workers)
+    screened = screen_forms(search, valves, workers)
+    forms = fit_forms(search, space, centre, parts, screened, base, workers, grid)
     chosen, same, text = choose_form(forms, fit, val, workers)
     words = screen_words(screened)
     return FamilyChoice(chosen, words, forms, same, text)
