@@ -218,12 +218,14 @@ def _costs(data: FitData, raw: np.ndarray, configs: list[ElectronicsConfig]) -> 
 
 
 def search_constants(data: FitData, params: ValveParameters, base: ElectronicsConfig,
-                     effort: int, grid: bool = False) -> DriveFit:
+                     effort: int, grid: bool = False, read_hold: bool = True) -> DriveFit:
     """The constants of ``base``'s form that the records carry, from the hold read off the
-    data and ``base``'s other values, searched with the valve held at ``params`` (``effort``
-    Nelder-Mead iterations; no intervals); with ``grid`` a hysteresis hold's clock, band
-    and set point first on a grid (:func:`hysteresis_grid`)."""
-    base, _ = hold_start(data, params, base)
+    data (``read_hold``; else ``base``'s hold) and ``base``'s other values, searched with
+    the valve held at ``params`` (``effort`` Nelder-Mead iterations; no intervals); with
+    ``grid`` a hysteresis hold's clock, band and set point first on a grid
+    (:func:`hysteresis_grid`)."""
+    if read_hold:
+        base, _ = hold_start(data, params, base)
     carried = _carried(data, base)
     bounds = [ParameterBound(n, *DRIVE_BOUNDS[n]) for n in carried if carried[n]]
     return _search_clocked(data, params, base, bounds, effort, grid)

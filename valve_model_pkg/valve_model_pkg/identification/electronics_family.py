@@ -4,20 +4,29 @@ A record through drive electronics the user does not describe (no ``--electronic
 fitted through each of a few complete forms of :class:`~valve_model_pkg.model.ElectronicsConfig`,
 and the data choose one, as they choose an effect:
 
-1. **Valve first** (:func:`valve_under`): the release shapes the current most (a
-   freewheel diode against a capacitor pulse: 100 mA and more), so the release's options
-   are tried first with the valve at its start values, and the valve is searched locally
-   under the best of them: the screen then compares forms at a valve near the record's.
-2. **Screen** (:func:`screen_parts`): each part's options (peak end: dip, dip and rise,
-   current threshold, timer; hold: PI chopper with slow or fast decay, hysteresis band
-   with diode or fast decay, open-loop PWM; release: capacitor charged while high or
-   during the peak only, Zener clamp, freewheel diode) in turn, the other parts at the
-   paper's driver (the release at step 1's), the form's constants searched with the
-   valve held (:func:`.drive.search_constants`); cost on the search window.
+1. **A valve per release** (:func:`valve_under`): the release shapes the current most
+   (a freewheel diode against a capacitor pulse: 100 mA and more), and a flexible release
+   (a capacitor's voltage and decay time) absorbs a wrong valve that a release without
+   constants (a freewheel diode) cannot: so each release option's constants are searched
+   at the valve's start values and the valve is searched locally under the prior form
+   with that release.
+2. **Screens.** (a) :func:`screen_parts`: each part's options (peak end: dip, dip and
+   rise, current threshold, timer; hold: PI chopper with slow or fast decay, hysteresis
+   band with 0 V, diode or fast decay, open-loop PWM; release: capacitor charged while
+   high or during the peak only, Zener clamp, freewheel diode) in turn, the other parts
+   at the prior form with the release that fits best at the start values, at that
+   release's valve, each option's constants searched (:data:`PART_EFFORT`). (b)
+   :func:`screen_forms`: every peak end x hold under each release at that release's
+   valve (4 x 6 x 4 = 96 forms), each form's constants searched briefly
+   (:data:`SCREEN_EFFORT`). The parts interact (a current-threshold peak end and an
+   open-loop PWM hold pay off only together, and with the freewheel diode: each alone
+   around the prior form fits worse than the prior form), which (a) cannot see; (a)'s
+   longer search finds a hysteresis hold's narrow valley, which (b)'s misses.
 3. **Complete forms** (:func:`fit_forms`): the :data:`KEEP_PER_PART` best options of each
-   part combined, each form's constants searched with the valve held; the
-   :data:`FINALISTS` best, the best form with each kept option, and the prior form (the
-   paper's driver) always, then search the valve locally and their constants again.
+   part of (a) combined, the :data:`KEPT_FORMS` best forms of (b) and the prior form
+   (the paper's driver), each form's constants searched with the valve held; the
+   :data:`FINALISTS` best, the best form with each kept option, and the prior form
+   always, then search the valve locally and their constants again.
 4. **Choice** (:func:`choose_form`), as an effect is selected against the baseline: the
    prior form stays unless another finalist beats it on the whole fit window by
    ``dBIC`` below ``DBIC_THRESHOLD`` (:func:`.criteria.delta_bic`, each form's constants
@@ -57,7 +66,8 @@ from .problem import FitData, ParameterSpace, unit_objective
 from .search import SearchSettings, direct_search
 
 __all__ = ['PEAK_OPTIONS', 'HOLD_OPTIONS', 'RELEASE_OPTIONS', 'FamilyChoice', 'FormFit',
-           'describe_form', 'select_family', 'screen_parts', 'fit_forms', 'choose_form']
+           'describe_form', 'select_family', 'valve_under', 'screen_forms', 'screen_parts',
+           'fit_forms', 'choose_form']
 
 #: Options of each part, as the fields of ElectronicsConfig they set.
 PEAK_OPTIONS: tuple[dict[str, str], ...] = tuple(
@@ -71,12 +81,18 @@ HOLD_OPTIONS: tuple[dict[str, str], ...] = (
 RELEASE_OPTIONS: tuple[dict[str, str], ...] = tuple(
     {'release': r} for r in ('capacitor', 'capacitor_peak', 'zener', 'diode'))
 PARTS = {'peak_end': PEAK_OPTIONS, 'hold': HOLD_OPTIONS, 'release': RELEASE_OPTIONS}
-#: Options of each part kept from the screen (2 x 2 x 2 complete forms).
+#: Options of each part kept from the screen around the best form (2 x 2 x 2 forms).
 KEEP_PER_PART = 2
+#: Best forms of the screen of every peak end x hold whose constants are searched further.
+KEPT_FORMS = 3
 #: Complete forms compared on the whole fit window and the hold-out data.
 FINALISTS = 3
-#: Nelder-Mead iterations: constants in the screen, constants and valve of a form.
-SCREEN_EFFORT = 30
+#: Nelder-Mead iterations: a release's constants before its valve search, constants of
+#: each form in the screen of every peak end x hold, in the screen of each part around
+#: its best form, constants of a kept form and a finalist's.
+RELEASE_EFFORT = 30
+SCREEN_EFFORT = 5
+PART_EFFORT = 30
 FORM_EFFORT = 50
 VALVE_ITERATIONS = 100
 
@@ -244,37 +260,79 @@ def _valve_search(data: FitData, space: ParameterSpace, starts: list[ValveParame
 
 @dataclass
 class ValveStart:
-    """The valve the screen holds and the electronics it was searched through."""
+    """A release's valve: the valve searched locally through the prior form with that
+    release, and the form with the release's constants searched.
+
+    Attributes
+    ----------
+    params : ValveParameters
+        The valve after the local search.
+    base : ElectronicsConfig
+        The prior form with this release and its constants.
+    start_cost : float
+        Search-window cost at the valve's start values, before the valve search [A].
+    cost : float
+        Search-window cost after the valve search [A].
+    """
 
     params: ValveParameters
     base: ElectronicsConfig
-    release_costs: list[tuple[dict[str, str], float]]
+    start_cost: float
+    cost: float
 
 
 def valve_under(data: FitData, space: ParameterSpace, starts: list[ValveParameters],
-                base: ElectronicsConfig, workers: int) -> ValveStart:
-    """The release's options at the start values, then the valve searched locally under
-    ``base`` with the best of them (module notes, step 1)."""
-    def one(opt: dict[str, str]) -> float:
+                base: ElectronicsConfig, workers: int) -> list[ValveStart]:
+    """Per release option, its constants at the valve's start values, then the valve
+    searched locally under ``base`` with that release (module notes, step 1); in the
+    order of :data:`RELEASE_OPTIONS`."""
+    def one(opt: dict[str, str]) -> ValveStart:
         cfg = base.replace(**opt)
-        return search_constants(_view(data, cfg), starts[0], cfg, SCREEN_EFFORT).cost
-    costs = _pool_map(one, list(RELEASE_OPTIONS), workers)
-    ranked = sorted(zip(RELEASE_OPTIONS, costs), key=lambda x: x[1])
-    cfg = search_constants(_view(data, base.replace(**ranked[0][0])), starts[0],
-                           base.replace(**ranked[0][0]), SCREEN_EFFORT).electronics
-    params, _ = _valve_search(data, space, starts, cfg)
-    return ValveStart(params, cfg, [(o, float(c)) for o, c in ranked])
+        drive = search_constants(_view(data, cfg), starts[0], cfg, RELEASE_EFFORT)
+        params, cost = _valve_search(data, space, starts, drive.electronics)
+        return ValveStart(params, drive.electronics, float(drive.cost), cost)
+    return _pool_map(one, list(RELEASE_OPTIONS), workers)
 
 
-def screen_parts(data: FitData, params: ValveParameters, base: ElectronicsConfig,
-                 workers: int) -> dict[str, list[tuple[dict[str, str], float]]]:
-    """Each part's options, the other parts at ``base``: the form's constants searched with
-    the valve at ``params``; per part the options with their cost [A], best first."""
+def screen_forms(data: FitData, starts: list[ValveStart], workers: int) -> list[FormFit]:
+    """Every peak end x hold under each release, at that release's valve and with its
+    release constants, the form's constants searched (:data:`SCREEN_EFFORT`); best first."""
+    jobs = [(s, s.base.replace(**p, **h)) for s in starts
+            for p, h in itertools.product(PEAK_OPTIONS, HOLD_OPTIONS)]
+
+    def one(job: tuple[ValveStart, ElectronicsConfig]) -> FormFit:
+        s, cfg = job
+        drive = search_constants(_view(data, cfg), s.params, cfg, SCREEN_EFFORT)
+        return FormFit(drive.electronics, s.params, float(drive.cost))
+    return sorted(_pool_map(one, jobs, workers), key=lambda f: f.search_cost)
+
+
+def _has(f: FormFit, option: dict[str, str]) -> bool:
+    return all(getattr(f.electronics, k) == v for k, v in option.items())
+
+
+def screen_words(forms: list[FormFit]) -> dict[str, list[tuple[str, float]]]:
+    """Per part, each option in words with the lowest screen cost of a form with it [A],
+    best first."""
+    out: dict[str, list[tuple[str, float]]] = {}
+    for part, opts in PARTS.items():
+        costs = [(_option_words(part, o), min(
+            (f.search_cost for f in forms if _has(f, o)),
+            default=math.inf)) for o in opts]
+        out[part] = sorted(costs, key=lambda x: x[1])
+    return out
+
+
+def screen_parts(data: FitData, centre: FormFit, workers: int
+                 ) -> dict[str, list[tuple[dict[str, str], float]]]:
+    """Each part's options, the other parts at the ``centre`` form: the form's constants
+    searched (:data:`PART_EFFORT`) with the valve at ``centre``'s; per part the options
+    with their cost [A], best first."""
     jobs = [(part, opt) for part, opts in PARTS.items() for opt in opts]
 
     def one(job: tuple[str, dict[str, str]]) -> float:
-        cfg = base.replace(**job[1])
-        return search_constants(_view(data, cfg), params, cfg, SCREEN_EFFORT).cost
+        cfg = centre.electronics.replace(**job[1])
+        return search_constants(_view(data, cfg), centre.params, cfg, PART_EFFORT).cost
     costs = _pool_map(one, jobs, workers)
     out: dict[str, list[tuple[dict[str, str], float]]] = {p: [] for p in PARTS}
     for (part, opt), c in zip(jobs, costs):
@@ -284,12 +342,16 @@ def screen_parts(data: FitData, params: ValveParameters, base: ElectronicsConfig
     return out
 
 
-def _constants_only(data: FitData, params: ValveParameters, cfg: ElectronicsConfig,
-                    grid: bool) -> FormFit:
-    """The form's constants searched with the valve held at ``params`` (``grid``: a
-    hysteresis hold's clock, band and set point first on a grid)."""
-    drive = search_constants(_view(data, cfg), params, cfg, FORM_EFFORT, grid=grid)
-    return FormFit(drive.electronics, params, float(drive.cost))
+def _constants_only(data: FitData, f: FormFit, grid: bool) -> FormFit:
+    """The form's constants searched further, the valve held at ``f``'s (``grid``: a
+    hysteresis hold's clock, band and set point first on a grid); a form of the screen
+    starts from its constants, a combination of options from the hold read off the data."""
+    screened = math.isfinite(f.search_cost)
+    drive = search_constants(_view(data, f.electronics), f.params, f.electronics,
+                             FORM_EFFORT, grid=grid, read_hold=not screened)
+    if drive.cost < f.search_cost:
+        return FormFit(drive.electronics, f.params, float(drive.cost))
+    return FormFit(f.electronics, f.params, f.search_cost)
 
 
 def _refine_form(data: FitData, space: ParameterSpace, f: FormFit, grid: bool) -> FormFit:
@@ -308,34 +370,39 @@ def _same_form(a: ElectronicsConfig, b: ElectronicsConfig) -> bool:
                                                         'release'))
 
 
-def fit_forms(data: FitData, space: ParameterSpace, params: ValveParameters,
-              screen: dict[str, list[tuple[dict[str, str], float]]],
-              base: ElectronicsConfig, prior: ElectronicsConfig, workers: int,
+def fit_forms(data: FitData, space: ParameterSpace, centre: FormFit,
+              parts: dict[str, list[tuple[dict[str, str], float]]],
+              screened: list[FormFit], prior: ElectronicsConfig, workers: int,
               grid: bool = True) -> list[FormFit]:
-    """The complete forms of the :data:`KEEP_PER_PART` best options of each part, their
-    constants searched with the valve at ``params``; the :data:`FINALISTS` best, the best
-    form with each kept option (so that two releases, say, are compared with the valve
-    refitted through each) and the ``prior`` form refined (:func:`_refine_form`).
-    Finalists first (by their cost), then the others."""
-    kept = [[o for o, _ in screen[p][:KEEP_PER_PART]] for p in PARTS]
-    cfgs = []
+    """The complete forms of the :data:`KEEP_PER_PART` best options of each part around
+    ``centre`` (at its valve) and the ``prior`` form there, and the :data:`KEPT_FORMS` best
+    forms of the screen of every peak end x hold (at their release's valve), their
+    constants searched further (a form found both ways: the lower cost); the
+    :data:`FINALISTS` best, the best form with each kept option (so that two releases,
+    say, are compared with the valve refitted through each) and the ``prior`` form
+    refined (:func:`_refine_form`). Finalists first (by their cost), then the others."""
+    kept = [[o for o, _ in parts[p][:KEEP_PER_PART]] for p in PARTS]
+    forms = []
     for combo in itertools.product(*kept):
         changes: dict[str, str] = {}
         for c in combo:
             changes.update(c)
-        cfgs.append(base.replace(**changes))
-    if not any(_same_form(c, prior) for c in cfgs):
-        cfgs.append(base.replace(**{k: getattr(prior, k) for k in (
+        forms.append(centre.electronics.replace(**changes))
+    if not any(_same_form(c, prior) for c in forms):
+        forms.append(centre.electronics.replace(**{k: getattr(prior, k) for k in (
             'peak_end', 'hold', 'hold_decay', 'release')}))
-    fits = sorted(_pool_map(lambda c: _constants_only(data, params, c, grid), cfgs, workers),
-                  key=lambda f: f.search_cost)
+    todo = [FormFit(c, centre.params, math.inf) for c in forms] + screened[:KEPT_FORMS]
+    fits: list[FormFit] = []
+    for f in sorted(_pool_map(lambda f: _constants_only(data, f, grid), todo, workers),
+                    key=lambda f: f.search_cost):
+        if not any(_same_form(f.electronics, g.electronics) for g in fits):
+            fits.append(f)
     for f in fits:
         f.prior = _same_form(f.electronics, prior)
     chosen = fits[:FINALISTS] + [f for f in fits[FINALISTS:] if f.prior]
     for opts in kept:
         for opt in opts:
-            best = next(f for f in fits if all(getattr(f.electronics, k) == v
-                                               for k, v in opt.items()))
+            best = next(f for f in fits if _has(f, opt))
             if best not in chosen:
                 chosen.append(best)
     top = _pool_map(lambda f: _refine_form(data, space, f, grid), chosen, workers)
@@ -451,9 +518,12 @@ def select_family(search: FitData, fit: FitData, val: FitData | None, space: Par
         search in the complete forms (:func:`.drive.hysteresis_grid`; worth it at a valve
         near the record's, where the ripple's phase is what is left).
     """
-    start = valve_under(search, space, starts, base, workers)
-    screen = screen_parts(search, start.params, start.base, workers)
-    forms = fit_forms(search, space, start.params, screen, start.base, base, workers, grid)
+    valves = valve_under(search, space, starts, base, workers)
+    first = min(valves, key=lambda v: v.start_cost)
+    centre = FormFit(first.base, first.params, first.cost)
+    parts = screen_parts(search, centre, workers)
+    screened = screen_forms(search, valves, workers)
+    forms = fit_forms(search, space, centre, parts, screened, base, workers, grid)
     chosen, same, text = choose_form(forms, fit, val, workers)
-    words = {p: [(_option_words(p, o), c) for o, c in v] for p, v in screen.items()}
+    words = screen_words(screened)
     return FamilyChoice(chosen, words, forms, same, text)
