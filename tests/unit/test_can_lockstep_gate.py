@@ -23,8 +23,8 @@ def test_steps_past_a_tick_only_with_its_command_on_the_bus() -> None:
 
 
 def test_the_first_tick_waits_for_its_command_when_a_controller_publishes_one() -> None:
-    # Without the gate the first 5 ms ran with duty 0 or with the t = 0 answer, whichever
-    # reached the emulator first: two runs of the same demo differed in their first ticks.
+    # Ungated, the first 5 ms would run with duty 0 or with the t = 0 answer, whichever
+    # reached the emulator first: two runs of the same demo would differ from the start.
     gate = LockstepGateState(control_period_ns=5_000_000, timeout_s=2.0)
     gate.gate_first_tick = True
     assert not gate.may_step(0, 0.0)
