@@ -318,9 +318,9 @@ class LockstepSimulationNode(Node):
                 return
             if self._lockstep and not self._external and self._gate.tick_ns is None:
                 # the t = 0 tick (published at start) is answered like every other one
-                # before the first step: else the first 5 ms ran with whichever answers
-                # happened to be in when the hold ended (an external valve's side holds
-                # its own gate on each tick's command, the first included)
+                # before the first step: else the first 5 ms would run with whichever
+                # answers are in when the hold ends (an external valve's side holds its
+                # own gate on each tick's command, the first included)
                 self._gate.open_tick(self._axis.t_ns, wall)
                 self._pacer.restart(wall, self._axis.t_ns)
                 continue
