@@ -7,7 +7,8 @@ Usage::
                    [--route auto|mean-voltage|electronics]
                    [--threads N] [--no-plots] [--topic TOPIC] [--valve NAME]
                    [--map ROLE=TOPIC[.FIELD]...] [--voltage CH --current CH ...]
-                   [--electronics YAML [--fit-electronics] | --choose-electronics]
+                   [--electronics YAML [--fit-electronics]
+                    | --choose-electronics [auto|always|never]]
 
 FILE is a ``step``, ``pwm`` or ``operation`` record of the measured-data format, a
 rosbag2 bag directory (the suite's ``/valve/state``, or a user's own topics with
@@ -24,8 +25,10 @@ Progress goes to stderr; DIR receives report.json, report.md with PNG plots and
 params.yaml (loadable by valve_simulate / valve_map), and for records through the drive
 electronics electronics.yaml (the electronics identified with it, for ``--electronics``).
 Without ``--electronics`` the electronics have the suite's own form with their constants
-fitted, or with ``--choose-electronics`` the form (peak end, hold, release) chosen by the
-data; with it, the file's form and constants are used as given (``--fit-electronics``: its
+fitted, and the form (peak end, hold, release) is chosen by the data when the model
+through the suite's form misses the record by three times the noise or more
+(``--choose-electronics always`` chooses it every time, ``never`` keeps the suite's form);
+with it, the file's form and constants are used as given (``--fit-electronics``: its
 constants are start values of their fit). Exit status: 0 on success, 2 on
 refused input (one line naming file, line and reason), 1 on a failure inside.
 
@@ -120,14 +123,21 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('--fit-electronics', action='store_true',
                    help='with --electronics: its constants are start values, fitted within '
                         'bounds (the form stays)')
-    p.add_argument('--choose-electronics', action='store_true',
-                   help='without --electronics: choose the form (peak end, hold, release) '
-                        'by the data, with its constants (slower: about half of a --quick '
-                        'run more; docs/identification.md)')
+    p.add_argument('--choose-electronics', nargs='?', const='always', default='auto',
+                   choices=tuple(_CHOICE), metavar='auto|always|never',
+                   help='without --electronics: when the data choose the form (peak end, '
+                        'hold, release) with its constants: auto (default) when the model '
+                        'through the paper\'s driver\'s form misses the record by 3x the '
+                        'noise or more (the identification runs again through the chosen '
+                        'form), always (the flag alone), never (docs/identification.md)')
     p.add_argument('--quiet', action='store_true', help='no progress output')
     from valve_model_pkg.instruments import add_import_options
     add_import_options(p)
     return p
+
+
+#: ``--choose-electronics`` values and :attr:`IdentifySettings.choose_electronics`.
+_CHOICE = {'auto': None, 'always': True, 'never': False}
 
 
 def settings_from_args(args: argparse.Namespace) -> 'IdentifySettings':
@@ -139,7 +149,7 @@ def settings_from_args(args: argparse.Namespace) -> 'IdentifySettings':
         effects=tuple(args.effects) if args.effects is not None else None, quick=args.quick,
         seed=args.seed, threads=args.threads, electronics=args.electronics,
         electronics_fixed=not args.fit_electronics,
-        choose_electronics=args.choose_electronics, route=args.route)
+        choose_electronics=_CHOICE[args.choose_electronics], route=args.route)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -148,8 +158,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.fit_electronics and args.electronics is None:
         parser.error('--fit-electronics needs --electronics FILE')
-    if args.choose_electronics and args.electronics is not None:
-        parser.error('--choose-electronics and --electronics exclude each other')
+    if args.choose_electronics != 'auto' and args.electronics is not None:
+        parser.error(f'--choose-electronics {args.choose_electronics} and --electronics '
+                     'exclude each other')
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s: %(message)s')
     from ..errors import IdentificationError, InstrumentFormatError, MeasurementFormatError
     from ..errors import ParameterError

@@ -55,8 +55,9 @@ OPTION_KEYS: dict[str, tuple[type, str]] = {
     'electronics': (str, 'drive electronics description YAML (valve_identify --electronics)'),
     'fit_electronics': (bool, 'the electronics file\'s constants are start values '
                               '(valve_identify --fit-electronics)'),
-    'choose_electronics': (bool, 'the data choose the electronics\' form '
-                                 '(valve_identify --choose-electronics)'),
+    'choose_electronics': (bool, 'the data choose the electronics\' form: true always, '
+                                 'false never; absent: when the paper\'s driver\'s form '
+                                 'misfits (valve_identify --choose-electronics)'),
 }
 #: options naming a file, resolved relative to the manifest like the records
 _FILE_KEYS = ('params', 'electronics')

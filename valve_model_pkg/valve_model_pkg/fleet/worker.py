@@ -106,7 +106,7 @@ def settings_from_options(opts: dict[str, Any]) -> 'IdentifySettings':
     return IdentifySettings(params_file=opts.get('params'), quick=bool(opts.get('quick')),
                             diagnose=bool(opts.get('diagnose', True)),
                             electronics_fixed=not opts.get('fit_electronics', False),
-                            choose_electronics=bool(opts.get('choose_electronics')), **kw)
+                            choose_electronics=opts.get('choose_electronics'), **kw)
 
 
 def run_valve(job: dict[str, Any]) -> dict[str, Any]:

@@ -30,7 +30,7 @@ Three steps after the baseline fit:
 from __future__ import annotations
 
 import math
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
@@ -984,6 +984,51 @@ def _statement_noise(data: FitData, residual_noise: list[float]) -> tuple[float,
     return max(float(np.median(residual_noise)), floor), 'the baseline residual'
 
 
+@dataclass
+class StructuredMisfit:
+    """A model's residual beyond the noise on some data (:func:`structured_misfit`).
+
+    Attributes
+    ----------
+    structured_a : float
+        RMS of the residual beyond the noise, ``sqrt(max(mean(r^2) - sigma^2, 0))`` [A].
+    noise_a : float
+        The noise it is measured against [A].
+    noise_from : str
+        Where the noise comes from, in words.
+    residuals : list of ndarray
+        The residual of each file [A].
+    """
+
+    structured_a: float
+    noise_a: float
+    noise_from: str
+    residuals: list
+
+    @property
+    def over_noise(self) -> float:
+        """The structured RMS in units of the noise (inf without noise)."""
+        return self.structured_a / self.noise_a if self.noise_a > 0.0 else math.inf
+
+    @property
+    def beyond_noise(self) -> bool:
+        """At least :data:`MISFIT_OVER_NOISE` times the noise: the model does not describe
+        the data."""
+        return self.noise_a > 0.0 and self.structured_a >= MISFIT_OVER_NOISE * self.noise_a
+
+
+def structured_misfit(data: FitData, params: ValveParameters,
+                      residual_noise: Sequence[float]) -> StructuredMisfit:
+    """The residual of ``params`` on ``data`` beyond the noise: the noise read from the
+    current at rest (else ``residual_noise`` [A] per file), the RMS of the compared
+    residual with the noise's variance taken out."""
+    sigma, source = _statement_noise(data, list(residual_noise) or [0.0])
+    res = data.residuals(params)
+    sq = np.concatenate([r[v & np.isfinite(r)] ** 2 for r, v in zip(res, data.valid)])
+    structured = math.sqrt(max(float(np.mean(sq)) - sigma ** 2, 0.0)) if sq.size else 0.0
+    return StructuredMisfit(structured, sigma, source, res)
+
+
 def describe_misfit(diag: Diagnosis, baseline: ValveParameters) -> None:
     """State a baseline misfit that no candidate explains, when it is well above the noise.
 
@@ -997,14 +1042,12 @@ def describe_misfit(diag: Diagnosis, baseline: ValveParameters) -> None:
     data = diag.judge
     if diag.effect != 'none' or not diag.unexplained_structure or data is None:
         return
-    sigma, source = _statement_noise(data, (diag.base_mae or {}).get('noise') or [0.0])
-    res = data.residuals(baseline)
-    sq = np.concatenate([r[v & np.isfinite(r)] ** 2 for r, v in zip(res, data.valid)])
-    structured = math.sqrt(max(float(np.mean(sq)) - sigma ** 2, 0.0)) if sq.size else 0.0
-    if not sigma > 0.0 or structured < MISFIT_OVER_NOISE * sigma:
+    size = structured_misfit(data, baseline, (diag.base_mae or {}).get('noise') or [0.0])
+    sigma, source, structured = size.noise_a, size.noise_from, size.structured_a
+    if not size.beyond_noise:
         return
     energy = {}
-    for m, r, v in zip(data.measurements, res, data.valid):
+    for m, r, v in zip(data.measurements, size.residuals, data.valid):
         for name, mask in drive_phase_masks(m).items():
             sel = mask & v & np.isfinite(r)
             energy[name] = energy.get(name, 0.0) + max(

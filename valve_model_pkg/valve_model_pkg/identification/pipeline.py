@@ -41,10 +41,12 @@ from ..errors import MeasurementFormatError, ParameterError
 from ..interface import TOPIC_STATE
 from ..model import ElectronicsConfig, batch_threads, load_electronics
 from ..model.parameters import EFFECTS, ValveParameters
-from .criteria import DBIC_THRESHOLD, delta_bic, effective_counts, resolution_floors
+from .criteria import (DBIC_THRESHOLD, delta_bic, effective_counts, noise_per_file,
+                       resolution_floors)
 from .diagnosis import (
-    SCREEN_DBIC, CandidateResult, Diagnosis, RefitResult, describe_misfit, describe_remaining,
-    refit_effect, score_signatures, second_effect, select, slow_effect,
+    SCREEN_DBIC, CandidateResult, Diagnosis, RefitResult, StructuredMisfit, describe_misfit,
+    describe_remaining, refit_effect, score_signatures, second_effect, select, slow_effect,
+    structured_misfit,
 )
 from .drive import DriveReport, fit_drive
 from .electronics_family import FamilyChoice, describe_form, select_family
@@ -166,10 +168,15 @@ class IdentifySettings:
         With :attr:`electronics`: take its constants as they are (default), or as start
         values of their fit within bounds (False, ``--fit-electronics``). The form is
         the given one either way.
-    choose_electronics : bool
-        Without :attr:`electronics`: choose the form by the data (``--choose-electronics``;
-        it adds about half of a quick run), or use the paper's driver's form and fit its
-        constants (False, the default).
+    choose_electronics : bool or None
+        Without :attr:`electronics`: choose the form by the data (True,
+        ``--choose-electronics always``; it adds about half of a quick run), or use the
+        paper's driver's form and fit its constants (False, ``never``). None (``auto``,
+        the default): the paper's driver's form, and the form chosen by the data when
+        the final model through it still misses the record by at least
+        :data:`~.diagnosis.MISFIT_OVER_NOISE` times the noise (:func:`electronics_misfit`;
+        the identification runs again through the chosen form, and the run that misses
+        less goes on).
     route : str
         How records through the drive electronics are fitted (``--route``): ``'auto'``
         lets the data choose when they carry both the mean coil voltage and the PWM
@@ -207,7 +214,7 @@ class IdentifySettings:
     hold_out_fraction: float = 0.3
     electronics: ElectronicsConfig | str | os.PathLike | None = None
     electronics_fixed: bool = True
-    choose_electronics: bool = False
+    choose_electronics: bool | None = None
     route: str = ROUTE_AUTO
 
     def __post_init__(self) -> None:
@@ -716,15 +723,20 @@ def search_baseline(prep: Prepared, settings: IdentifySettings, say: Say) -> Sea
 
 
 def search_through_the_paper(elec: ElectronicsSettled, res: SearchResult,
-                             settings: IdentifySettings, say: Say
+                             settings: IdentifySettings, say: Say,
+                             known: SearchResult | None = None
                              ) -> tuple[SearchResult, ElectronicsSettled]:
     """The baseline search again on the data through the paper's driver (nominal
     constants, ``elec.paper``) when the data chose another form at the valve's start
     values; the lower search cost goes on with its data. A form chosen at a valve far
     from the record's can hold the global search in a poor minimum that the paper's
-    driver avoids; the form is chosen again at the optimum (:func:`reselect_electronics`)."""
-    say('baseline: the direct search again through the paper\'s driver')
-    paper = search_baseline(elec.paper, settings, say)
+    driver avoids; the form is chosen again at the optimum (:func:`reselect_electronics`).
+    ``known``: that search, run before on the same data (not repeated)."""
+    if known is None:
+        say('baseline: the direct search again through the paper\'s driver')
+        paper = search_baseline(elec.paper, settings, say)
+    else:
+        paper = known
     if paper.cost >= res.cost:
         return res, elec
     say(f'baseline: through the paper\'s driver {1e3 * paper.cost:.3g} mA against '
@@ -797,6 +809,7 @@ class RouteStart:
     rounds: ElectronicsRounds
     screen: RouteScreen | None = None
     elec: ElectronicsSettled | None = None
+    paper_search: SearchResult | None = None
 
 
 def _route_criterion(data: FitData, params: ValveParameters, k: int, hold_out: bool
@@ -811,7 +824,8 @@ def _route_criterion(data: FitData, params: ValveParameters, k: int, hold_out: b
 
 
 def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
-                 timings: dict[str, float], say: Say) -> RouteStart:
+                 timings: dict[str, float], say: Say,
+                 paper_search: SearchResult | None = None) -> RouteStart:
     """Stages 2-4 on the route, or on both routes when the records carry both the mean
     coil voltage and the PWM commands (``route.rival``): the data choose.
 
@@ -823,7 +837,10 @@ def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
     errors are too close to tell the routes apart (a misfit common to both dominates),
     the mean-voltage route goes on (:class:`.mean_voltage.RouteScreen`). The chosen route
     goes on; the other one's error and how well the electronics reproduce the measured
-    mean voltage are stated in the route's note.
+    mean voltage are stated in the route's note. ``paper_search``: the baseline search
+    through the paper's driver, run before on the same data (a choice of the form compares
+    with it instead of searching again); the one run here is returned as
+    :attr:`RouteStart.paper_search`.
     """
     t0 = time.perf_counter()
     prep = prepare_data(inputs, settings, say, settings.electronics)
@@ -835,8 +852,10 @@ def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
         timings['electronics_family'] = _lap(say, 'electronics family', t0)
     t0 = time.perf_counter()
     res = search_baseline(prep, settings, say)
+    through_paper = (res if prep.through_electronics and settings.electronics is None
+                     and elec.family is None else paper_search)
     if elec.paper is not None:
-        res, elec = search_through_the_paper(elec, res, settings, say)
+        res, elec = search_through_the_paper(elec, res, settings, say, paper_search)
         prep = elec.prep
     timings['baseline_search'] = _lap(say, 'baseline search', t0)
     if elec.family is not None:
@@ -849,7 +868,7 @@ def search_route(inputs: Inputs, route: Route, settings: IdentifySettings,
         rounds = alternate_electronics(prep, res, settings, say)
         if prep.through_electronics:
             timings['electronics'] = _lap(say, 'drive electronics', t0)
-        return RouteStart(route, prep, rounds, elec=elec)
+        return RouteStart(route, prep, rounds, elec=elec, paper_search=through_paper)
     say('route: the records carry the mean coil voltage and the PWM commands; the '
         'electronics route starts from the mean-voltage optimum')
     rival_inputs = Inputs(route.rival.fit, route.rival.validation, inputs.base)
@@ -1553,8 +1572,43 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
     t_start = time.perf_counter()
     inputs, route = route_inputs(read_inputs(fit, validate, settings, base, say), settings,
                                  say)
+    run = identify_on_route(inputs, route, settings, say)
+    misfit = electronics_misfit(run, settings)
+    if misfit is not None:
+        run = choose_after_misfit(inputs, route, settings, run, misfit, say)
+    run.result.timings_s['total'] = time.perf_counter() - t_start
+    say('time split: ' + ', '.join(f'{k} {v:.1f} s' for k, v in run.result.timings_s.items()))
+    return run.result
+
+
+@dataclass
+class RouteRun:
+    """One identification on a settled route (:func:`identify_on_route`).
+
+    Attributes
+    ----------
+    result : Identification
+        What the report needs.
+    prep : Prepared
+        The data it ran on.
+    paper_search : SearchResult or None
+        The baseline search through the paper's driver (nominal constants), for a later
+        choice of the form to reuse.
+    """
+
+    result: Identification
+    prep: Prepared
+    paper_search: SearchResult | None = None
+
+
+def identify_on_route(inputs: Inputs, route: Route, settings: IdentifySettings, say: Say,
+                      paper_search: SearchResult | None = None) -> RouteRun:
+    """Stages 2-7 on ``route``: the baseline (through the electronics' form settled by
+    ``settings``), its analysis, the diagnosis, the electronics after the valve.
+    ``paper_search``: an earlier baseline search through the paper's driver on the same
+    data, which a choice of the form compares with instead of searching again."""
     timings: dict[str, float] = {}
-    start = search_route(inputs, route, settings, timings, say)
+    start = search_route(inputs, route, settings, timings, say, paper_search)
     route, prep, rounds = start.route, start.prep, start.rounds
     prep.notes.insert(0, route.note)
     t0 = time.perf_counter()
@@ -1576,10 +1630,8 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
         if after is not None:
             drive = after
             timings['electronics'] = _lap(say, 'drive electronics (valve held)', t0)
-    timings['total'] = time.perf_counter() - t_start
-    say('time split: ' + ', '.join(f'{k} {v:.1f} s' for k, v in timings.items()))
     fit_d, val_d, search, coarse = prep.fit, prep.validation, prep.search, prep.coarse
-    return Identification(
+    result = Identification(
         fit_files=fit_d.measurements, val_files=val_d.measurements if val_d else [],
         baseline=analysis.stage, augmented=augmented.stage,
         diagnosis=outcome.diagnosis if outcome else None, start=prep.start,
@@ -1595,3 +1647,70 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
         notes=prep.notes + analysis.notes, route=route.name, route_screen=start.screen,
         family=start.elec.family if start.elec else None,
         electronics_source=start.elec.source if start.elec else '')
+    return RouteRun(result, prep, start.paper_search)
+
+
+# --- the paper's form misfits: the data choose the form ----------------------------------
+
+def _judged_misfit(run: RouteRun) -> StructuredMisfit:
+    """The final model's (augmented, else baseline) residual beyond the noise on the
+    hold-out data, else on the fit window."""
+    data = run.prep.validation or run.prep.fit
+    params = run.result.augmented.params
+    return structured_misfit(data, params, noise_per_file(data, params))
+
+
+def electronics_misfit(run: RouteRun, settings: IdentifySettings) -> StructuredMisfit | None:
+    """The misfit that lets the data choose the electronics' form after a run through the
+    paper's driver (:attr:`IdentifySettings.choose_electronics` None), or None: records
+    fitted through the electronics, no form given or chosen, and the final model (with
+    the effects the diagnosis named) still misses the judged data by at least
+    :data:`~.diagnosis.MISFIT_OVER_NOISE` times the noise. A valve effect the diagnosis
+    names and explains leaves no such misfit, so it never calls for another form."""
+    if (settings.choose_electronics is not None or settings.electronics is not None
+            or not run.prep.through_electronics or run.result.family is not None):
+        return None
+    misfit = _judged_misfit(run)
+    return misfit if misfit.beyond_noise else None
+
+
+def choose_after_misfit(inputs: Inputs, route: Route, settings: IdentifySettings,
+                        first: RouteRun, misfit: StructuredMisfit, say: Say) -> RouteRun:
+    """The identification again with the form chosen by the data
+    (:mod:`.electronics_family`, reusing ``first``'s baseline search through the paper's
+    driver); the run whose final model misses the judged data less goes on, and its notes
+    say why the form was chosen and what the other run gave."""
+    on = 'hold-out' if first.prep.validation is not None else 'fit'
+    why = (f'through the paper\'s driver\'s form the model misses the {on} data by '
+           f'{1e3 * misfit.structured_a:.3g} mA RMS of structure ({misfit.over_noise:.0f} x '
+           f'the noise of {1e3 * misfit.noise_a:.2g} mA, from {misfit.noise_from})')
+    say(f'drive electronics: {why}: the data choose the form')
+    t0 = time.perf_counter()
+    chosen = identify_on_route(inputs, route, replace(settings, choose_electronics=True),
+                               say, first.paper_search)
+    again = _judged_misfit(chosen)
+    family = chosen.result.family
+    kept_prior = family is not None and family.chosen.prior
+    if not kept_prior and family is not None and again.structured_a < misfit.structured_a:
+        note = (f'{why}; the data chose the form (--choose-electronics auto), through which '
+                f'it misses them by {1e3 * again.structured_a:.3g} mA RMS of structure')
+        if first.result.diagnosis is not None:
+            note += (f'; through the paper\'s driver\'s form the answer was '
+                     f'{first.result.diagnosis.effect}')
+        run = chosen
+    else:
+        if kept_prior:
+            what = 'they kept the paper\'s driver\'s form'
+        else:
+            what = (f'the form they chose misses them by {1e3 * again.structured_a:.3g} mA '
+                    'RMS of structure, no less')
+        note = (f'{why}; the data were let choose the form (--choose-electronics auto): '
+                f'{what}; the run through the paper\'s driver\'s form is kept')
+        run = first
+        if kept_prior:
+            run.result.family = family
+    say('drive electronics: ' + note)
+    run.result.notes.insert(0, note)
+    run.result.simulations = first.result.simulations + chosen.result.simulations
+    run.result.timings_s['electronics_choice_run'] = time.perf_counter() - t0
+    return run
