@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from datagen.cache import ELECTRONICS_PAIR_NOISE_A, electronics_pair
+from valve_model_pkg.cli.identify import _parser, settings_from_args
 from valve_model_pkg.cli.identify import main as identify_main
 from valve_model_pkg.errors import ParameterError
 from valve_model_pkg.identification import IdentifySettings, identify, write_report
@@ -87,6 +88,28 @@ def test_command_line_refuses_a_bad_electronics_file(tmp_path: Path,
     assert exc.value.code == 2
 
 
+@pytest.mark.parametrize('argv, expected', [([], None), (['--choose-electronics'], True),
+                                            (['--choose-electronics', 'always'], True),
+                                            (['--choose-electronics', 'never'], False),
+                                            (['--choose-electronics', 'auto'], None)])
+def test_when_the_data_choose_the_form(argv: list[str], expected: bool | None) -> None:
+    args = _parser().parse_args(['--fit', 'f.csv', '-o', 'o'] + argv)
+    assert settings_from_args(args).choose_electronics is expected
+
+
+def test_a_forced_choice_and_a_given_form_exclude_each_other(
+        tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    fit, _ = electronics_pair(tmp_path, 'timer_hysteresis_zener')
+    path = tmp_path / 'thz.yaml'
+    path.write_text(TIMER_HYSTERESIS_ZENER_YAML, encoding='utf-8')
+    for choice in ('always', 'never'):
+        with pytest.raises(SystemExit) as exc:
+            identify_main(['--fit', fit, '--electronics', str(path), '--choose-electronics',
+                           choice, '--out', str(tmp_path / 'o')])
+        assert exc.value.code == 2
+        assert f'--choose-electronics {choice}' in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_matching_description_fits_to_the_noise_where_the_paper_form_misses(
         tmp_path: Path) -> None:
@@ -135,10 +158,15 @@ def test_the_data_choose_the_form(tmp_path: Path) -> None:
     # a current-threshold peak end, an open-loop 20 kHz PWM hold (duty 0.3, -0.7 V off)
     # and a freewheel diode: each of these alone, the other parts at the paper's driver,
     # fits worse than the paper's form, and a capacitor's two constants absorb a wrong
-    # valve that the diode cannot; the paper's form misses these records by 50x the noise
+    # valve that the diode cannot; the paper's form misses these records by 50x the noise,
+    # which lets the data choose the form without being asked (the default, auto)
     fit, val = electronics_pair(tmp_path, 'threshold_pwm_freewheel')
-    ident = identify([fit], [val], IdentifySettings(quick=True, diagnose=False,
-                                                    choose_electronics=True))
+    ident = identify([fit], [val], IdentifySettings(quick=True, diagnose=False))
+    trigger = ident.electronics_trigger
+    assert trigger is not None and trigger['went_on'] == 'chosen form'
+    assert trigger['paper_structured_a'] > 10.0 * NOISE_A          # the paper's form misfits
+    assert trigger['chosen_structured_a'] < 1.0 * NOISE_A
+    assert 'the data chose the form' in ident.notes[0]
     fam = ident.family
     assert fam is not None and len(fam.forms) >= 3
     assert all(math.isfinite(f.search_cost) for f in fam.forms)

@@ -27,6 +27,7 @@ result:
 """
 from __future__ import annotations
 
+import logging
 import math
 import os
 import time
@@ -71,6 +72,7 @@ __all__ = ['IdentifySettings', 'Identification', 'identify', 'Stage', 'Convergen
 #: A record: a Measurement, or the path of a file or bag directory to read.
 Record = Union[Measurement, str, os.PathLike]
 Say = Callable[[str], None]
+_LOG = logging.getLogger(__name__)
 
 #: Effort of the baseline search (global stage + multi-start), and of ``quick``.
 BASELINE_EFFORT = SearchSettings(global_samples=256, starts=6, max_iterations=400)
@@ -325,6 +327,7 @@ class Identification:
     family: FamilyChoice | None = None
     electronics_source: str = ''
     route_screen: RouteScreen | None = None
+    electronics_trigger: dict[str, object] | None = None
 
 
 def _lap(say: Say, what: str, t0: float) -> float:
@@ -1575,7 +1578,9 @@ def identify(fit: Sequence[Record], validate: Sequence[Record] = (),
     run = identify_on_route(inputs, route, settings, say)
     misfit = electronics_misfit(run, settings)
     if misfit is not None:
+        t_paper = time.perf_counter() - t_start
         run = choose_after_misfit(inputs, route, settings, run, misfit, say)
+        run.result.timings_s['paper_form_run'] = t_paper
     run.result.timings_s['total'] = time.perf_counter() - t_start
     say('time split: ' + ', '.join(f'{k} {v:.1f} s' for k, v in run.result.timings_s.items()))
     return run.result
@@ -1685,6 +1690,7 @@ def choose_after_misfit(inputs: Inputs, route: Route, settings: IdentifySettings
            f'{1e3 * misfit.structured_a:.3g} mA RMS of structure ({misfit.over_noise:.0f} x '
            f'the noise of {1e3 * misfit.noise_a:.2g} mA, from {misfit.noise_from})')
     say(f'drive electronics: {why}: the data choose the form')
+    _LOG.info('drive electronics: %s: the data choose the form', why)
     t0 = time.perf_counter()
     chosen = identify_on_route(inputs, route, replace(settings, choose_electronics=True),
                                say, first.paper_search)
@@ -1711,6 +1717,14 @@ def choose_after_misfit(inputs: Inputs, route: Route, settings: IdentifySettings
             run.result.family = family
     say('drive electronics: ' + note)
     run.result.notes.insert(0, note)
+    run.result.electronics_trigger = {
+        'statement': note, 'noise_a': misfit.noise_a, 'noise_from': misfit.noise_from,
+        'judged_on': on, 'paper_structured_a': misfit.structured_a,
+        'paper_over_noise': misfit.over_noise,
+        'paper_answer': first.result.diagnosis.effect if first.result.diagnosis else None,
+        'chosen_form': describe_form(family.chosen.electronics) if family else None,
+        'chosen_structured_a': again.structured_a,
+        'went_on': 'chosen form' if run is chosen else 'paper\'s form'}
     run.result.simulations = first.result.simulations + chosen.result.simulations
     run.result.timings_s['electronics_choice_run'] = time.perf_counter() - t0
     return run

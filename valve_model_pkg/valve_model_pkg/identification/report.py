@@ -26,7 +26,9 @@
                     ...} | null,
       "electronics_form": {"form", "constants", "source", "family": {"chosen",
                     "statement", "cannot_tell_from", "screen", "forms"} | null,
-                    "file"} | null,
+                    "trigger": {"statement", "paper_structured_a", "paper_over_noise",
+                    "noise_a", "paper_answer", "chosen_form", "chosen_structured_a",
+                    "went_on", ...} | null, "file"} | null,
       "files": {...}, "timings_s": {...}, "units": {...}
     }
 
@@ -177,7 +179,7 @@ def _electronics_form(ident: Identification) -> dict[str, object] | None:
     return {'form': describe_form(cfg), 'constants': describe_constants(cfg),
             'source': ident.electronics_source,
             'family': ident.family.to_json() if ident.family is not None else None,
-            'file': 'electronics.yaml'}
+            'trigger': ident.electronics_trigger, 'file': 'electronics.yaml'}
 
 
 def _electronics_section(form: dict | None) -> list[str]:
@@ -187,6 +189,8 @@ def _electronics_section(form: dict | None) -> list[str]:
     lines = [f'**Drive electronics: {form["form"]}**; constants {form["constants"]} '
              f'({form["source"]}; in electronics.yaml, for `valve_simulate --electronics`).',
              '']
+    if form.get('trigger'):
+        lines += ['Why the form was chosen: ' + form['trigger']['statement'] + '.', '']
     fam = form.get('family')
     if fam:
         lines += [fam['statement'] + '.', '', '| form | search MAE [mA] | fit RMSE [mA] | '
