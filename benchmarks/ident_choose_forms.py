@@ -5,16 +5,18 @@ Run by hand (not part of ``make test`` or ``make bench``). For each form of the 
 operational record pair as the tests build it (``datagen.cache.electronics_pair``: the
 paper's valve, a 1.5 s fit and a 1.2 s validation record, 1 kHz interval-mean current,
 3 mA noise, no ``coil_voltage_mean``) is identified through the library entry with
-``quick=True, diagnose=False`` and the form chosen by the data (``--choose-electronics``),
-or the paper's form (``--paper``). The table gives the baseline's validation RMSE against
-the noise, the form named, where in the drive cycle the misfit sits (share of the
-validation residual's energy above the noise per phase of
-``residuals.drive_phase_masks``), the wall time and the load.
+``quick=True, diagnose=False`` and the form chosen by the data every time (``--choice
+always``, the default here), only when the paper's form misfits (``--choice auto``, the
+identification's default) or never (``--choice never``, or ``--paper``). The table gives
+the baseline's validation RMSE against the noise, the form named, where in the drive
+cycle the misfit sits (share of the validation residual's energy above the noise per
+phase of ``residuals.drive_phase_masks``), the wall time and the load.
 
 Usage::
 
     python benchmarks/ident_choose_forms.py --out /tmp/choose \\
-        --table benchmarks/results/ident_choose_forms.md [--form F ...] [--paper]
+        --table benchmarks/results/ident_choose_forms.md [--form F ...]
+        [--choice always|auto|never | --paper]
 """
 from __future__ import annotations
 
@@ -62,14 +64,28 @@ def misfit_shares(ident) -> dict[str, float]:
     return {k: (v / total if total > 0 else 0.0) for k, v in excess.items()}
 
 
-def run_form(base: Path, form: str, choose: bool) -> dict[str, object]:
+#: ``--choice`` and :attr:`IdentifySettings.choose_electronics`.
+CHOICES = {'always': True, 'auto': None, 'never': False}
+
+
+def _electronics(ident, choice: str) -> str:
+    """How the form was settled, in a word or two."""
+    if choice != 'auto':
+        return 'chosen' if choice == 'always' else 'paper'
+    trig = ident.electronics_trigger
+    if trig is None:
+        return 'auto: paper (no misfit)'
+    return f'auto: {trig["went_on"]} (paper {trig["paper_over_noise"]:.0f}x noise)'
+
+
+def run_form(base: Path, form: str, choice: str) -> dict[str, object]:
     fit, val = electronics_pair(base, form)
     start = time.perf_counter()
     ident = identify([fit], [val], IdentifySettings(quick=True, diagnose=False,
-                                                    choose_electronics=choose))
+                                                    choose_electronics=CHOICES[choice]))
     secs = time.perf_counter() - start
     cfg = ident.drive.electronics
-    return {'form': form, 'electronics': 'chosen' if choose else 'paper',
+    return {'form': form, 'electronics': _electronics(ident, choice),
             'named': describe_form(cfg), 'constants': describe_constants(cfg),
             'rmse_a': ident.baseline.validation.rmse, 'time_s': secs,
             'load': os.getloadavg()[0], 'shares': misfit_shares(ident)}
@@ -88,7 +104,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--out', required=True, help='work directory (records, json)')
     parser.add_argument('--table', required=True, help='Markdown table to write')
     parser.add_argument('--form', action='append', choices=sorted(FORMS))
-    parser.add_argument('--paper', action='store_true', help='the paper\'s form instead')
+    parser.add_argument('--choice', choices=tuple(CHOICES), default='always',
+                        help='when the data choose the form (default always)')
+    parser.add_argument('--paper', action='store_true', help='the paper\'s form (--choice '
+                        'never)')
     args = parser.parse_args(argv)
     work = Path(args.out)
     work.mkdir(parents=True, exist_ok=True)
@@ -96,7 +115,8 @@ def main(argv: list[str] | None = None) -> int:
             *provenance_lines(), '',
             'Records of test_identification_electronics.py (the paper\'s valve, no effect, '
             '1.5 s fit and 1.2 s validation record, 1 kHz interval means, 3 mA noise, no '
-            '`coil_voltage_mean`); `identify(quick=True, diagnose=False)`. RMSE: the '
+            '`coil_voltage_mean`); `identify(quick=True, diagnose=False, '
+            f'choose_electronics={CHOICES["never" if args.paper else args.choice]})`. RMSE: the '
             'baseline\'s on the validation record. Misfit: share of the validation '
             'residual\'s energy above the noise per drive phase (phases of '
             f'{", ".join(DRIVE_PHASES)}; shares below 5 % left out). Load: 1-min load '
@@ -107,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[str] = []
     results = []
     for form in args.form or list(FORM_ORDER):
-        r = run_form(work / 'records', form, not args.paper)
+        r = run_form(work / 'records', form, 'never' if args.paper else args.choice)
         results.append(r)
         rows.append(row(r))
         Path(args.table).write_text('\n'.join(head + rows) + '\n', encoding='utf-8')
