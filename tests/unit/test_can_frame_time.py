@@ -96,3 +96,26 @@ def test_the_driver_stamps_a_state_with_its_frames_time() -> None:
     handled = time.time()
     assert [s.t_s for s in states[:2]] == [on_bus, on_bus + 1e-3]
     assert on_bus + 0.05 <= states[2].t_s <= handled
+
+
+def test_on_the_simulation_clock_frames_carry_and_states_keep_the_model_instant() -> None:
+    # the emulator on the simulation clock stamps each frame with its model instant ...
+    bus = _StallingBus(stall_after=10 ** 9, stall_s=0.0)
+    emu = ControllerEmulator(bus, ValveStepper(PARAMS, ElectronicsConfig()), EmulatorConfig())
+    emu.model_time_stamps = True
+    for k in range(1, 21):
+        emu.step(k * 1e-3, 0)
+    telemetry_id = ValveCodec(0).frame_id(TELEMETRY)
+    stamps = [m.timestamp for m in bus.sent if m.arbitration_id == telemetry_id]
+    assert stamps == pytest.approx([k * 1e-3 for k in range(21)], abs=1e-12)
+    # ... and the driver on that clock keeps it; a wall-clock stamp is another clock's
+    states: list[ValveSample] = []
+    core = CanDriverCore(DriverConfig(interface='virtual', channel='frame_time_sim'),
+                         on_state=states.append)
+    sim_now = 2.0105                        # the node's clock: /clock came a little late
+    core.tracker.frame_clock = lambda: sim_now
+    core.activate()
+    codec = ValveCodec(0)
+    core.handle_frame(_telemetry(codec, 0, 2.011))
+    core.handle_frame(_telemetry(codec, 1, time.time()))
+    assert [s.t_s for s in states] == [2.011, sim_now]

@@ -119,6 +119,9 @@ class ReceiveTracker:
         self._mass_flow = mass_flow
         self._on_sample = on_sample
         self._on_change = on_change
+        #: The clock a frame's timestamp is checked against and that stamps a frame
+        #: without one [s]: the wall clock, or the node's (simulation) clock.
+        self.frame_clock: Callable[[], float] = time.time
         self._telemetry_counter = CounterTracker()
         self._status_counter = CounterTracker()
         self._period_counter = CounterTracker()
@@ -307,7 +310,7 @@ class ReceiveTracker:
     def _on_telemetry(self, signals: dict, counter: int, timestamp_s: float) -> None:
         """One ValveTelemetry frame: accounted, and handed on as a sample stamped with the
         frame's time (:func:`~valve_driver_pkg.canbus.frame_time.frame_time_s`)."""
-        wall = time.time()
+        wall = self.frame_clock()
         with self._lock:
             state, changed = self._track_telemetry(signals, counter)
             current_mean, voltage_mean = self._take_mean(counter)

@@ -51,6 +51,7 @@ What the firmware does (see the package README for the frame table):
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -84,6 +85,19 @@ class CommandInForce:
     enabled: bool
     duty: float
     pwm_frequency_hz: float
+
+
+def _wall_minus_monotonic() -> float:
+    """``time.time() - time.monotonic()`` [s], read as the tightest of three pairs: a
+    preemption between the two reads would shift every frame's stamp by its length."""
+    best_gap, best = math.inf, 0.0
+    for _ in range(3):
+        m0 = time.monotonic()
+        wall = time.time()
+        m1 = time.monotonic()
+        if m1 - m0 < best_gap:
+            best_gap, best = m1 - m0, wall - 0.5 * (m0 + m1)
+    return best
 
 
 class ControllerEmulator(FaultHandling):
@@ -124,6 +138,9 @@ class ControllerEmulator(FaultHandling):
         self._model_t = 0.0
         # wall clock [s since the epoch] minus model time while run() keeps them together
         self._wall_minus_model: float | None = None
+        #: Stamp frames with the model time itself [s] (the simulation clock's: the
+        #: emulator on the simulation clock, whose model time is that clock).
+        self.model_time_stamps = False
         self._next_telemetry_k = 0
         self._next_status_t = 0.0
         self._telemetry_counter = 0
@@ -393,7 +410,10 @@ class ControllerEmulator(FaultHandling):
     def _stamp(self) -> float:
         """The timestamp of a frame sent now: the wall time of the model instant its values
         belong to while running in real time (as a controller's clock would stamp it; the
-        emulator's own stalls must not bunch them), else the wall clock."""
+        emulator's own stalls must not bunch them), the model instant itself with
+        :attr:`model_time_stamps` (on the simulation clock), else the wall clock."""
+        if self.model_time_stamps:
+            return self._model_t
         if self._wall_minus_model is None:
             return time.time()
         return self._model_t + self._wall_minus_model
@@ -549,7 +569,7 @@ class ControllerEmulator(FaultHandling):
         stop = stop or self._stop
         t0 = clock() - self._model_t
         if clock is time.monotonic:   # another clock (a test's) has no wall time to anchor
-            self._wall_minus_model = t0 + time.time() - time.monotonic()
+            self._wall_minus_model = t0 + _wall_minus_monotonic()
         period = self._telemetry_period_s
         while not stop.is_set():
             now = clock() - t0

@@ -10,8 +10,9 @@ of the wall clock:
    frame due up to t, exactly as in real time: telemetry and its mean, period, status)
    and so sends one ``ValveTelemetry`` per valve step.
 3. The CAN driver (``use_sim_time``) publishes it as ``valve/state``, stamped with the
-   simulation clock; the simulation integrates the cylinder over the step with that
-   opening, and at a control tick T publishes the pressure and joint state and waits for
+   frame's timestamp, which here is the model instant (simulation time) of its values;
+   the simulation integrates the cylinder over the step with that opening, and at a
+   control tick T publishes the pressure and joint state and waits for
    ``valve/duty_command`` stamped T, as with its own valve.
 4. Before the model advances past a control tick T, the bridge waits until the command
    the emulator received over CAN is the duty command stamped T (the bridge sees that
@@ -195,6 +196,9 @@ def run_on_simulation_clock(emulator, stop: threading.Event, *, step_s: float = 
     from valve_model_pkg.interface.ros import CLOCK_QOS, COMMAND_QOS, PRESSURE_QOS
 
     step_ns = int(round(step_s * 1e9))
+    # the model time is the simulation clock: frames carry it, so the driver on that
+    # clock stamps each state with its model instant, not with when it arrived
+    emulator.model_time_stamps = True
     gate = LockstepGateState(int(round(control_period_s * 1e9)), timeout_s)
     lock = threading.RLock()
     model_ns = [0]

@@ -41,7 +41,8 @@ trip it.
 Each ``valve/state`` is stamped with the time its telemetry frame was on the bus (the
 frame's timestamp when it is the wall clock's: the interface's receive time, or the
 sender's on ``tcp_loopback``), not with the moment the node got to it; with
-``use_sim_time`` with the node's clock.
+``use_sim_time`` the frame's timestamp when it is the simulation clock's (the emulator on
+the simulation clock stamps each frame with its model instant), else the node's clock.
 
 Lifecycle: configure opens the bus and starts receiving; activate starts sending commands
 (duty 0 until a command arrives); deactivate commands duty 0 with the output disabled and
@@ -149,7 +150,6 @@ class CanDriverNode(Node):
         self._subs: list = []
         self._timers: list = []
         self._sequence = 0
-        self._stamp_on_frame_time = True
         #: On simulation time the driver is in the lockstep chain: its work is the bus's
         #: frames and message callbacks (nodes/common.make_executor).
         self.message_driven = bool(self.get_parameter('use_sim_time').value)
@@ -208,9 +208,9 @@ class CanDriverNode(Node):
             self._state_pub = self.create_lifecycle_publisher(ValveState, TOPIC_STATE,
                                                               STATE_DURABLE_QOS)
             self._core = core
-            self._stamp_on_frame_time = not self.get_parameter('use_sim_time').value
-            if not self._stamp_on_frame_time:
+            if self.get_parameter('use_sim_time').value:
                 core.host_command.watchdog_clock = self._ros_time_s
+                core.tracker.frame_clock = self._ros_time_s
             core.open()
         except (ValveDriverError, OSError, ValueError, ImportError) as err:
             self.get_logger().error(f'configure failed: {err}')
@@ -390,10 +390,10 @@ class CanDriverNode(Node):
         pub = self._state_pub
         if pub is None:
             return
-        # On the wall clock a state is stamped when its frame was on the bus (the sample's
-        # time): the receive thread's lateness, which bunches frames under load, stays out
-        # of the time axis. On simulation time the node's clock is the time axis.
-        if self._stamp_on_frame_time and math.isfinite(sample.t_s) and sample.t_s > 0.0:
+        # A state is stamped when its frame was on the bus (the sample's time, on the node's
+        # clock): the receive thread's lateness, which bunches frames under load, stays out
+        # of the time axis.
+        if math.isfinite(sample.t_s) and sample.t_s > 0.0:
             stamp = Time(nanoseconds=int(round(sample.t_s * 1e9))).to_msg()
         else:
             stamp = self.get_clock().now().to_msg()

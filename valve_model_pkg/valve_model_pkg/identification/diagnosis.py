@@ -1029,6 +1029,42 @@ def structured_misfit(data: FitData, params: ValveParameters,
     return StructuredMisfit(structured, sigma, source, res)
 
 
+#: Through a drive electronics' form the data chose, an effect is claimed only where the
+#: baseline's structured residual on the judged data is at least this many times the
+#: noise: forms that 1 kHz interval means cannot tell apart (a PI chopper and a hysteresis
+#: band, slow decay through 0 V or a diode) leave up to about the noise's size of structure
+#: of their own, which an effect would absorb (:func:`withdraw_below_form_error`).
+CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE = 1.0
+
+
+def withdraw_below_form_error(diag: Diagnosis, baseline: ValveParameters) -> bool:
+    """Withdraw the claimed effect of a record fitted through a form the data chose when
+    the structure it explains is below :data:`CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE` times
+    the noise; the answer becomes ``none`` (low) and the first evidence says why. True
+    when withdrawn."""
+    data = diag.judge
+    if diag.effect == 'none' or data is None:
+        return False
+    size = structured_misfit(data, baseline, (diag.base_mae or {}).get('noise') or [0.0])
+    if size.over_noise >= CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE:
+        return False
+    text = (f'{diag.effect} would explain structure of {1e3 * size.structured_a:.2g} mA RMS '
+            f'in the baseline residual, {size.over_noise:.2g} x the noise of '
+            f'{1e3 * size.noise_a:.2g} mA (from {size.noise_from}), below the '
+            f'{CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE:g} x that an effect needs through a drive '
+            'electronics\' form the data chose: forms these data cannot tell apart leave '
+            'that much of their own; not claimed (answer none)')
+    diag.numbers['withdrawn_effect'] = diag.effect
+    for c in diag.candidates:
+        if c.kept:
+            c.kept, c.reason = False, 'withdrawn: structure below the chosen form\'s own'
+    diag.effect, diag.confidence = 'none', 'low'
+    diag.kept_effects, diag.indistinguishable = [], []
+    diag.params = baseline
+    diag.evidence.insert(0, text)
+    return True
+
+
 def describe_misfit(diag: Diagnosis, baseline: ValveParameters) -> None:
     """State a baseline misfit that no candidate explains, when it is well above the noise.
 

@@ -47,7 +47,7 @@ from .criteria import (DBIC_THRESHOLD, delta_bic, effective_counts, noise_per_fi
 from .diagnosis import (
     SCREEN_DBIC, CandidateResult, Diagnosis, RefitResult, StructuredMisfit, describe_misfit,
     describe_remaining, refit_effect, score_signatures, second_effect, select, slow_effect,
-    structured_misfit,
+    structured_misfit, withdraw_below_form_error,
 )
 from .drive import DriveReport, fit_drive
 from .electronics_family import FamilyChoice, describe_form, select_family
@@ -1468,10 +1468,13 @@ def _refit_all(prep: Prepared, analysis: BaselineAnalysis, baseline: BaselineFit
 
 
 def diagnose(prep: Prepared, baseline: BaselineFit, analysis: BaselineAnalysis,
-             settings: IdentifySettings, timings: dict[str, float], say: Say
-             ) -> DiagnosisOutcome:
+             settings: IdentifySettings, timings: dict[str, float], say: Say,
+             chosen_form: bool = False) -> DiagnosisOutcome:
     """Close the loop: signatures, refits, selection, a second effect, the augmented model,
-    and for structure no listed effect explains an open-ended sparse term."""
+    and for structure no listed effect explains an open-ended sparse term.
+    ``chosen_form``: the records run through a drive electronics' form the data chose (an
+    effect then needs structure of the noise's size:
+    :func:`.diagnosis.withdraw_below_form_error`)."""
     t_diag = t0 = time.perf_counter()
     candidates = rank_candidates(prep, analysis, settings, say)
     timings['signatures'] = _lap(say, 'signatures', t0)
@@ -1483,6 +1486,8 @@ def diagnose(prep: Prepared, baseline: BaselineFit, analysis: BaselineAnalysis,
     timings['selection'] = _lap(say, 'selection', t0)
     diag.evidence += [f'{c.effect}: {w}' for c in candidates
                       if c.effect == diag.effect for w in c.bound_widened]
+    if chosen_form and withdraw_below_form_error(diag, baseline.params):
+        say(diag.evidence[0])
     if diag.effect != 'none':
         t0 = time.perf_counter()
         second_effect(diag, prep.space, prep.fit, prep.validation,
@@ -1626,7 +1631,9 @@ def identify_on_route(inputs: Inputs, route: Route, settings: IdentifySettings, 
     timings['baseline_analysis'] = _lap(say, 'baseline analysis', t0)
     outcome = None
     if settings.diagnose:
-        outcome = diagnose(prep, baseline, analysis, settings, timings, say)
+        family = start.elec.family if start.elec else None
+        outcome = diagnose(prep, baseline, analysis, settings, timings, say,
+                           chosen_form=family is not None and not family.chosen.prior)
     augmented = outcome.augmented if outcome else analysis.evaluated
     drive = analysis.drive
     if route.name == ROUTE_MEAN_VOLTAGE:
