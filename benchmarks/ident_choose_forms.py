@@ -75,7 +75,8 @@ def _electronics(ident, choice: str) -> str:
     trig = ident.electronics_trigger
     if trig is None:
         return 'auto: paper (no misfit)'
-    return f'auto: {trig["went_on"]} (paper {trig["paper_over_noise"]:.0f}x noise)'
+    run = 'the choice\'s run' if trig['went_on'] == 'choice' else 'the paper\'s run'
+    return f'auto: {run} (paper\'s form {trig["paper_over_noise"]:.0f}x noise)'
 
 
 def run_form(base: Path, form: str, choice: str) -> dict[str, object]:

@@ -163,7 +163,7 @@ def test_the_data_choose_the_form(tmp_path: Path) -> None:
     fit, val = electronics_pair(tmp_path, 'threshold_pwm_freewheel')
     ident = identify([fit], [val], IdentifySettings(quick=True, diagnose=False))
     trigger = ident.electronics_trigger
-    assert trigger is not None and trigger['went_on'] == 'chosen form'
+    assert trigger is not None and trigger['went_on'] == 'choice'
     assert trigger['paper_structured_a'] > 10.0 * NOISE_A          # the paper's form misfits
     assert trigger['chosen_structured_a'] < 1.0 * NOISE_A
     assert 'the data chose the form' in ident.notes[0]

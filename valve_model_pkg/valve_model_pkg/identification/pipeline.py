@@ -1704,21 +1704,23 @@ def choose_after_misfit(inputs: Inputs, route: Route, settings: IdentifySettings
     again = _judged_misfit(chosen)
     family = chosen.result.family
     kept_prior = family is not None and family.chosen.prior
-    if not kept_prior and family is not None and again.structured_a < misfit.structured_a:
-        note = (f'{why}; the data chose the form (--choose-electronics auto), through which '
-                f'it misses them by {1e3 * again.structured_a:.3g} mA RMS of structure')
+    form = ('they kept the paper\'s driver\'s form' if kept_prior or family is None else
+            f'they chose {describe_form(family.chosen.electronics)}')
+    if again.structured_a < misfit.structured_a:
+        # the choice's searches (through each release, and the paper's form again from
+        # the valve they found) can reach a better valve even when the form stays
+        note = (f'{why}; the data were let choose the form (--choose-electronics auto): '
+                f'{form}, and through it the model misses them by '
+                f'{1e3 * again.structured_a:.3g} mA RMS of structure: that run goes on')
         if first.result.diagnosis is not None:
-            note += (f'; through the paper\'s driver\'s form the answer was '
+            note += (f'; through the paper\'s driver\'s form at first the answer was '
                      f'{first.result.diagnosis.effect}')
         run = chosen
     else:
-        if kept_prior:
-            what = 'they kept the paper\'s driver\'s form'
-        else:
-            what = (f'the form they chose misses them by {1e3 * again.structured_a:.3g} mA '
-                    'RMS of structure, no less')
         note = (f'{why}; the data were let choose the form (--choose-electronics auto): '
-                f'{what}; the run through the paper\'s driver\'s form is kept')
+                f'{form}, through which the model misses them by '
+                f'{1e3 * again.structured_a:.3g} mA RMS of structure, no less; the run '
+                'through the paper\'s driver\'s form is kept')
         run = first
         if kept_prior:
             run.result.family = family
@@ -1731,7 +1733,7 @@ def choose_after_misfit(inputs: Inputs, route: Route, settings: IdentifySettings
         'paper_answer': first.result.diagnosis.effect if first.result.diagnosis else None,
         'chosen_form': describe_form(family.chosen.electronics) if family else None,
         'chosen_structured_a': again.structured_a,
-        'went_on': 'chosen form' if run is chosen else 'paper\'s form'}
+        'went_on': 'choice' if run is chosen else 'first'}
     run.result.simulations = first.result.simulations + chosen.result.simulations
     run.result.timings_s['electronics_choice_run'] = time.perf_counter() - t0
     return run

@@ -28,7 +28,7 @@
                     "statement", "cannot_tell_from", "screen", "forms"} | null,
                     "trigger": {"statement", "paper_structured_a", "paper_over_noise",
                     "noise_a", "paper_answer", "chosen_form", "chosen_structured_a",
-                    "went_on", ...} | null, "file"} | null,
+                    "went_on": "choice"|"first", ...} | null, "file"} | null,
       "files": {...}, "timings_s": {...}, "units": {...}
     }
 
