@@ -14,7 +14,13 @@ import pytest
 
 from datagen.cache import operation_dataset
 from valve_model_pkg.cli.identify import main as identify_main
+from valve_model_pkg.identification.diagnosis import (
+    CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE, Diagnosis, structured_misfit,
+    withdraw_below_form_error,
+)
+from valve_model_pkg.identification.problem import FitData
 from valve_model_pkg.identification.readers import read_measurements
+from valve_model_pkg.model.parameters import load_parameters
 from valve_model_pkg.identification.residuals import DRIVE_PHASES, drive_phase_masks
 
 #: The generator's noise on the interval-mean current [A].
@@ -79,3 +85,33 @@ def test_electronics_the_model_lacks_are_stated_a_misfit_not_none(
     assert lines[1].startswith('**Diagnosis: the model (valve or electronics) does not '
                                'describe this record**')
     assert '**Diagnosis: `none`**' not in '\n'.join(lines)
+
+
+@pytest.mark.parametrize('resistance_factor, withdrawn', [(1.0, True), (1.3, False)])
+def test_a_claim_through_a_chosen_form_needs_structure_twice_the_noise(
+        tmp_path: Path, resistance_factor: float, withdrawn: bool) -> None:
+    # a record's drive, its current replaced by the model's own through the electronics
+    # plus 3 mA of white noise: the model's parameters leave the noise alone, a coil
+    # resistance 30 % off leaves structure far above it
+    truth = operation_dataset(tmp_path, seed=2, noise_a=3e-3, duration_s=0.6)
+    data = FitData(read_measurements([truth['file']]))
+    model = load_parameters()
+    rng = np.random.default_rng(5)
+    for m, r in zip(data.measurements, data.residuals(model)):
+        m.current_a[:] = np.where(np.isfinite(r), m.current_a - r, m.current_a) \
+            + rng.normal(0.0, 3e-3, m.current_a.size)
+    data = FitData(data.measurements)
+    baseline = model.replace(coil_resistance_ohm=resistance_factor * model.coil_resistance_ohm)
+    diag = Diagnosis(effect='eddy_current', confidence='medium', candidates=[],
+                     evidence=['eddy_current lowers the validation error'], numbers={},
+                     params=baseline.replace(eddy_ladder_inductance_ratio=0.1),
+                     unexplained_structure=False, judge=data)
+    size = structured_misfit(data, baseline, [0.0])
+    assert (size.over_noise < CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE) is withdrawn
+    assert withdraw_below_form_error(diag, baseline) is withdrawn
+    if withdrawn:
+        assert (diag.effect, diag.confidence) == ('none', 'low')
+        assert diag.params == baseline and diag.numbers['withdrawn_effect'] == 'eddy_current'
+        assert 'not claimed' in diag.evidence[0]
+    else:
+        assert diag.effect == 'eddy_current' and len(diag.evidence) == 1
