@@ -522,6 +522,9 @@ def select_family(search: FitData, fit: FitData, val: FitData | None, space: Par
     first = min(valves, key=lambda v: v.start_cost)
     centre = FormFit(first.base, first.params, first.cost)
     parts = screen_parts(search, centre, workers)
+    peak = parts['peak_end'][0][0]
+    if not all(getattr(base, k) == v for k, v in peak.items()):
+        valves = valve_under(search, space, starts, base.replace(**peak), workers)
     screened = screen_forms(search, valves, workers)
     forms = fit_forms(search, space, centre, parts, screened, base, workers, grid)
     chosen, same, text = choose_form(forms, fit, val, workers)
