@@ -21,10 +21,20 @@ and the data choose one, as they choose an effect:
    (:data:`SCREEN_EFFORT`). The parts interact (a current-threshold peak end and an
    open-loop PWM hold pay off only together, and with the freewheel diode: each alone
    around the prior form fits worse than the prior form), which (a) cannot see; (a)'s
-   longer search finds a hysteresis hold's narrow valley, which (b)'s misses.
+   longer search finds a hysteresis hold's narrow valley, which (b)'s misses. When (a)
+   ranks a peak end other than the prior form's first, (b) runs at the valves searched
+   again under that peak end (:func:`valve_under`): the peak end decides when the full
+   supply stops, so it shapes the stroke as much as the release does, and a valve
+   searched under a wrong one can lie so far from the record's that no form fits there
+   (a current-threshold peak end, an open-loop PWM hold and a freewheel diode: 32 mA
+   search-window error at the valve searched under the prior's dip peak end, 11 mA at
+   the valve searched under a current threshold).
 3. **Complete forms** (:func:`fit_forms`): the :data:`KEEP_PER_PART` best options of each
-   part of (a) combined, the :data:`KEPT_FORMS` best forms of (b) and the prior form
-   (the paper's driver), each form's constants searched with the valve held; the
+   part of (a) combined, the :data:`KEPT_FORMS` best forms of (b), the prior form
+   (the paper's driver) and the form in force at the valve's start values (chosen again
+   at a baseline search's optimum: the form that optimum was found through, at that
+   valve; the valves of step 1 move away from it under the prior form's parts), each
+   form's constants searched with the valve held; the
    :data:`FINALISTS` best, the best form with each kept option, and the prior form
    always, then search the valve locally and their constants again.
 4. **Choice** (:func:`choose_form`), as an effect is selected against the baseline: the
@@ -373,10 +383,11 @@ def _same_form(a: ElectronicsConfig, b: ElectronicsConfig) -> bool:
 def fit_forms(data: FitData, space: ParameterSpace, centre: FormFit,
               parts: dict[str, list[tuple[dict[str, str], float]]],
               screened: list[FormFit], prior: ElectronicsConfig, workers: int,
-              grid: bool = True) -> list[FormFit]:
+              grid: bool = True, incumbent: FormFit | None = None) -> list[FormFit]:
     """The complete forms of the :data:`KEEP_PER_PART` best options of each part around
     ``centre`` (at its valve) and the ``prior`` form there, and the :data:`KEPT_FORMS` best
-    forms of the screen of every peak end x hold (at their release's valve), their
+    forms of the screen of every peak end x hold (at their release's valve) and the
+    ``incumbent`` (the form in force at the valve the choice starts from), their
     constants searched further (a form found both ways: the lower cost); the
     :data:`FINALISTS` best, the best form with each kept option (so that two releases,
     say, are compared with the valve refitted through each) and the ``prior`` form
@@ -392,6 +403,8 @@ def fit_forms(data: FitData, space: ParameterSpace, centre: FormFit,
         forms.append(centre.electronics.replace(**{k: getattr(prior, k) for k in (
             'peak_end', 'hold', 'hold_decay', 'release')}))
     todo = [FormFit(c, centre.params, math.inf) for c in forms] + screened[:KEPT_FORMS]
+    if incumbent is not None:
+        todo.append(incumbent)
     fits: list[FormFit] = []
     for f in sorted(_pool_map(lambda f: _constants_only(data, f, grid), todo, workers),
                     key=lambda f: f.search_cost):
@@ -492,6 +505,13 @@ def choose_form(forms: list[FormFit], fit: FitData, val: FitData | None, workers
     return chosen, [f.name for f in same], text
 
 
+def _incumbent(search: FitData, params: ValveParameters) -> FormFit:
+    """The form in force on ``search`` (the one the valve ``params`` was searched
+    through) at that valve, with its search-window cost."""
+    cost = _view(search, search.electronics).cost(params.to_vector()[None, :])[0]
+    return FormFit(search.electronics, params, float(cost))
+
+
 def select_family(search: FitData, fit: FitData, val: FitData | None, space: ParameterSpace,
                   starts: list[ValveParameters], workers: int,
                   base: ElectronicsConfig = ElectronicsConfig(), grid: bool = True
@@ -526,7 +546,8 @@ def select_family(search: FitData, fit: FitData, val: FitData | None, space: Par
     if not all(getattr(base, k) == v for k, v in peak.items()):
         valves = valve_under(search, space, starts, base.replace(**peak), workers)
     screened = screen_forms(search, valves, workers)
-    forms = fit_forms(search, space, centre, parts, screened, base, workers, grid)
+    forms = fit_forms(search, space, centre, parts, screened, base, workers, grid,
+                      _incumbent(search, starts[0]))
     chosen, same, text = choose_form(forms, fit, val, workers)
     words = screen_words(screened)
     return FamilyChoice(chosen, words, forms, same, text)
