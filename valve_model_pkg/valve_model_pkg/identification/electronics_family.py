@@ -8,8 +8,9 @@ and the data choose one, as they choose an effect:
    (a freewheel diode against a capacitor pulse: 100 mA and more), and a flexible release
    (a capacitor's voltage and decay time) absorbs a wrong valve that a release without
    constants (a freewheel diode) cannot: so each release option's constants are searched
-   at the valve's start values and the valve is searched locally under the prior form
-   with that release.
+   at the valve's start values (:func:`release_start`), and the valve is searched
+   locally under the prior form with that release (the release that fits best there
+   first, the others after the screen of the parts, under its best peak end).
 2. **Screens.** (a) :func:`screen_parts`: each part's options (peak end: dip, dip and
    rise, current threshold, timer; hold: PI chopper with slow or fast decay, hysteresis
    band with 0 V, diode or fast decay, open-loop PWM; release: capacitor charged while
@@ -70,14 +71,14 @@ from ..model.parameters import ValveParameters
 from .criteria import DBIC_THRESHOLD, MIN_VALIDATION_GAIN, delta_bic, effective_counts
 from .criteria import resolution_floors
 from .drive import AT_BOUND_FRACTION, DRIVE_BOUNDS, form_choices, form_constants
-from .drive import search_constants
+from .drive import DriveFit, search_constants
 from .problem import ParameterBound
 from .problem import FitData, ParameterSpace, unit_objective
 from .search import SearchSettings, direct_search
 
 __all__ = ['PEAK_OPTIONS', 'HOLD_OPTIONS', 'RELEASE_OPTIONS', 'FamilyChoice', 'FormFit',
-           'describe_form', 'select_family', 'valve_under', 'screen_forms', 'screen_parts',
-           'fit_forms', 'choose_form']
+           'describe_form', 'select_family', 'release_start', 'valve_under', 'screen_forms',
+           'screen_parts', 'fit_forms', 'choose_form']
 
 #: Options of each part, as the fields of ElectronicsConfig they set.
 PEAK_OPTIONS: tuple[dict[str, str], ...] = tuple(
@@ -291,17 +292,39 @@ class ValveStart:
     cost: float
 
 
-def valve_under(data: FitData, space: ParameterSpace, starts: list[ValveParameters],
-                base: ElectronicsConfig, workers: int) -> list[ValveStart]:
-    """Per release option, its constants at the valve's start values, then the valve
-    searched locally under ``base`` with that release (module notes, step 1); in the
-    order of :data:`RELEASE_OPTIONS`."""
-    def one(opt: dict[str, str]) -> ValveStart:
+def release_start(data: FitData, start: ValveParameters, base: ElectronicsConfig,
+                  workers: int) -> list[DriveFit]:
+    """Per release option, ``base`` with that release and its constants searched at the
+    valve ``start`` (:data:`RELEASE_EFFORT`), with their cost [A]; in the order of
+    :data:`RELEASE_OPTIONS`."""
+    def one(opt: dict[str, str]) -> DriveFit:
         cfg = base.replace(**opt)
-        drive = search_constants(_view(data, cfg), starts[0], cfg, RELEASE_EFFORT)
-        params, cost = _valve_search(data, space, starts, drive.electronics)
-        return ValveStart(params, drive.electronics, float(drive.cost), cost)
+        return search_constants(_view(data, cfg), start, cfg, RELEASE_EFFORT)
     return _pool_map(one, list(RELEASE_OPTIONS), workers)
+
+
+def _valve_for(data: FitData, space: ParameterSpace, starts: list[ValveParameters],
+               drive: DriveFit) -> ValveStart:
+    params, cost = _valve_search(data, space, starts, drive.electronics)
+    return ValveStart(params, drive.electronics, float(drive.cost), cost)
+
+
+def valve_under(data: FitData, space: ParameterSpace, starts: list[ValveParameters],
+                base: ElectronicsConfig, workers: int,
+                drives: list[DriveFit] | None = None,
+                known: ValveStart | None = None) -> list[ValveStart]:
+    """Per release option, its constants at the valve's start values (``drives``, else
+    :func:`release_start`), then the valve searched locally under that form (module
+    notes, step 1; ``known``: one of them already searched); in the order of
+    :data:`RELEASE_OPTIONS`."""
+    if drives is None:
+        drives = release_start(data, starts[0], base, workers)
+
+    def one(drive: DriveFit) -> ValveStart:
+        if known is not None and drive.electronics == known.base:
+            return known
+        return _valve_for(data, space, starts, drive)
+    return _pool_map(one, drives, workers)
 
 
 def screen_forms(data: FitData, starts: list[ValveStart], workers: int) -> list[FormFit]:
@@ -538,12 +561,14 @@ def select_family(search: FitData, fit: FitData, val: FitData | None, space: Par
         search in the complete forms (:func:`.drive.hysteresis_grid`; worth it at a valve
         near the record's, where the ripple's phase is what is left).
     """
-    valves = valve_under(search, space, starts, base, workers)
-    first = min(valves, key=lambda v: v.start_cost)
+    drives = release_start(search, starts[0], base, workers)
+    first = _valve_for(search, space, starts, min(drives, key=lambda d: d.cost))
     centre = FormFit(first.base, first.params, first.cost)
     parts = screen_parts(search, centre, workers)
     peak = parts['peak_end'][0][0]
-    if not all(getattr(base, k) == v for k, v in peak.items()):
+    if all(getattr(base, k) == v for k, v in peak.items()):
+        valves = valve_under(search, space, starts, base, workers, drives, first)
+    else:
         valves = valve_under(search, space, starts, base.replace(**peak), workers)
     screened = screen_forms(search, valves, workers)
     forms = fit_forms(search, space, centre, parts, screened, base, workers, grid,
