@@ -8,8 +8,9 @@ and the data choose one, as they choose an effect:
    (a freewheel diode against a capacitor pulse: 100 mA and more), and a flexible release
    (a capacitor's voltage and decay time) absorbs a wrong valve that a release without
    constants (a freewheel diode) cannot: so each release option's constants are searched
-   at the valve's start values and the valve is searched locally under the prior form
-   with that release.
+   at the valve's start values (:func:`release_start`), and the valve is searched
+   locally under the prior form with that release (the release that fits best there
+   first, the others after the screen of the parts, under its best peak end).
 2. **Screens.** (a) :func:`screen_parts`: each part's options (peak end: dip, dip and
    rise, current threshold, timer; hold: PI chopper with slow or fast decay, hysteresis
    band with 0 V, diode or fast decay, open-loop PWM; release: capacitor charged while
@@ -21,10 +22,20 @@ and the data choose one, as they choose an effect:
    (:data:`SCREEN_EFFORT`). The parts interact (a current-threshold peak end and an
    open-loop PWM hold pay off only together, and with the freewheel diode: each alone
    around the prior form fits worse than the prior form), which (a) cannot see; (a)'s
-   longer search finds a hysteresis hold's narrow valley, which (b)'s misses.
+   longer search finds a hysteresis hold's narrow valley, which (b)'s misses. When (a)
+   ranks a peak end other than the prior form's first, (b) runs at the valves searched
+   again under that peak end (:func:`valve_under`): the peak end decides when the full
+   supply stops, so it shapes the stroke as much as the release does, and a valve
+   searched under a wrong one can lie so far from the record's that no form fits there
+   (a current-threshold peak end, an open-loop PWM hold and a freewheel diode: 32 mA
+   search-window error at the valve searched under the prior's dip peak end, 11 mA at
+   the valve searched under a current threshold).
 3. **Complete forms** (:func:`fit_forms`): the :data:`KEEP_PER_PART` best options of each
-   part of (a) combined, the :data:`KEPT_FORMS` best forms of (b) and the prior form
-   (the paper's driver), each form's constants searched with the valve held; the
+   part of (a) combined, the :data:`KEPT_FORMS` best forms of (b), the prior form
+   (the paper's driver) and the form in force at the valve's start values (chosen again
+   at a baseline search's optimum: the form that optimum was found through, at that
+   valve; the valves of step 1 move away from it under the prior form's parts), each
+   form's constants searched with the valve held; the
    :data:`FINALISTS` best, the best form with each kept option, and the prior form
    always, then search the valve locally and their constants again.
 4. **Choice** (:func:`choose_form`), as an effect is selected against the baseline: the
@@ -60,14 +71,14 @@ from ..model.parameters import ValveParameters
 from .criteria import DBIC_THRESHOLD, MIN_VALIDATION_GAIN, delta_bic, effective_counts
 from .criteria import resolution_floors
 from .drive import AT_BOUND_FRACTION, DRIVE_BOUNDS, form_choices, form_constants
-from .drive import search_constants
+from .drive import DriveFit, search_constants
 from .problem import ParameterBound
 from .problem import FitData, ParameterSpace, unit_objective
 from .search import SearchSettings, direct_search
 
 __all__ = ['PEAK_OPTIONS', 'HOLD_OPTIONS', 'RELEASE_OPTIONS', 'FamilyChoice', 'FormFit',
-           'describe_form', 'select_family', 'valve_under', 'screen_forms', 'screen_parts',
-           'fit_forms', 'choose_form']
+           'describe_form', 'select_family', 'release_start', 'valve_under', 'screen_forms',
+           'screen_parts', 'fit_forms', 'choose_form']
 
 #: Options of each part, as the fields of ElectronicsConfig they set.
 PEAK_OPTIONS: tuple[dict[str, str], ...] = tuple(
@@ -281,17 +292,39 @@ class ValveStart:
     cost: float
 
 
-def valve_under(data: FitData, space: ParameterSpace, starts: list[ValveParameters],
-                base: ElectronicsConfig, workers: int) -> list[ValveStart]:
-    """Per release option, its constants at the valve's start values, then the valve
-    searched locally under ``base`` with that release (module notes, step 1); in the
-    order of :data:`RELEASE_OPTIONS`."""
-    def one(opt: dict[str, str]) -> ValveStart:
+def release_start(data: FitData, start: ValveParameters, base: ElectronicsConfig,
+                  workers: int) -> list[DriveFit]:
+    """Per release option, ``base`` with that release and its constants searched at the
+    valve ``start`` (:data:`RELEASE_EFFORT`), with their cost [A]; in the order of
+    :data:`RELEASE_OPTIONS`."""
+    def one(opt: dict[str, str]) -> DriveFit:
         cfg = base.replace(**opt)
-        drive = search_constants(_view(data, cfg), starts[0], cfg, RELEASE_EFFORT)
-        params, cost = _valve_search(data, space, starts, drive.electronics)
-        return ValveStart(params, drive.electronics, float(drive.cost), cost)
+        return search_constants(_view(data, cfg), start, cfg, RELEASE_EFFORT)
     return _pool_map(one, list(RELEASE_OPTIONS), workers)
+
+
+def _valve_for(data: FitData, space: ParameterSpace, starts: list[ValveParameters],
+               drive: DriveFit) -> ValveStart:
+    params, cost = _valve_search(data, space, starts, drive.electronics)
+    return ValveStart(params, drive.electronics, float(drive.cost), cost)
+
+
+def valve_under(data: FitData, space: ParameterSpace, starts: list[ValveParameters],
+                base: ElectronicsConfig, workers: int,
+                drives: list[DriveFit] | None = None,
+                known: ValveStart | None = None) -> list[ValveStart]:
+    """Per release option, its constants at the valve's start values (``drives``, else
+    :func:`release_start`), then the valve searched locally under that form (module
+    notes, step 1; ``known``: one of them already searched); in the order of
+    :data:`RELEASE_OPTIONS`."""
+    if drives is None:
+        drives = release_start(data, starts[0], base, workers)
+
+    def one(drive: DriveFit) -> ValveStart:
+        if known is not None and drive.electronics == known.base:
+            return known
+        return _valve_for(data, space, starts, drive)
+    return _pool_map(one, drives, workers)
 
 
 def screen_forms(data: FitData, starts: list[ValveStart], workers: int) -> list[FormFit]:
@@ -373,10 +406,11 @@ def _same_form(a: ElectronicsConfig, b: ElectronicsConfig) -> bool:
 def fit_forms(data: FitData, space: ParameterSpace, centre: FormFit,
               parts: dict[str, list[tuple[dict[str, str], float]]],
               screened: list[FormFit], prior: ElectronicsConfig, workers: int,
-              grid: bool = True) -> list[FormFit]:
+              grid: bool = True, incumbent: FormFit | None = None) -> list[FormFit]:
     """The complete forms of the :data:`KEEP_PER_PART` best options of each part around
     ``centre`` (at its valve) and the ``prior`` form there, and the :data:`KEPT_FORMS` best
-    forms of the screen of every peak end x hold (at their release's valve), their
+    forms of the screen of every peak end x hold (at their release's valve) and the
+    ``incumbent`` (the form in force at the valve the choice starts from), their
     constants searched further (a form found both ways: the lower cost); the
     :data:`FINALISTS` best, the best form with each kept option (so that two releases,
     say, are compared with the valve refitted through each) and the ``prior`` form
@@ -392,6 +426,8 @@ def fit_forms(data: FitData, space: ParameterSpace, centre: FormFit,
         forms.append(centre.electronics.replace(**{k: getattr(prior, k) for k in (
             'peak_end', 'hold', 'hold_decay', 'release')}))
     todo = [FormFit(c, centre.params, math.inf) for c in forms] + screened[:KEPT_FORMS]
+    if incumbent is not None:
+        todo.append(incumbent)
     fits: list[FormFit] = []
     for f in sorted(_pool_map(lambda f: _constants_only(data, f, grid), todo, workers),
                     key=lambda f: f.search_cost):
@@ -492,6 +528,13 @@ def choose_form(forms: list[FormFit], fit: FitData, val: FitData | None, workers
     return chosen, [f.name for f in same], text
 
 
+def _incumbent(search: FitData, params: ValveParameters) -> FormFit:
+    """The form in force on ``search`` (the one the valve ``params`` was searched
+    through) at that valve, with its search-window cost."""
+    cost = _view(search, search.electronics).cost(params.to_vector()[None, :])[0]
+    return FormFit(search.electronics, params, float(cost))
+
+
 def select_family(search: FitData, fit: FitData, val: FitData | None, space: ParameterSpace,
                   starts: list[ValveParameters], workers: int,
                   base: ElectronicsConfig = ElectronicsConfig(), grid: bool = True
@@ -518,12 +561,18 @@ def select_family(search: FitData, fit: FitData, val: FitData | None, space: Par
         search in the complete forms (:func:`.drive.hysteresis_grid`; worth it at a valve
         near the record's, where the ripple's phase is what is left).
     """
-    valves = valve_under(search, space, starts, base, workers)
-    first = min(valves, key=lambda v: v.start_cost)
+    drives = release_start(search, starts[0], base, workers)
+    first = _valve_for(search, space, starts, min(drives, key=lambda d: d.cost))
     centre = FormFit(first.base, first.params, first.cost)
     parts = screen_parts(search, centre, workers)
+    peak = parts['peak_end'][0][0]
+    if all(getattr(base, k) == v for k, v in peak.items()):
+        valves = valve_under(search, space, starts, base, workers, drives, first)
+    else:
+        valves = valve_under(search, space, starts, base.replace(**peak), workers)
     screened = screen_forms(search, valves, workers)
-    forms = fit_forms(search, space, centre, parts, screened, base, workers, grid)
+    forms = fit_forms(search, space, centre, parts, screened, base, workers, grid,
+                      _incumbent(search, starts[0]))
     chosen, same, text = choose_form(forms, fit, val, workers)
     words = screen_words(screened)
     return FamilyChoice(chosen, words, forms, same, text)
