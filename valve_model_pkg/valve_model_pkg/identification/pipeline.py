@@ -1664,6 +1664,13 @@ def identify_on_route(inputs: Inputs, route: Route, settings: IdentifySettings, 
 
 # --- the paper's form misfits: the data choose the form ----------------------------------
 
+#: ... and at least this fraction of the judged current's range: on a record with little or
+#: no noise a misfit of a few mA is many times the noise, but the paper's form fits the
+#: generator's default circuit to 0.5 % of the range there, while forms it cannot describe
+#: leave 3-16 %; a choice costs several runs through the paper's form.
+CHOICE_MIN_RANGE_FRACTION = 0.01
+
+
 def _judged_misfit(run: RouteRun) -> StructuredMisfit:
     """The final model's (augmented, else baseline) residual beyond the noise on the
     hold-out data, else on the fit window."""
@@ -1677,13 +1684,19 @@ def electronics_misfit(run: RouteRun, settings: IdentifySettings) -> StructuredM
     paper's driver (:attr:`IdentifySettings.choose_electronics` None), or None: records
     fitted through the electronics, no form given or chosen, and the final model (with
     the effects the diagnosis named) still misses the judged data by at least
-    :data:`~.diagnosis.MISFIT_OVER_NOISE` times the noise. A valve effect the diagnosis
+    :data:`~.diagnosis.MISFIT_OVER_NOISE` times the noise and
+    :data:`CHOICE_MIN_RANGE_FRACTION` of the current's range. A valve effect the diagnosis
     names and explains leaves no such misfit, so it never calls for another form."""
     if (settings.choose_electronics is not None or settings.electronics is not None
             or not run.prep.through_electronics or run.result.family is not None):
         return None
     misfit = _judged_misfit(run)
-    return misfit if misfit.beyond_noise else None
+    data = run.prep.validation or run.prep.fit
+    span = max((float(np.nanmax(m.current_a) - np.nanmin(m.current_a))
+                for m in data.measurements), default=0.0)
+    if not misfit.beyond_noise or misfit.structured_a < CHOICE_MIN_RANGE_FRACTION * span:
+        return None
+    return misfit
 
 
 def choose_after_misfit(inputs: Inputs, route: Route, settings: IdentifySettings,
