@@ -264,13 +264,6 @@ def init_with_signal_handling(args: list[str] | None) -> threading.Event:
     return stop
 
 
-def wants_events_executor(node: Node, events: bool = False) -> bool:
-    """Whether :func:`make_executor` asks for the EventsExecutor for ``node``: ``events``
-    on the wall clock, or a node whose ``message_driven`` attribute is true."""
-    on_sim_time = bool(node.get_parameter('use_sim_time').value)
-    return (events and not on_sim_time) or bool(getattr(node, 'message_driven', False))
-
-
 def make_executor(node: Node, events: bool = False):
     """The executor that spins ``node``, and its kind (``'events'`` or ``'single'``).
 
@@ -286,7 +279,9 @@ def make_executor(node: Node, events: bool = False):
     ``VALVE_EXECUTOR=single`` forces the latter (a fallback, should the experimental
     executor misbehave somewhere).
     """
-    if wants_events_executor(node, events) and os.environ.get('VALVE_EXECUTOR', '') != 'single':
+    on_sim_time = bool(node.get_parameter('use_sim_time').value)
+    wanted = (events and not on_sim_time) or bool(getattr(node, 'message_driven', False))
+    if wanted and os.environ.get('VALVE_EXECUTOR', '') != 'single':
         try:
             from rclpy.experimental import EventsExecutor
         except ImportError:   # an rclpy without it: the Python executor
@@ -304,7 +299,7 @@ def spin_until_stopped(node: Node, stop: threading.Event, events: bool = False) 
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
     executor, kind = make_executor(node, events)
-    if wants_events_executor(node, events):
+    if events or getattr(node, 'message_driven', False):
         node.get_logger().info(f'executor: {kind}')
     executor.add_node(node)
     try:
