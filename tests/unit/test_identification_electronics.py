@@ -166,7 +166,8 @@ def test_the_data_choose_the_form(tmp_path: Path) -> None:
     assert trigger is not None and trigger['went_on'] == 'choice'
     assert trigger['paper_structured_a'] > 10.0 * NOISE_A          # the paper's form misfits
     assert trigger['chosen_structured_a'] < 1.0 * NOISE_A
-    assert 'the data chose the form' in ident.notes[0]
+    assert 'the data were let choose the form' in ident.notes[0]
+    assert 'they chose current-threshold peak end' in ident.notes[0]
     fam = ident.family
     assert fam is not None and len(fam.forms) >= 3
     assert all(math.isfinite(f.search_cost) for f in fam.forms)
