@@ -113,7 +113,7 @@ def test_on_the_simulation_clock_frames_carry_and_states_keep_the_model_instant(
     core = CanDriverCore(DriverConfig(interface='virtual', channel='frame_time_sim'),
                          on_state=states.append)
     sim_now = 2.0105                        # the node's clock: /clock came a little late
-    core.tracker.frame_clock = lambda: sim_now
+    core.frame_clock = lambda: sim_now
     core.activate()
     codec = ValveCodec(0)
     core.handle_frame(_telemetry(codec, 0, 2.011))

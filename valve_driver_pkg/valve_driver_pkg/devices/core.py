@@ -106,6 +106,9 @@ class DeviceDriverCore(DriverCoreBase):
         self.commands = CommandState(config, self._lock, self._tally)
         self.liveness = DeviceLiveness(protocol.liveness_period_s)
         self._states = StateBuilder(mass_flow, derived)
+        #: The clock a frame's timestamp is checked against and that stamps a frame
+        #: without one [s]: the wall clock, or the node's (simulation) clock.
+        self.frame_clock: Callable[[], float] = time.time
         self.started = False            # activated since open: the protocol's own frames run
         self.setup_state = 'not set up'
         self.setup_ok = False
@@ -257,7 +260,7 @@ class DeviceDriverCore(DriverCoreBase):
         now = time.monotonic()
         wall = time.time()
         age = wall - msg.timestamp if msg.timestamp else 0.0
-        stamp = frame_time_s(msg.timestamp, wall)
+        stamp = frame_time_s(msg.timestamp, self.frame_clock())
         with self._lock:
             if self.liveness.limit_s < age < CLOCK_APART_S:
                 self._tally.count('stale_frames')

@@ -78,6 +78,16 @@ class CanDriverCore(DriverCoreBase):
         self._next_level_check = 0.0
 
     @property
+    def frame_clock(self) -> Callable[[], float]:
+        """The clock received frames are stamped against (:attr:`ReceiveTracker.frame_clock
+        <valve_driver_pkg.driver.receive.ReceiveTracker.frame_clock>`)."""
+        return self.tracker.frame_clock
+
+    @frame_clock.setter
+    def frame_clock(self, clock: Callable[[], float]) -> None:
+        self.tracker.frame_clock = clock
+
+    @property
     def host_command(self) -> HostCommand:
         return self.scheduler
 

@@ -210,7 +210,7 @@ class CanDriverNode(Node):
             self._core = core
             if self.get_parameter('use_sim_time').value:
                 core.host_command.watchdog_clock = self._ros_time_s
-                core.tracker.frame_clock = self._ros_time_s
+                core.frame_clock = self._ros_time_s
             core.open()
         except (ValveDriverError, OSError, ValueError, ImportError) as err:
             self.get_logger().error(f'configure failed: {err}')
