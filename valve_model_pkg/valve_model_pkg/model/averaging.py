@@ -203,7 +203,9 @@ class PeriodAverager:
                              f'after {t_a}')
         while True:
             end = self._start + self._period
-            if t_s < end:
+            # a period counts as complete within 1e-9 T of its end, as in the definition
+            # (:func:`last_period_mean`): sample times summed from a step miss it by an ulp
+            if t_s < end - 1e-9 * self._period:
                 break
             # split the sample interval at the boundary
             x_end = x_a + (x - x_a) * (end - t_a) / (t_s - t_a)
