@@ -28,12 +28,15 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 from suite_waits import SCHEDULING_ALLOWANCE_S, wait_until
 from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_driver_pkg.canbus import TcpLoopbackBus
 from valve_driver_pkg.devices.dbc_protocol import example_dbc_path, example_mapping_path
+from valve_model_pkg.interface import TOPIC_CLOCK
+from valve_model_pkg.interface.ros import CLOCK_QOS
 from valve_model_pkg.maps import load_map
 from valve_model_pkg.model import load_parameters
 from valve_model_pkg.recording import load_bag
@@ -81,7 +84,7 @@ def outputs(proc) -> list[tuple[float, float, str]]:
 class Rig:
     """Hub, device, driver and the test's bus client for one protocol."""
 
-    def __init__(self, name: str, start, folder) -> None:
+    def __init__(self, name: str, start, folder, driver_params: tuple[str, ...] = ()) -> None:
         self.name = name
         self.spec = PROTOCOLS[name]
         self.start = start
@@ -99,7 +102,7 @@ class Rig:
             '-p', 'interface:=tcp_loopback', '-p', f'channel:={self.channel}',
             '-p', 'autostart:=true', '-p', 'command_timeout_s:=0.0',
             '-p', f'log_frames_file:={self.log_file}',
-            *(a for p in self.spec['params'] for a in ('-p', p)))
+            *(a for p in (*self.spec['params'], *driver_params) for a in ('-p', p)))
 
     def _start(self, *argv: str):
         proc = self.start(*argv)
@@ -411,3 +414,40 @@ def test_a_mapping_naming_what_is_not_there_is_refused(start_node, tmp_path) -> 
     for proc, name in procs:
         assert proc.wait_exit(60.0) == 2, proc.output
         assert name in proc.output and 'Traceback' not in proc.output, proc.output
+
+
+#: The simulation clock the test publishes starts here [s]: far from the wall clock.
+SIM_START_S = 1000.0
+
+
+@pytest.mark.parametrize('protocol', ['canopen', 'j1939'])
+def test_a_device_driver_on_simulation_time_stamps_its_states_on_that_clock(
+        protocol, start_node, ros, tmp_path) -> None:
+    # use_sim_time: configure must succeed (the device core has the frame clock too), the
+    # device gets the duty, and every state carries a /clock instant, never the wall clock
+    rig = Rig(protocol, start_node, tmp_path, driver_params=('use_sim_time:=true',))
+    try:
+        client = ros.add(Client(rig.spec['label']))
+        clock_pub = client.create_publisher(Clock, TOPIC_CLOCK, CLOCK_QOS)
+        sent = {'ns': int(SIM_START_S * 1e9)}
+
+        def tick() -> None:
+            sent['ns'] += 10_000_000
+            msg = Clock()
+            msg.clock.sec, msg.clock.nanosec = divmod(sent['ns'], 1_000_000_000)
+            clock_pub.publish(msg)
+        client.create_timer(0.01, tick)
+        ros.wait_for(lambda: client.all_ok(STATUSES[:3]) or not rig.driver.alive(), 60.0,
+                     f'{protocol} driver on simulation time up')
+        assert rig.driver.alive(), rig.driver.output[-3000:]
+        _drive(ros, client, rig, 0.4, f'{protocol} device output 0.4 on simulation time')
+        # a state published before the driver's first /clock carries time 0 (no time yet)
+        ros.wait_for(lambda: sum(_seconds(m.header.stamp) > 0.0 for m in client.states) >= 5,
+                     SCHEDULING_ALLOWANCE_S, 'states on the simulation clock')
+        stamps = np.array([_seconds(m.header.stamp) for m in client.states])
+        stamps = stamps[stamps > 0.0]
+        assert np.all(stamps >= SIM_START_S), stamps[:5]
+        assert np.all(stamps <= sent['ns'] * 1e-9), (stamps[-5:], sent['ns'])
+        _drive(ros, client, rig, 0.0, f'{protocol} device output 0 on simulation time')
+    finally:
+        rig.close()
