@@ -1039,6 +1039,12 @@ def structured_misfit(data: FitData, params: ValveParameters,
 CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE = 2.0
 
 
+def _judged_structure(diag: Diagnosis, baseline: ValveParameters) -> StructuredMisfit:
+    """The baseline's structured misfit on the data the selection judged on, against the
+    noise the selection read there (:func:`structured_misfit`)."""
+    return structured_misfit(diag.judge, baseline, (diag.base_mae or {}).get('noise') or [0.0])
+
+
 def withdraw_below_form_error(diag: Diagnosis, baseline: ValveParameters) -> bool:
     """Withdraw the claimed effect of a record fitted through a form the data chose when
     the structure it explains is below :data:`CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE` times
@@ -1047,7 +1053,7 @@ def withdraw_below_form_error(diag: Diagnosis, baseline: ValveParameters) -> boo
     data = diag.judge
     if diag.effect == 'none' or data is None:
         return False
-    size = structured_misfit(data, baseline, (diag.base_mae or {}).get('noise') or [0.0])
+    size = _judged_structure(diag, baseline)
     if size.over_noise >= CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE:
         return False
     text = (f'{diag.effect} would explain structure of {1e3 * size.structured_a:.2g} mA RMS '
@@ -1080,7 +1086,7 @@ def describe_misfit(diag: Diagnosis, baseline: ValveParameters) -> None:
     data = diag.judge
     if diag.effect != 'none' or not diag.unexplained_structure or data is None:
         return
-    size = structured_misfit(data, baseline, (diag.base_mae or {}).get('noise') or [0.0])
+    size = _judged_structure(diag, baseline)
     sigma, source, structured = size.noise_a, size.noise_from, size.structured_a
     if not size.beyond_noise:
         return

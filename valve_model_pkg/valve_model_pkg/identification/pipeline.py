@@ -1671,10 +1671,15 @@ def identify_on_route(inputs: Inputs, route: Route, settings: IdentifySettings, 
 CHOICE_MIN_RANGE_FRACTION = 0.01
 
 
+def _judged_data(prep: Prepared) -> FitData:
+    """The data a run's final model is judged on: the hold-out data, else the fit window."""
+    return prep.validation or prep.fit
+
+
 def _judged_misfit(run: RouteRun) -> StructuredMisfit:
     """The final model's (augmented, else baseline) residual beyond the noise on the
     hold-out data, else on the fit window."""
-    data = run.prep.validation or run.prep.fit
+    data = _judged_data(run.prep)
     params = run.result.augmented.params
     return structured_misfit(data, params, noise_per_file(data, params))
 
@@ -1691,7 +1696,7 @@ def electronics_misfit(run: RouteRun, settings: IdentifySettings) -> StructuredM
             or not run.prep.through_electronics or run.result.family is not None):
         return None
     misfit = _judged_misfit(run)
-    data = run.prep.validation or run.prep.fit
+    data = _judged_data(run.prep)
     span = max((float(np.nanmax(m.current_a) - np.nanmin(m.current_a))
                 for m in data.measurements), default=0.0)
     if not misfit.beyond_noise or misfit.structured_a < CHOICE_MIN_RANGE_FRACTION * span:
