@@ -20,23 +20,16 @@ from __future__ import annotations
 import json
 import math
 import os
-import re
-import sys
 
-import can
 import numpy as np
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.node import Node
-from rosgraph_msgs.msg import Clock
+from can_protocol_rig import (
+    PROTOCOLS, STATUSES, Client, Rig, drive_device, outputs, stamp_seconds,
+)
 from std_srvs.srv import Trigger
 from suite_waits import SCHEDULING_ALLOWANCE_S, wait_until
-from valve_msgs.msg import DutyCommand, ValveState
 
-from valve_driver_pkg.canbus import TcpLoopbackBus
 from valve_driver_pkg.devices.dbc_protocol import example_dbc_path, example_mapping_path
-from valve_model_pkg.interface import TOPIC_CLOCK
-from valve_model_pkg.interface.ros import CLOCK_QOS
 from valve_model_pkg.maps import load_map
 from valve_model_pkg.model import load_parameters
 from valve_model_pkg.recording import load_bag
@@ -46,132 +39,7 @@ pytestmark = [pytest.mark.node,
               pytest.mark.filterwarnings('ignore::DeprecationWarning:lark.utils')]
 
 SCHEDULING_SLACK_S = 1.5
-STATUSES = ('CAN bus', 'device', 'commands', 'faults')
-_OUTPUT = re.compile(r': output duty ([0-9.]+) at monotonic ([0-9.]+): (.*)$', re.M)
-_DBC = example_dbc_path()
-
-
-PROTOCOLS = {
-    'canopen': dict(
-        device=['valve_canopen_device', '--node-id', '5'], first_device_args=[],
-        params=['canopen.node_id:=5', 'canopen.heartbeat_ms:=100'],
-        label='canopen node 5', timeout_s=0.3, period_s=0.01, duty_step=0.001,
-        has_current=True),
-    'j1939': dict(
-        device=['valve_j1939_device', '--valve-index', '2'],
-        first_device_args=['--dtc', '1907:5'],     # an active DTC the clear test clears
-        params=['j1939.valve_index:=2', 'j1939.source_address:=128',
-                'j1939.command_period_ms:=100'],
-        label='j1939 valve 2', timeout_s=0.3, period_s=0.1, duty_step=0.01,
-        has_current=False),
-    'dbc': dict(
-        device=['valve_dbc_device'], first_device_args=[],
-        params=[f'dbc.file:={_DBC}', f'dbc.mapping_file:={example_mapping_path()}'],
-        label='dbc board', timeout_s=0.2, period_s=0.02, duty_step=0.0001,
-        has_current=True),
-}
-
-
-def _seconds(stamp) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9
-
-
-def outputs(proc) -> list[tuple[float, float, str]]:
-    """(duty, monotonic time, reason) of every output change a stand-in printed."""
-    return [(float(d), float(t), r) for d, t, r in _OUTPUT.findall(proc.output)]
-
-
-class Rig:
-    """Hub, device, driver and the test's bus client for one protocol."""
-
-    def __init__(self, name: str, start, folder, driver_params: tuple[str, ...] = ()) -> None:
-        self.name = name
-        self.spec = PROTOCOLS[name]
-        self.start = start
-        self.procs = []
-        self.hub = self._start(sys.executable, '-m', 'valve_driver_pkg.canbus.cli')
-        self.hub.wait_ready('tcp_loopback hub ready')
-        self.channel = re.search(r'hub ready: (\S+)', self.hub.output).group(1)
-        self.currents_ma: list[int] = []
-        self.bus = TcpLoopbackBus(self.channel)
-        self.notifier = can.Notifier(self.bus, [self._on_frame], timeout=0.1)
-        self.log_file = folder / f'bus-{name}.log'
-        self.device = self.start_device(self.spec['first_device_args'])
-        self.driver = self._start(
-            'valve_can_driver', '--ros-args', '-p', f'protocol:={name}',
-            '-p', 'interface:=tcp_loopback', '-p', f'channel:={self.channel}',
-            '-p', 'autostart:=true', '-p', 'command_timeout_s:=0.0',
-            '-p', f'log_frames_file:={self.log_file}',
-            *(a for p in (*self.spec['params'], *driver_params) for a in ('-p', p)))
-
-    def _start(self, *argv: str):
-        proc = self.start(*argv)
-        self.procs.append(proc)
-        return proc
-
-    def start_device(self, extra: list[str] = ()):
-        proc = self._start(*self.spec['device'], *extra, '--interface', 'tcp_loopback',
-                           '--channel', self.channel, '--no-hub')
-        proc.wait_ready('ready')
-        self.device = proc
-        return proc
-
-    def _on_frame(self, msg: can.Message) -> None:
-        data = bytes(msg.data)
-        if self.name == 'canopen' and msg.arbitration_id == 0x185 and len(data) >= 2:
-            self.currents_ma.append(int.from_bytes(data[:2], 'little', signed=True))
-        if self.name == 'dbc' and msg.arbitration_id == 0x18FF2021 and data[0] == 0:
-            self.currents_ma.append(int.from_bytes(data[1:3], 'big', signed=True))
-
-    def close(self) -> None:
-        """Stop the driver, the devices, the test's bus client, the hub (in that order)."""
-        for proc in reversed(self.procs[1:]):
-            proc.stop()
-        self.notifier.stop()
-        self.bus.shutdown()
-        self.hub.stop()
-
-
-class Client(Node):
-    def __init__(self, label: str) -> None:
-        super().__init__(f'can_protocol_test_client_{label.replace(" ", "_")}')
-        self.prefix = f'valve_can_driver {label}: '
-        self.states: list[ValveState] = []
-        self.status: dict[str, object] = {}
-        self.device_error_s: float | None = None   # stamp of the first device ERROR
-        self.create_subscription(ValveState, 'valve/state', self.states.append, 1000)
-        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 100)
-        self.pub = self.create_publisher(DutyCommand, 'valve/duty_command', 10)
-        self.clear = self.create_client(Trigger, 'valve_can_driver/clear_faults')
-
-    def _on_diag(self, msg: DiagnosticArray) -> None:
-        for status in msg.status:
-            if status.name.startswith(self.prefix):
-                name = status.name[len(self.prefix):]
-                self.status[name] = status
-                if name == 'device' and self.level(name) == 2 and self.device_error_s is None:
-                    self.device_error_s = _seconds(msg.header.stamp)
-
-    def level(self, name: str) -> int:
-        status = self.status.get(name)
-        if status is None:
-            return -1
-        return status.level[0] if isinstance(status.level, bytes) else int(status.level)
-
-    def all_ok(self, names: tuple[str, ...] = STATUSES) -> bool:
-        return all(self.level(n) == 0 for n in names)
-
-    def messages(self) -> dict[str, str]:
-        return {k: v.message for k, v in self.status.items()}
-
-    def value(self, name: str, key: str) -> str:
-        return {kv.key: kv.value for kv in self.status[name].values}[key]
-
-    def command(self, duty: float) -> None:
-        msg = DutyCommand()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.duty, msg.pwm_frequency = float(duty), 50.0
-        self.pub.publish(msg)
+DBC_FILE = example_dbc_path()
 
 
 @pytest.fixture(scope='module', params=list(PROTOCOLS))
@@ -190,23 +58,11 @@ def client(rig, ros_module) -> Client:
     return client
 
 
-def _drive(ros, client: Client, rig: Rig, duty: float, what: str) -> None:
-    """Command ``duty`` until the device's output is that duty (within its resolution)."""
-    step = rig.spec['duty_step']
-
-    def arrived() -> bool:
-        client.command(duty)
-        outs = outputs(rig.device)
-        return bool(outs) and abs(outs[-1][0] - duty) <= step
-
-    ros.wait_for(arrived, SCHEDULING_ALLOWANCE_S, what)
-
-
 def test_device_receives_the_duty_and_the_state_carries_its_current(ros_module, rig,
                                                                     client) -> None:
     ros = ros_module
     for duty in (0.3, 0.75):
-        _drive(ros, client, rig, duty, f'{rig.name}: duty {duty} at the device')
+        drive_device(ros, client, rig, duty, f'{rig.name}: duty {duty} at the device')
         n = len(client.states)
         ros.wait_for(lambda: len(client.states) > n + 5, SCHEDULING_ALLOWANCE_S, 'valve/state')
         if rig.name == 'j1939':
@@ -227,7 +83,7 @@ def test_device_receives_the_duty_and_the_state_carries_its_current(ros_module, 
                          <= {round(c / 1000.0, 6) for c in rig.currents_ma},
                          SCHEDULING_ALLOWANCE_S, 'the currents in the device\'s frames')
         _check_position_fields(ros, client, rig, duty)
-    _drive(ros, client, rig, 0.0, f'{rig.name}: duty 0 at the device')
+    drive_device(ros, client, rig, 0.0, f'{rig.name}: duty 0 at the device')
     ros.wait_for(lambda: client.all_ok(STATUSES[:3]), SCHEDULING_ALLOWANCE_S,
                  'bus, device, commands OK')
 
@@ -263,7 +119,7 @@ def _call_clear_faults(ros, client: Client):
 
 def test_clear_faults_as_the_protocol_allows(ros_module, rig, client) -> None:
     ros = ros_module
-    _drive(ros, client, rig, 0.5, 'duty 0.5 at the device')
+    drive_device(ros, client, rig, 0.5, 'duty 0.5 at the device')
     if rig.name == 'j1939':   # DM1 reports the stand-in's DTC (amber lamp: a warning)
         ros.wait_for(lambda: 'SPN 1907 FMI 5' in client.status['faults'].message
                      if 'faults' in client.status else False,
@@ -299,7 +155,7 @@ def test_the_bus_log_replays_into_the_states_the_driver_published(
     mcap_reader = pytest.importorskip('mcap.reader')
     decoder_factory = pytest.importorskip('mcap_ros2.decoder').DecoderFactory
     from valve_driver_pkg.replay import main as replay_main
-    _drive(ros, client, rig, 0.4, 'duty 0.4 at the device')
+    drive_device(ros, client, rig, 0.4, 'duty 0.4 at the device')
     n = len(client.states)
     ros.wait_for(lambda: len(client.states) >= n + 25, SCHEDULING_ALLOWANCE_S, '25 states')
     window = client.states[n + 5:n + 25]
@@ -313,7 +169,7 @@ def test_the_bus_log_replays_into_the_states_the_driver_published(
     log.write_text('\n'.join(_complete_lines(rig.log_file)) + '\n')
     bag = tmp_path / 'bag'
     args = {'canopen': ['--canopen-node-id', '5'], 'j1939': ['--j1939-valve-index', '2'],
-            'dbc': ['--dbc-file', str(_DBC), '--dbc-mapping-file',
+            'dbc': ['--dbc-file', str(DBC_FILE), '--dbc-mapping-file',
                     str(example_mapping_path())]}[rig.name]
     replay_main([str(log), '--protocol', rig.name, '--out', str(bag), *args])
 
@@ -350,7 +206,7 @@ def _same(a: list[tuple], b: list[tuple]) -> bool:
 
 def test_device_death_is_an_error_and_its_return_recovers(ros_module, rig, client) -> None:
     ros = ros_module
-    _drive(ros, client, rig, 0.5, 'duty 0.5 at the device')
+    drive_device(ros, client, rig, 0.5, 'duty 0.5 at the device')
     client.device_error_s = None
     rig.device.kill()
     try:
@@ -362,7 +218,7 @@ def test_device_death_is_an_error_and_its_return_recovers(ros_module, rig, clien
         # delivered late to this process is no false alarm
         ros.wait_for(lambda: float(client.value('device', 'age_s')) > 1.0,
                      SCHEDULING_ALLOWANCE_S, 'the driver without a device frame for 1 s')
-        late = [s for s in client.states if _seconds(s.header.stamp) > client.device_error_s]
+        late = [s for s in client.states if stamp_seconds(s.header.stamp) > client.device_error_s]
         assert not late, f'{len(late)} states published after the device was lost'
     finally:
         rig.start_device()
@@ -378,7 +234,7 @@ def test_device_death_is_an_error_and_its_return_recovers(ros_module, rig, clien
 
 
 def test_sigkill_of_the_driver_de_energises_the_device(ros_module, rig, client) -> None:
-    _drive(ros_module, client, rig, 0.6, 'duty 0.6 at the device')
+    drive_device(ros_module, client, rig, 0.6, 'duty 0.6 at the device')
     t_kill = rig.driver.kill()
     bound = rig.spec['timeout_s'] + rig.spec['period_s']
 
@@ -404,7 +260,7 @@ def test_a_mapping_naming_what_is_not_there_is_refused(start_node, tmp_path) -> 
     co = tmp_path / 'bad_co.yaml'
     co.write_text('duty: {object: 0x2100, subindex: 1, type: INTEGER16, scale: 0.001}\n'
                   'fail_safe: [{object: 0x2101, subindex: 1, type: UNSIGNED8, value: 0}]\n')
-    cases = (('dbc', [f'dbc.file:={_DBC}', f'dbc.mapping_file:={mapping}'], 'NoSuchSignal'),
+    cases = (('dbc', [f'dbc.file:={DBC_FILE}', f'dbc.mapping_file:={mapping}'], 'NoSuchSignal'),
              ('canopen', [f'canopen.mapping_file:={co}'], '0x2100'),
              ('j1939', ['drive_mode:=bench'], 'drive_mode'))
     procs = [(start_node('valve_can_driver', '--ros-args', '-p', f'protocol:={protocol}',
@@ -414,40 +270,3 @@ def test_a_mapping_naming_what_is_not_there_is_refused(start_node, tmp_path) -> 
     for proc, name in procs:
         assert proc.wait_exit(60.0) == 2, proc.output
         assert name in proc.output and 'Traceback' not in proc.output, proc.output
-
-
-#: The simulation clock the test publishes starts here [s]: far from the wall clock.
-SIM_START_S = 1000.0
-
-
-@pytest.mark.parametrize('protocol', ['canopen', 'j1939'])
-def test_a_device_driver_on_simulation_time_stamps_its_states_on_that_clock(
-        protocol, start_node, ros, tmp_path) -> None:
-    # use_sim_time: configure must succeed (the device core has the frame clock too), the
-    # device gets the duty, and every state carries a /clock instant, never the wall clock
-    rig = Rig(protocol, start_node, tmp_path, driver_params=('use_sim_time:=true',))
-    try:
-        client = ros.add(Client(rig.spec['label']))
-        clock_pub = client.create_publisher(Clock, TOPIC_CLOCK, CLOCK_QOS)
-        sent = {'ns': int(SIM_START_S * 1e9)}
-
-        def tick() -> None:
-            sent['ns'] += 10_000_000
-            msg = Clock()
-            msg.clock.sec, msg.clock.nanosec = divmod(sent['ns'], 1_000_000_000)
-            clock_pub.publish(msg)
-        client.create_timer(0.01, tick)
-        ros.wait_for(lambda: client.all_ok(STATUSES[:3]) or not rig.driver.alive(), 60.0,
-                     f'{protocol} driver on simulation time up')
-        assert rig.driver.alive(), rig.driver.output[-3000:]
-        _drive(ros, client, rig, 0.4, f'{protocol} device output 0.4 on simulation time')
-        # a state published before the driver's first /clock carries time 0 (no time yet)
-        ros.wait_for(lambda: sum(_seconds(m.header.stamp) > 0.0 for m in client.states) >= 5,
-                     SCHEDULING_ALLOWANCE_S, 'states on the simulation clock')
-        stamps = np.array([_seconds(m.header.stamp) for m in client.states])
-        stamps = stamps[stamps > 0.0]
-        assert np.all(stamps >= SIM_START_S), stamps[:5]
-        assert np.all(stamps <= sent['ns'] * 1e-9), (stamps[-5:], sent['ns'])
-        _drive(ros, client, rig, 0.0, f'{protocol} device output 0 on simulation time')
-    finally:
-        rig.close()

@@ -15,6 +15,8 @@ pytestmark = [pytest.mark.node,
 
 STATE = '/valve/state'
 DUTY = '/valve/duty_command'
+#: States the bag holds at least before the recorder is stopped.
+MIN_STATES = 500
 
 
 def test_recorded_bag_decodes_message_by_message(start_node, ros, tmp_path) -> None:
@@ -36,6 +38,9 @@ def test_recorded_bag_decodes_message_by_message(start_node, ros, tmp_path) -> N
         ros.spin_for(0.3)
     ros.wait_for(lambda: recorded.int(f'count {DUTY}', 0) >= len(sent), 30.0,
                  f'the recorder counting {len(sent)} duty commands ({recorded.values})')
+    # a bag of some length, counted by the recorder (not a wall-time share of 1 kHz)
+    ros.wait_for(lambda: recorded.int(f'count {STATE}', 0) > MIN_STATES, 60.0,
+                 f'the recorder counting {MIN_STATES} states ({recorded.values})')
     assert rec.stop() == 0, rec.output[-3000:]
 
     info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
@@ -55,7 +60,7 @@ def test_recorded_bag_decodes_message_by_message(start_node, ros, tmp_path) -> N
             if channel.topic == DUTY:
                 duties.append(decoded.duty)
     assert counts == written
-    assert counts[STATE] > 500
+    assert counts[STATE] > MIN_STATES
     assert duties == pytest.approx(sent)
     # the suite's own loader (rosbags) sees the same messages
     assert len(load_bag(bag, topics=[STATE])[STATE]) == counts[STATE]
