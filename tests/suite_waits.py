@@ -10,11 +10,15 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-__all__ = ['wait_until', 'SCHEDULING_ALLOWANCE_S', 'POLL_STEP_S']
+__all__ = ['wait_until', 'SCHEDULING_ALLOWANCE_S', 'POLL_STEP_S', 'TEST_READER_DEPTH']
 
 #: What a loaded 2-core machine may add to any wait (processes descheduled, the first call
 #: of compiled code loading it) [s].
 SCHEDULING_ALLOWANCE_S = 20.0
+#: Depth of a test's own reader of a fast stream (20 s of 1 kHz states): a test process
+#: held up by a loaded machine keeps its whole window instead of losing the oldest
+#: messages, so a gap it counts is the node's, not its own.
+TEST_READER_DEPTH = 20_000
 #: The pause between two polls when the caller gives no step of its own [s].
 POLL_STEP_S = 0.005
 

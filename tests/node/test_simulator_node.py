@@ -6,6 +6,7 @@ import math
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import FluidPressure
+from suite_waits import TEST_READER_DEPTH
 
 from valve_model_pkg.nodes.common import (COMMAND_QOS, TOPIC_DIAGNOSTICS,
                                           TOPIC_SUPPLY_PRESSURE, absolute_from_gauge)
@@ -24,7 +25,7 @@ def _start_sim(start_node, rate_hz: float, *extra: str):
 @pytest.mark.parametrize('rate_hz', [1000.0, 200.0])
 def test_state_arrives_at_the_configured_rate_and_follows_duty(start_node, ros, rate_hz):
     sim = _start_sim(start_node, rate_hz)
-    probe = ros.add(StateProbe('test_probe'))
+    probe = ros.add(StateProbe('test_probe', TEST_READER_DEPTH))
     diags: list[DiagnosticArray] = []
     probe.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, diags.append, 10)
     ros.wait_for(lambda: probe.count > 10, 30.0, 'the first valve/state messages')
@@ -71,7 +72,7 @@ def test_state_arrives_at_the_configured_rate_and_follows_duty(start_node, ros, 
 
 def test_bad_commands_are_rejected_and_the_node_survives(start_node, ros):
     sim = _start_sim(start_node, 500.0)
-    probe = ros.add(StateProbe('test_probe'))
+    probe = ros.add(StateProbe('test_probe', TEST_READER_DEPTH))
     diags: list[DiagnosticArray] = []
     probe.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, diags.append, 10)
     supply_pub = probe.create_publisher(FluidPressure, TOPIC_SUPPLY_PRESSURE, COMMAND_QOS)
@@ -126,7 +127,7 @@ def test_the_electronics_file_sets_the_drive_and_a_bad_one_is_refused(
     good.write_text('electronics:\n  release: zener\n  zener_voltage_v: 36.0\n')
     sim = start_node('valve_simulator', '--ros-args', '-p', f'electronics_file:={good}',
                      '-p', 'capacitor:=true')
-    probe = ros.add(StateProbe('test_probe'))
+    probe = ros.add(StateProbe('test_probe', TEST_READER_DEPTH))
     ros.wait_for(lambda: probe.count > 10, 30.0, 'valve/state')
     assert f'electronics: {good}, current control True, release zener' in sim.output
     assert sim.stop() == 0

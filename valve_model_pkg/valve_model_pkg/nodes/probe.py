@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from valve_msgs.msg import DutyCommand, ValveState
 
 from valve_model_pkg.nodes.common import COMMAND_QOS, STATE_QOS, TOPIC_DUTY_COMMAND, TOPIC_STATE
@@ -31,10 +32,16 @@ class Window:
 class StateProbe(Node):
     """Subscribe to ``valve/state``, publish ``valve/duty_command``."""
 
-    def __init__(self, name: str = 'valve_probe') -> None:
+    def __init__(self, name: str = 'valve_probe', queue_depth: int | None = None) -> None:
+        """``queue_depth``: states the subscription holds while the probe is busy (default
+        :data:`STATE_QOS`'s); a reader that falls further behind loses the oldest, which
+        the probe counts as gaps."""
         super().__init__(name)
         self._cmd_pub = self.create_publisher(DutyCommand, TOPIC_DUTY_COMMAND, COMMAND_QOS)
-        self.create_subscription(ValveState, TOPIC_STATE, self._on_state, STATE_QOS)
+        qos = STATE_QOS if queue_depth is None else QoSProfile(
+            history=STATE_QOS.history, depth=queue_depth, reliability=STATE_QOS.reliability,
+            durability=STATE_QOS.durability)
+        self.create_subscription(ValveState, TOPIC_STATE, self._on_state, qos)
         self.count = 0
         self.gaps = 0
         self.commands_sent = 0  # also the sequence of the next duty command
