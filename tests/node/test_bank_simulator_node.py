@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 import pytest
-from rclpy.qos import QoSProfile
 from suite_waits import SCHEDULING_ALLOWANCE_S, TEST_READER_DEPTH
 from valve_msgs.msg import DutyCommand, ValveState
 
-from valve_model_pkg.nodes.common import COMMAND_QOS, STATE_QOS
+from valve_model_pkg.interface.ros import state_reader_qos
+from valve_model_pkg.nodes.common import COMMAND_QOS
 
 pytestmark = pytest.mark.node
 
@@ -33,8 +33,7 @@ def test_four_valves_each_at_rate_and_commands_reach_only_their_valve(start_node
         return cb
     # the states of the whole test kept while the test process is held up (STATE_QOS's
     # policies, a deeper queue): a gap counted is then the node's
-    qos = QoSProfile(history=STATE_QOS.history, depth=TEST_READER_DEPTH,
-                     reliability=STATE_QOS.reliability, durability=STATE_QOS.durability)
+    qos = state_reader_qos(TEST_READER_DEPTH)
     for n in NAMES:
         node.create_subscription(ValveState, f'{n}/valve/state', on_state(n), qos)
     cmd = node.create_publisher(DutyCommand, f'{NAMES[2]}/valve/duty_command', COMMAND_QOS)

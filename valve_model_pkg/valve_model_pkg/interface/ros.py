@@ -19,13 +19,22 @@ from valve_model_pkg.model.sample import ValveSample
 __all__ = ['STATE_QOS', 'STATE_DURABLE_QOS', 'COMMAND_QOS', 'PRESSURE_QOS', 'JOINT_STATES_QOS',
            'DIAGNOSTICS_QOS',
            'CLOCK_QOS', 'RELAY_QOS', 'PROBE_QOS',
-           'state_message', 'RosLogHandler', 'forward_logging']
+           'state_message', 'state_reader_qos', 'RosLogHandler', 'forward_logging']
 
 # State at 1 kHz: reliable so that a recorder loses nothing, a deep queue so a slow
 # subscriber does not stall the publisher for a burst.
 STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=STATE_QUEUE_DEPTH,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
+
+
+def state_reader_qos(depth: int) -> QoSProfile:
+    """:data:`STATE_QOS` with a reader queue of ``depth`` states: a reader that must keep a
+    longer backlog while it is held up (a test's probe on a loaded machine)."""
+    return QoSProfile(history=STATE_QOS.history, depth=depth,
+                      reliability=STATE_QOS.reliability, durability=STATE_QOS.durability)
+
+
 #: valve/state of a backend stepped one state at a time (the CAN driver, in lockstep with
 #: the emulator on /clock): the writer keeps its last states for a reader that matches it
 #: late, and the simulation's external-valve reader asks for them, so a state published

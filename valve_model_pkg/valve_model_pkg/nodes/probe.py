@@ -10,9 +10,9 @@ import math
 from dataclasses import dataclass
 
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
 from valve_msgs.msg import DutyCommand, ValveState
 
+from valve_model_pkg.interface.ros import state_reader_qos
 from valve_model_pkg.nodes.common import COMMAND_QOS, STATE_QOS, TOPIC_DUTY_COMMAND, TOPIC_STATE
 
 
@@ -38,9 +38,7 @@ class StateProbe(Node):
         the probe counts as gaps."""
         super().__init__(name)
         self._cmd_pub = self.create_publisher(DutyCommand, TOPIC_DUTY_COMMAND, COMMAND_QOS)
-        qos = STATE_QOS if queue_depth is None else QoSProfile(
-            history=STATE_QOS.history, depth=queue_depth, reliability=STATE_QOS.reliability,
-            durability=STATE_QOS.durability)
+        qos = STATE_QOS if queue_depth is None else state_reader_qos(queue_depth)
         self.create_subscription(ValveState, TOPIC_STATE, self._on_state, qos)
         self.count = 0
         self.gaps = 0
