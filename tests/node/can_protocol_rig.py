@@ -18,7 +18,8 @@ from valve_driver_pkg.devices.dbc_protocol import example_dbc_path, example_mapp
 
 STATUSES = ('CAN bus', 'device', 'commands', 'faults')
 _OUTPUT = re.compile(r': output duty ([0-9.]+) at monotonic ([0-9.]+): (.*)$', re.M)
-_DBC = example_dbc_path()
+#: The example board's DBC file, the dbc protocol's.
+DBC_FILE = example_dbc_path()
 
 
 PROTOCOLS = {
@@ -36,7 +37,7 @@ PROTOCOLS = {
         has_current=False),
     'dbc': dict(
         device=['valve_dbc_device'], first_device_args=[],
-        params=[f'dbc.file:={_DBC}', f'dbc.mapping_file:={example_mapping_path()}'],
+        params=[f'dbc.file:={DBC_FILE}', f'dbc.mapping_file:={example_mapping_path()}'],
         label='dbc board', timeout_s=0.2, period_s=0.02, duty_step=0.0001,
         has_current=True),
 }

@@ -24,12 +24,12 @@ import os
 import numpy as np
 import pytest
 from can_protocol_rig import (
-    PROTOCOLS, STATUSES, Client, Rig, drive_device, outputs, stamp_seconds,
+    DBC_FILE, PROTOCOLS, STATUSES, Client, Rig, drive_device, outputs, stamp_seconds,
 )
 from std_srvs.srv import Trigger
 from suite_waits import SCHEDULING_ALLOWANCE_S, wait_until
 
-from valve_driver_pkg.devices.dbc_protocol import example_dbc_path, example_mapping_path
+from valve_driver_pkg.devices.dbc_protocol import example_mapping_path
 from valve_model_pkg.maps import load_map
 from valve_model_pkg.model import load_parameters
 from valve_model_pkg.recording import load_bag
@@ -39,7 +39,6 @@ pytestmark = [pytest.mark.node,
               pytest.mark.filterwarnings('ignore::DeprecationWarning:lark.utils')]
 
 SCHEDULING_SLACK_S = 1.5
-DBC_FILE = example_dbc_path()
 
 
 @pytest.fixture(scope='module', params=list(PROTOCOLS))
