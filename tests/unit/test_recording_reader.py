@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from valve_model_pkg.recording import arrays as arrays_module
-from valve_model_pkg.recording import (BagFormatError, BagWriter, bag_info,
-                                       load_bag, reliable_qos, sequence_gaps)
+from valve_model_pkg.recording import (BagFormatError, BagWriter, PublisherSequenceGaps,
+                                       bag_info, load_bag, reliable_qos, sequence_gaps)
 from valve_model_pkg.recording.synthetic import (DUTY_COMMAND, VALVE_STATE, duty_command_cdr,
                                                  valve_state_cdr)
 
@@ -117,6 +117,25 @@ def test_long_bags_are_converted_in_blocks_with_the_same_result(suite_bag, monke
 ])
 def test_sequence_gaps(sequence, expected) -> None:
     assert sequence_gaps(np.array(sequence, dtype=np.uint64)) == expected
+
+
+@pytest.mark.parametrize('messages, lost', [
+    # (publication sequence number, writers matched at its arrival)
+    ([(1, 1), (2, 1), (5, 1), (6, 1)], 2),
+    ([(None, 1), (4, 1), (6, 1)], 1),  # a middleware without numbers counts from the first
+    # two writers interleave their own numbering: nothing is lost
+    ([(1, 1), (40, 2), (2, 2), (41, 2), (3, 2)], 0),
+    # the second writer has left; the first's numbers go on from where it was, so its
+    # next message is compared with its own, not with the writer that left
+    ([(1, 1), (40, 2), (2, 2), (41, 2), (3, 1), (4, 1), (6, 1)], 1),
+    ([(10, 1), (0, 1), (1, 1)], 0),  # a restarted writer is not a loss
+    ([(1, 1), (2, 0), (3, 1)], 0),  # no writer matched: the count cannot be trusted
+])
+def test_publisher_sequence_gaps_count_only_one_writer(messages, lost) -> None:
+    gaps = PublisherSequenceGaps()
+    for seq, matched in messages:
+        gaps.observe(seq, matched)
+    assert gaps.lost == lost
 
 
 def test_killed_bag_is_read_up_to_its_last_chunk(tmp_path, store, caplog) -> None:

@@ -49,7 +49,7 @@ import sys
 import tempfile
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
@@ -70,7 +70,7 @@ from valve_model_pkg.nodes.common import (EXIT_FAILURE, EXIT_OK, EXIT_REFUSED,
                                           declare_string, help_requested, key_values,
                                           print_node_help)
 from valve_model_pkg.recording import (DEFAULT_TOPICS, BagWriteError, BagWriter,
-                                       QueuedBagWriter, RecordingError,
+                                       PublisherSequenceGaps, QueuedBagWriter, RecordingError,
                                        UnknownMessageTypeError, bag_info, ensure_type,
                                        make_qos, parse_topic_spec, qos_summary, recover_bag,
                                        reliable_qos)
@@ -90,9 +90,7 @@ class _Topic:
     reliable: bool = True
     key: int | None = None      # writer key, set on the first message
     received: int = 0
-    seq_gaps: int = 0           # missing publication sequence numbers (single publisher)
-    last_pub_seq: int | None = None
-    single_publisher: bool = True
+    gaps: PublisherSequenceGaps = field(default_factory=PublisherSequenceGaps)
     subscription: object = None
     incompatible: tuple[str, ...] = ()  # publishers the subscription cannot match
 
@@ -271,7 +269,6 @@ class RecorderNode(Node):
                                     q.liveliness_lease_duration),
                                 avoid_ros_namespace_conventions=bool(
                                     q.avoid_ros_namespace_conventions)))
-        state.single_publisher = len(out) == 1
         return out or [reliable_qos(state.depth)]
 
     # --- hot path -------------------------------------------------------------------------
@@ -295,21 +292,16 @@ class RecorderNode(Node):
             self.get_logger().info(f'recording {state.name} ({state.msgtype}, offered '
                                    f'{qos_summary(qos)})')
         state.received += 1
-        seq = info.get('publication_sequence_number')
-        if seq is not None:
-            last = state.last_pub_seq
-            if state.single_publisher and last is not None and seq > last + 1:
-                state.seq_gaps += seq - last - 1
-            state.last_pub_seq = seq
+        state.gaps.observe(info.get('publication_sequence_number'),
+                           state.subscription.get_publisher_count())
         stamp = info.get('received_timestamp') or time.time_ns()
         self._writer.put(state.key, stamp, raw)  # raises if the writer thread has died
 
     # --- diagnostics and shutdown ---------------------------------------------------------
     def _check_publishers(self) -> None:
-        """Note single publishers (sequence gaps are counted) and unmatched best effort."""
+        """Warn of best-effort publishers a reliable subscription cannot match."""
         for state in self._topics.values():
             pubs = self.get_publishers_info_by_topic(state.name)
-            state.single_publisher = len(pubs) == 1
             if state.reliable:
                 bad = tuple(sorted(f'{p.node_namespace.rstrip("/")}/{p.node_name}'
                                    for p in pubs if p.qos_profile.reliability
@@ -324,7 +316,7 @@ class RecorderNode(Node):
     def _publish_diagnostics(self) -> None:
         s = self._writer.stats()
         self._check_publishers()
-        gaps = sum(t.seq_gaps for t in self._topics.values())
+        gaps = sum(t.gaps.lost for t in self._topics.values())
         unmatched = [f'{t.name} from {", ".join(t.incompatible)}'
                      for t in self._topics.values() if t.incompatible]
         level, text = DiagnosticLevel.OK, f'recording to {self._bag_path}'
@@ -374,7 +366,7 @@ class RecorderNode(Node):
             The writer failed; the MCAP file is recoverable up to its last flushed chunk.
         """
         s = self._writer.close()
-        gaps = sum(t.seq_gaps for t in self._topics.values())
+        gaps = sum(t.gaps.lost for t in self._topics.values())
         self.get_logger().info(
             f'closed {self._bag_path}: {s.written} messages, {s.bytes_written / 1e6:.1f} MB, '
             f'queue high water {s.queue_high_water}, {gaps} messages lost before the '

@@ -18,7 +18,7 @@ reports and the bench loop read through :func:`load_bag` and :func:`read_fields`
 from __future__ import annotations
 
 from ..errors import BagFormatError, BagWriteError, RecordingError, UnknownMessageTypeError
-from .arrays import TopicData, sequence_gaps
+from .arrays import PublisherSequenceGaps, TopicData, sequence_gaps
 from .fields import FieldRecord, FieldSeries, FieldSpec, read_fields
 from .qos import make_qos, qos_summary, reliable_qos
 from .reader import BagContents, bag_info, is_complete_bag, load_bag, load_bag_contents
@@ -32,7 +32,8 @@ from .writer import BAG_VERSION, BagWriter, QueuedBagWriter, WriterStats, absolu
 __all__ = [
     'BAG_VERSION', 'BagContents', 'BagFormatError', 'BagIndex', 'BagWriteError', 'BagWriter',
     'DEFAULT_TOPICS', 'FieldRecord', 'FieldSeries', 'FieldSpec', 'McapScanner',
-    'QueuedBagWriter', 'RecordingError', 'RecoveryReport', 'SUITE_TOPICS', 'ScanReport',
+    'PublisherSequenceGaps', 'QueuedBagWriter', 'RecordingError', 'RecoveryReport',
+    'SUITE_TOPICS', 'ScanReport',
     'TopicData', 'TypeDefinition', 'UnknownMessageTypeError', 'WriterStats', 'absolute_topic',
     'bag_info', 'build_typestore', 'ensure_type', 'is_complete_bag', 'load_bag',
     'load_bag_contents', 'make_qos', 'msgdef_and_hash', 'parse_topic_spec', 'qos_summary',

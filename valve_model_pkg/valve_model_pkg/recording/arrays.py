@@ -118,6 +118,31 @@ def sequence_gaps(sequence: np.ndarray) -> tuple[int, int]:
     return int(jumps.size), int(np.sum(jumps - 1))
 
 
+class PublisherSequenceGaps:
+    """Messages lost before a subscriber, from the DDS publication sequence numbers.
+
+    The numbers are per writer, and a received message does not say which writer sent it,
+    so they are compared only while exactly one writer is matched: messages of several
+    writers interleave their numbering, and a number kept from a writer that has left says
+    nothing about the next one. The matched count is the subscription's own (DDS), which
+    knows a writer before its first message arrives; the graph can lag it.
+    """
+
+    def __init__(self) -> None:
+        self.lost = 0                   # messages missing between consecutive numbers
+        self._last: int | None = None   # the single writer's last number
+
+    def observe(self, sequence_number: int | None, matched_publishers: int) -> None:
+        """Take one message's ``publication_sequence_number`` and the matched writers."""
+        if sequence_number is None or matched_publishers != 1:
+            self._last = None
+            return
+        last = self._last
+        if last is not None and sequence_number > last + 1:
+            self.lost += sequence_number - last - 1
+        self._last = sequence_number
+
+
 def _columns(store: Typestore, msgtype: str, prefix: str = '') -> list[tuple[str, str]]:
     """(dotted name, kind) of the leaf fields of ``msgtype``; kind is a base type name,
     ``seq:<base>`` for numeric/string sequences or ``object``."""
