@@ -22,6 +22,15 @@ def _start_sim(start_node, rate_hz: float, *extra: str):
                       *extra)
 
 
+def _wait_for_duty(ros, probe: StateProbe, duty: float) -> None:
+    """Until the state the probe last took carries ``duty`` (a loaded machine may delay
+    the command and the test's reading of the stream alike)."""
+    def in_force() -> bool:
+        last = probe.window().last
+        return last is not None and last.duty == pytest.approx(duty)
+    ros.wait_for(in_force, 30.0, f'the duty command {duty} in force')
+
+
 @pytest.mark.parametrize('rate_hz', [1000.0, 200.0])
 def test_state_arrives_at_the_configured_rate_and_follows_duty(start_node, ros, rate_hz):
     sim = _start_sim(start_node, rate_hz)
@@ -49,6 +58,7 @@ def test_state_arrives_at_the_configured_rate_and_follows_duty(start_node, ros, 
 
     # Follow a duty command: 60 % at 50 Hz opens the valve for part of each period.
     probe.command(0.6, 50.0)
+    _wait_for_duty(ros, probe, 0.6)
     ros.spin_for(1.0)
     probe.reset_window()
     ros.spin_for(1.0)
@@ -61,6 +71,7 @@ def test_state_arrives_at_the_configured_rate_and_follows_duty(start_node, ros, 
     assert w.mass_flow_kg_s > 0.0
 
     probe.command(0.0, 50.0)
+    _wait_for_duty(ros, probe, 0.0)
     ros.spin_for(1.0)
     probe.reset_window()
     ros.spin_for(0.5)
@@ -78,26 +89,30 @@ def test_bad_commands_are_rejected_and_the_node_survives(start_node, ros):
     supply_pub = probe.create_publisher(FluidPressure, TOPIC_SUPPLY_PRESSURE, COMMAND_QOS)
     ros.wait_for(lambda: probe.count > 10, 30.0, 'valve/state')
 
+    def rejected() -> int:
+        return max((int(kv.value) for d in diags for s in d.status for kv in s.values
+                    if kv.key == 'rejected_commands'), default=0)
+
     probe.command(0.4, 50.0)
-    ros.spin_for(0.5)
+    _wait_for_duty(ros, probe, 0.4)
     for duty, freq in [(math.nan, 50.0), (0.5, math.inf), (0.5, -3.0), (0.5, 1e9)]:
         probe.command(duty, freq)
     supply_pub.publish(FluidPressure(fluid_pressure=math.nan))
-    ros.spin_for(1.0)
+    ros.wait_for(lambda: rejected() >= 5, 30.0,
+                 f'diagnostics counting 5 rejected inputs ({rejected()})')
+    probe.reset_window()
+    ros.wait_for(lambda: probe.window().count > 20, 30.0, 'states after the rejections')
     last = probe.window().last
-    assert last is not None
     assert last.duty == pytest.approx(0.4)  # last valid command still in force
     assert last.pwm_frequency == pytest.approx(50.0)
 
     probe.command(1.7, 50.0)  # out of range: clamped and reported
     supply_pub.publish(FluidPressure(fluid_pressure=absolute_from_gauge(2.0e5)))
-    ros.spin_for(1.0)
-    last = probe.window().last
-    assert last.duty == pytest.approx(1.0)
-    assert last.supply_pressure == pytest.approx(2.0e5)
-    ros.wait_for(lambda: any(kv.key == 'rejected_commands' and int(kv.value) >= 6
-                             for d in diags for s in d.status for kv in s.values),
-                 5.0, 'diagnostics counting the rejected commands')
+    _wait_for_duty(ros, probe, 1.0)
+    ros.wait_for(lambda: probe.window().last.supply_pressure == pytest.approx(2.0e5), 30.0,
+                 'the new supply pressure in the state')
+    ros.wait_for(lambda: rejected() >= 6, 30.0,
+                 f'diagnostics counting the clamped command too ({rejected()})')
     assert sim.alive()
     out = sim.output
     assert 'not finite' in out and 'clamped' in out
