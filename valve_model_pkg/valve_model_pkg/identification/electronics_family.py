@@ -23,13 +23,14 @@ and the data choose one, as they choose an effect:
    open-loop PWM hold pay off only together, and with the freewheel diode: each alone
    around the prior form fits worse than the prior form), which (a) cannot see; (a)'s
    longer search finds a hysteresis hold's narrow valley, which (b)'s misses. When (a)
-   ranks a peak end other than the prior form's first, (b) runs at the valves searched
-   again under that peak end (:func:`valve_under`): the peak end decides when the full
-   supply stops, so it shapes the stroke as much as the release does, and a valve
-   searched under a wrong one can lie so far from the record's that no form fits there
-   (a current-threshold peak end, an open-loop PWM hold and a freewheel diode: 32 mA
-   search-window error at the valve searched under the prior's dip peak end, 11 mA at
-   the valve searched under a current threshold).
+   ranks a peak end other than the prior form's first, (b) runs also at the valves
+   searched again under that peak end (:func:`valve_under`), each form's better screen
+   kept: the peak end decides when the full supply stops, so it shapes the stroke as
+   much as the release does, and a valve searched under a wrong one can lie so far from
+   the record's that no form fits there (a current-threshold peak end, an open-loop PWM
+   hold and a freewheel diode: 32 mA search-window error at the valve searched under the
+   prior's dip peak end, 11 mA at the valve searched under a current threshold); but (a)
+   can rank wrongly, and then only the prior's valves reach the record's form.
 3. **Complete forms** (:func:`fit_forms`): the :data:`KEEP_PER_PART` best options of each
    part of (a) combined, the :data:`KEPT_FORMS` best forms of (b), the prior form
    (the paper's driver) and the form in force at the valve's start values (chosen again
@@ -340,6 +341,15 @@ def screen_forms(data: FitData, starts: list[ValveStart], workers: int) -> list[
     return sorted(_pool_map(one, jobs, workers), key=lambda f: f.search_cost)
 
 
+def _best_per_form(forms: list[FormFit]) -> list[FormFit]:
+    """Of forms screened at several valves, each form's best (``forms`` best first)."""
+    out: list[FormFit] = []
+    for f in forms:
+        if not any(_same_form(f.electronics, g.electronics) for g in out):
+            out.append(f)
+    return out
+
+
 def _has(f: FormFit, option: dict[str, str]) -> bool:
     return all(getattr(f.electronics, k) == v for k, v in option.items())
 
@@ -565,12 +575,14 @@ def select_family(search: FitData, fit: FitData, val: FitData | None, space: Par
     first = _valve_for(search, space, starts, min(drives, key=lambda d: d.cost))
     centre = FormFit(first.base, first.params, first.cost)
     parts = screen_parts(search, centre, workers)
+    valves = valve_under(search, space, starts, base, workers, drives, first)
     peak = parts['peak_end'][0][0]
-    if all(getattr(base, k) == v for k, v in peak.items()):
-        valves = valve_under(search, space, starts, base, workers, drives, first)
-    else:
-        valves = valve_under(search, space, starts, base.replace(**peak), workers)
-    screened = screen_forms(search, valves, workers)
+    if not all(getattr(base, k) == v for k, v in peak.items()):
+        # The valve searched under the prior's peak end can be far from the record's when
+        # the record's peak ends otherwise, and the one searched under the part screen's
+        # best peak end can be far when the screen ranks wrongly: both are screened.
+        valves += valve_under(search, space, starts, base.replace(**peak), workers)
+    screened = _best_per_form(screen_forms(search, valves, workers))
     forms = fit_forms(search, space, centre, parts, screened, base, workers, grid,
                       _incumbent(search, starts[0]))
     chosen, same, text = choose_form(forms, fit, val, workers)
