@@ -12,9 +12,12 @@ from valve_model_pkg.nodes.common import (COMMAND_QOS, TOPIC_DIAGNOSTICS,
                                           TOPIC_SUPPLY_PRESSURE, absolute_from_gauge)
 from valve_model_pkg.nodes.probe import StateProbe
 
+from node_harness import Diagnostics
+
 pytestmark = pytest.mark.node
 
 X_MAX_M = 0.33e-3  # Table 2 identified stroke
+SIM_STATUS = 'valve_simulator: real-time model'
 
 
 def _start_sim(start_node, rate_hz: float, *extra: str):
@@ -22,13 +25,13 @@ def _start_sim(start_node, rate_hz: float, *extra: str):
                       *extra)
 
 
-def _wait_for_duty(ros, probe: StateProbe, duty: float) -> None:
+def _wait_for_duty(ros, probe: StateProbe, duty: float, timeout_s: float = 30.0) -> None:
     """Until the state the probe last took carries ``duty`` (a loaded machine may delay
     the command and the test's reading of the stream alike)."""
     def in_force() -> bool:
         last = probe.window().last
         return last is not None and last.duty == pytest.approx(duty)
-    ros.wait_for(in_force, 30.0, f'the duty command {duty} in force')
+    ros.wait_for(in_force, timeout_s, f'the duty command {duty} in force')
 
 
 @pytest.mark.parametrize('rate_hz', [1000.0, 200.0])
@@ -84,14 +87,12 @@ def test_state_arrives_at_the_configured_rate_and_follows_duty(start_node, ros, 
 def test_bad_commands_are_rejected_and_the_node_survives(start_node, ros):
     sim = _start_sim(start_node, 500.0)
     probe = ros.add(StateProbe('test_probe', TEST_READER_DEPTH))
-    diags: list[DiagnosticArray] = []
-    probe.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, diags.append, 10)
+    diag = Diagnostics(probe, SIM_STATUS)
     supply_pub = probe.create_publisher(FluidPressure, TOPIC_SUPPLY_PRESSURE, COMMAND_QOS)
     ros.wait_for(lambda: probe.count > 10, 30.0, 'valve/state')
 
     def rejected() -> int:
-        return max((int(kv.value) for d in diags for s in d.status for kv in s.values
-                    if kv.key == 'rejected_commands'), default=0)
+        return diag.int('rejected_commands', 0)
 
     probe.command(0.4, 50.0)
     _wait_for_duty(ros, probe, 0.4)
@@ -167,11 +168,7 @@ def test_executor_choice_and_the_stream_on_it(start_node, ros, env, sim_time, ex
     probe = ros.add(StateProbe('test_probe_executor'))
     ros.wait_for(lambda: probe.count > 10, 30.0, 'the first valve/state messages')
     probe.command(0.6, 50.0)
-
-    def duty_now() -> float | None:
-        last = probe.window().last
-        return None if last is None else last.duty
-    ros.wait_for(lambda: duty_now() == pytest.approx(0.6), 10.0, 'the duty command in force')
+    _wait_for_duty(ros, probe, 0.6, timeout_s=10.0)
     probe.command(0.0, 50.0)
-    ros.wait_for(lambda: duty_now() == 0.0, 10.0, 'duty 0 in force')
+    _wait_for_duty(ros, probe, 0.0, timeout_s=10.0)
     assert sim.stop() == 0
