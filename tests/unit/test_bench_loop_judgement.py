@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import pytest
 
+from valve_bringup.bench import DEFAULT_EFFECT_PARAMS
 from valve_bringup.bench_loop import main
-from valve_bringup.operation_loop import (NEAREST_CANDIDATE, expected_answers,
-                                          write_plant_parameters)
+from valve_bringup.operation_loop import (NEAREST_CANDIDATE, OPERATION_EFFECT_PARAMS,
+                                          expected_answers, write_plant_parameters)
 from valve_model_pkg.model import load_parameters
 from valve_model_pkg.model.parameters import EFFECTS, EMULATOR_EFFECTS
 
@@ -56,3 +57,16 @@ def test_the_valve_in_service_differs_from_the_suite_only_in_its_discharge_coeff
     assert plant.suite_full_opening_area_m2 / plant.full_opening_area_m2 == \
         pytest.approx(0.8 / 0.62)
     assert plant.to_json()['discharge_coefficient'] == 0.62
+
+
+@pytest.mark.parametrize('mode, defaults', [('bench', DEFAULT_EFFECT_PARAMS),
+                                            ('operation', OPERATION_EFFECT_PARAMS)])
+def test_the_loops_injected_effects_lie_inside_the_identifications_search_range(
+        mode, defaults) -> None:
+    # A truth outside the range is fitted at the bound: the loop would then judge a misfit.
+    for effect, items in defaults.items():
+        bounds = EFFECTS[effect].bounds
+        for item in items:
+            name, value = item.split('=')
+            low, high = bounds[name]
+            assert low < float(value) < high, (mode, effect, name, value, (low, high))

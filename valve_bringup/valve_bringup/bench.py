@@ -34,9 +34,12 @@ __all__ = ['BenchRecord', 'BenchStep', 'BENCH_RECORDS', 'BENCH_ADC_NOISE_A',
            'record_checked_step', 'run_bench_loop']
 
 #: Effect parameters of the emulated valve when --effect-param is not given. Coil heating
-#: is made visible within the 0.8 s steps (a real coil's time constant is minutes).
+#: is made visible within the 0.8 s steps (a real coil's time constant is minutes) with a
+#: time constant inside the identification's search range (EFFECTS' bounds, 1-1000 s):
+#: a truth outside it can only be fitted at the bound, and the augmented error then
+#: depends on how long the step happens to last.
 DEFAULT_EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
-    'coil_heating': ('thermal_resistance_k_per_w=5', 'thermal_time_constant_s=0.5'),
+    'coil_heating': ('thermal_resistance_k_per_w=12', 'thermal_time_constant_s=2'),
 }
 
 #: Current ADC noise of the emulated bench controller [A] (standard deviation). A real

@@ -49,8 +49,9 @@ def _parser() -> argparse.ArgumentParser:
                         'bench mode, eddy_current in operation mode)')
     parser.add_argument('--effect-param', action='append', default=None, metavar='FIELD=VALUE',
                         help='value of an effect parameter, passed to the emulator (default '
-                        'for coil_heating: a small coil that heats noticeably within a '
-                        'second, R_th 5 K/W, tau 0.5 s)')
+                        'for coil_heating in bench mode: a small coil that heats noticeably '
+                        'within a second, '
+                        + ', '.join(DEFAULT_EFFECT_PARAMS['coil_heating']) + ')')
     parser.add_argument('-o', '--out', type=Path, default=Path('bench_loop_output'),
                         help='directory for the bags, the identification and the map')
     parser.add_argument('--plant-discharge-coefficient', type=float,
