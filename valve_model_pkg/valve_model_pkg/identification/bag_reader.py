@@ -165,9 +165,11 @@ def read_bag(path: str | Path, *, topic: str = '/' + TOPIC_STATE, valve: str | N
     -----
     The suite publishes its state at about 1 kHz. That is coarse for identification (the
     spool stroke lasts under a millisecond): the fit uses what there is, the model is
-    simulated at its own step and sampled at the message times, and the voltage is held
-    between messages, so PWM edges between two messages are lost. Sequence gaps are
-    reported as missing samples.
+    simulated at its own step and sampled at the message times. Messages that carry
+    ``coil_voltage_mean`` drive the coil with it (exact over each interval, an edge placed
+    within its interval); otherwise the sampled voltage is held between messages, so an
+    edge moves to the next message and PWM edges between two messages are lost. Sequence
+    gaps are reported as missing samples.
     """
     spath = str(path)
     if mapping:
@@ -285,6 +287,7 @@ def measurement_from_state(spath: str, topic: str, valve: str | None,
         raise MeasurementFormatError(
             spath, None, f'message {int(bad_v[0])} has a non-finite coil_voltage')
     check_excitation(spath, voltage, None)
+    drive_v, hold = _bare_coil_drive(voltage, cols.coil_voltage_mean_v, topic, notes)
     n_missing = int(np.count_nonzero(~np.isfinite(current)))
     if n_missing:
         notes.append(f'{n_missing} messages with a non-finite coil_current; kept, excluded')
@@ -312,10 +315,52 @@ def measurement_from_state(spath: str, topic: str, valve: str | None,
     for note in notes:
         _LOG.info('%s: %s', spath, note)
     return Measurement(
-        source=spath, t_s=t, voltage_v=voltage.copy(), current_a=current.copy(),
+        source=spath, t_s=t, voltage_v=drive_v, current_a=current.copy(),
         supply_pressure_pa=supply, output_pressure_pa=output,
         experiment=metadata['experiment'], position_m=position, metadata=metadata,
-        notes=tuple(notes), n_missing_values=n_missing, n_gaps=n_gaps)
+        notes=tuple(notes), n_missing_values=n_missing, n_gaps=n_gaps, voltage_hold=hold)
+
+
+#: A message's coil_voltage_mean agrees with its sampled coil_voltage when it lies between
+#: the samples at its interval's ends within this share of the largest |coil_voltage|.
+_MEAN_AGREES_SHARE = 0.05
+
+
+def _bare_coil_drive(voltage: np.ndarray, v_mean: np.ndarray | None, topic: str,
+                     notes: list[str]) -> tuple[np.ndarray, str]:
+    """The voltage that drives the bare coil and how it is held (``Measurement.voltage_hold``).
+
+    ``coil_voltage_mean`` when every message carries it and it agrees with the samples
+    (each mean between the sampled voltages at its interval's ends: a bench step switches
+    at most once in an interval): its integral over each interval is exact and the edge
+    within an interval is placed from it (:func:`.model_adapter.interval_segments`). The
+    sampled ``coil_voltage`` held from one message to the next moves every edge to a
+    message instant, up to one period late, which on a bare coil (L/R of milliseconds,
+    1 kHz messages) leaves up to a tenth of an ampere at each edge, far above a bench
+    ADC's noise.
+    """
+    if v_mean is None:
+        return voltage.copy(), 'sample'
+    field = f'{topic} {MEAN_VOLTAGE_FIELD}'
+    if v_mean.size != voltage.size or not np.all(np.isfinite(v_mean)):
+        notes.append(f'{field} is missing on some messages: the sampled coil_voltage drives '
+                     'the coil, held from one message to the next')
+        return voltage.copy(), 'sample'
+    before = np.concatenate((voltage[:1], voltage[:-1]))
+    tol = _MEAN_AGREES_SHARE * max(float(np.max(np.abs(voltage))), 1e-3)
+    off = np.flatnonzero((v_mean < np.minimum(before, voltage) - tol)
+                         | (v_mean > np.maximum(before, voltage) + tol))
+    if off.size:
+        k = int(off[0])
+        notes.append(f'{field} disagrees with coil_voltage at {off.size} messages (first: '
+                     f'message {k}, mean {v_mean[k]:.4g} V, samples {before[k]:.4g} and '
+                     f'{voltage[k]:.4g} V): the sampled coil_voltage drives the coil, held '
+                     'from one message to the next')
+        return voltage.copy(), 'sample'
+    notes.append(f'the coil is driven by {field} held over each interval, an edge within an '
+                 'interval placed from its mean; coil_current is compared at the message '
+                 'instants')
+    return np.asarray(v_mean, dtype=float).copy(), 'interval_mean'
 
 
 def _bench_steps(duty: np.ndarray, coil_voltage_v: np.ndarray) -> bool:

@@ -199,6 +199,14 @@ def _interval_mean_setup(m: Measurement, h_stop_s: float | None,
                       sampling=m.sampling)
 
 
+def _rest_step_s(duration_s: float, sample_dt_s: float) -> float:
+    """Kernel step while the spool rests [s] (:func:`prepare_trace`): the kernel's default,
+    or up to 500 us (at most a sample period) for a trace of 0.5 s or more."""
+    if duration_s < 0.5:
+        return DEFAULT_H_STOP_S
+    return max(DEFAULT_H_STOP_S, min(500e-6, sample_dt_s))
+
+
 def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
                   keep: np.ndarray | None = None) -> TraceSetup:
     """Prepare a measurement for :func:`simulate_measurement`.
@@ -239,6 +247,11 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
                                           d.supply_voltage_v),
             sampling=m.sampling)
     if m.voltage_hold == 'interval_mean':
+        if h_stop_s is None and m.experiment != 'operation':
+            # a bench step driven by its mean voltage rests as long as a sampled one;
+            # records in service keep the kernel's default (their chopped means switch
+            # within most intervals of a PWM period)
+            h_stop_s = _rest_step_s(m.duration_s, float(np.median(np.diff(m.t_s))))
         return _interval_mean_setup(m, h_stop_s, keep)
     seg_t0, seg_v = _segments(m.t_s, m.voltage_v)
     t = m.t_s if keep is None else m.t_s[keep]
@@ -260,8 +273,7 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
         n_grid = int(math.floor((t[-1] - t[0]) / grid_dt)) + 2
         index = None
     if h_stop_s is None:
-        h_stop_s = DEFAULT_H_STOP_S if m.duration_s < 0.5 else max(
-            DEFAULT_H_STOP_S, min(500e-6, grid_dt))
+        h_stop_s = _rest_step_s(m.duration_s, grid_dt)
     return TraceSetup(seg_t0_s=seg_t0, seg_v=seg_v, t_end_s=float(t[-1]),
                       grid_t0_s=float(t[0]), grid_dt_s=grid_dt, n_grid=n_grid, index=index,
                       t_s=t, supply_pressure_pa=float(m.supply_pressure_pa),

@@ -411,8 +411,10 @@ def route_inputs(inputs: Inputs, settings: IdentifySettings, say: Say
 
 def _in_service(m: Measurement) -> bool:
     """A record of a valve in service (long: held out, windowed), through the drive
-    electronics or around them through its mean coil voltage."""
-    return m.drive is not None or m.voltage_hold == 'interval_mean'
+    electronics or around them through its mean coil voltage (a bench step driven by its
+    mean voltage is a bench record)."""
+    return m.drive is not None or (m.voltage_hold == 'interval_mean'
+                                   and m.experiment == 'operation')
 
 
 # --- stage 2: the data -----------------------------------------------------------------
