@@ -240,13 +240,77 @@ def _state_time_axis(spath: str, cols: StateColumns, notes: list[str]) -> np.nda
     return t
 
 
+#: A sequence gap is filled with its lost messages when the stamps across it advance by
+#: this range of the record's step per message (else the publisher restarted or its clock
+#: jumped, and the gap is left as it is).
+_LOST_STEP_RANGE = (0.5, 1.5)
+#: Most lost messages put back per message read (a hostile bag's counter jumps cost no
+#: memory).
+_MAX_LOST_PER_MESSAGE = 10
+
+
+def _with_lost_messages(cols: StateColumns, t: np.ndarray, notes: list[str], *,
+                        bench: bool = False) -> tuple[StateColumns, np.ndarray]:
+    """The messages with each lost one (a gap in the sequence numbers) put back at its
+    time as a missing sample: no current (NaN), no spool position, the rest (commands,
+    voltages, pressures) held from the message before; on a ``bench`` (an unchopped
+    step) the lost mean voltage is the sampled voltage held, the level in force.
+
+    A message's means (``coil_current_mean``, ``coil_voltage_mean``) cover the interval
+    since the previous message its publisher sent; read without the lost ones, the record's
+    interval would span the whole gap, and through the chopper the mean over the gap is
+    not the mean over the last period (tens of mA).
+    """
+    seq = cols.sequence
+    d = np.diff(seq)
+    if t.size < 3 or not np.all(np.isfinite(seq)) or not np.any(d > 1) \
+            or not np.any(d == 1):
+        return cols, t
+    step = float(np.median(np.diff(t)[d == 1]))
+    with np.errstate(invalid='ignore', divide='ignore'):
+        per = np.diff(t) / np.where(d > 0, d, 1.0)
+    lo, hi = _LOST_STEP_RANGE
+    fill = (d > 1) & (per > lo * step) & (per < hi * step)
+    lost = np.where(fill, d - 1, 0).astype(np.int64)
+    total = int(lost.sum())
+    if total == 0:
+        return cols, t
+    if total > _MAX_LOST_PER_MESSAGE * t.size:
+        notes.append(f'the sequence numbers skip {total} messages, more than '
+                     f'{_MAX_LOST_PER_MESSAGE} per message read: not put back')
+        return cols, t
+    counts = np.ones(t.size, dtype=np.int64)
+    counts[:-1] += lost
+    src = np.repeat(np.arange(t.size), counts)
+    offset = np.arange(src.size) - np.repeat(np.cumsum(counts) - counts, counts)
+    per_after = np.append(np.where(fill, per, 0.0), 0.0)
+    put = offset > 0
+    out = {}
+    for fl in fields(cols):
+        col = getattr(cols, fl.name)
+        out[fl.name] = None if col is None else col[src]
+    out['sequence'] = seq[src] + offset
+    for name in ('coil_current_a', 'coil_current_mean_a', 'spool_position_m'):
+        if out[name] is not None:
+            out[name] = out[name].astype(float)
+            out[name][put] = np.nan
+    if bench and out['coil_voltage_mean_v'] is not None:
+        out['coil_voltage_mean_v'] = out['coil_voltage_mean_v'].astype(float)
+        out['coil_voltage_mean_v'][put] = out['coil_voltage_v'][put]
+    t_new = t[src] + offset * per_after[src]
+    notes.append(f'{total} lost messages put back at their times as missing samples (no '
+                 'current compared there, the drive held from the message before): each '
+                 'mean covers the interval since the message before it was sent')
+    return StateColumns(**out), t_new
+
+
 def _sequence_gaps(seq: np.ndarray, notes: list[str]) -> int:
     """Number of gaps in the sequence numbers (a note says how many messages were lost)."""
     dseq = np.diff(seq)
     lost = int(np.sum(np.clip(dseq - 1, 0, None)))
     n_gaps = int(np.count_nonzero(dseq > 1))
     if lost:
-        notes.append(f'{n_gaps} sequence gaps, {lost} messages lost; kept, the model is '
+        notes.append(f'{n_gaps} sequence gaps, {lost} messages lost; the model is '
                      'simulated through them')
     return n_gaps
 
@@ -275,23 +339,26 @@ def measurement_from_state(spath: str, topic: str, valve: str | None,
     cols, frame = _one_valve(spath, topic, valve, cols)
     notes: list[str] = []
     t = _state_time_axis(spath, cols, notes)
+    n_gaps = _sequence_gaps(cols.sequence, notes)
     if np.any(cols.pwm_frequency_hz > 0.0) and np.any(cols.duty > 0.0):
         if not _bench_steps(cols.duty, cols.coil_voltage_v):
-            return _state_operation(spath, topic, frame, t, cols, notes)
+            cols, t = _with_lost_messages(cols, t, notes)
+            return _state_operation(spath, topic, frame, t, cols, notes, n_gaps)
         notes.append('duty steps between 0 and 1 with an unchopped coil voltage (a bench '
                      'with the drive electronics bypassed): fitted as a bare coil driven by '
                      'coil_voltage')
-    voltage, current = cols.coil_voltage_v, cols.coil_current_a
-    bad_v = np.flatnonzero(~np.isfinite(voltage))
+    bad_v = np.flatnonzero(~np.isfinite(cols.coil_voltage_v))
     if bad_v.size:
         raise MeasurementFormatError(
             spath, None, f'message {int(bad_v[0])} has a non-finite coil_voltage')
-    check_excitation(spath, voltage, None)
-    drive_v, hold = _bare_coil_drive(voltage, cols.coil_voltage_mean_v, topic, notes)
-    n_missing = int(np.count_nonzero(~np.isfinite(current)))
+    check_excitation(spath, cols.coil_voltage_v, None)
+    n_missing = int(np.count_nonzero(~np.isfinite(cols.coil_current_a)))
     if n_missing:
         notes.append(f'{n_missing} messages with a non-finite coil_current; kept, excluded')
-    n_gaps = _sequence_gaps(cols.sequence, notes)
+    cols, t = _with_lost_messages(cols, t, notes, bench=True)
+    voltage, current = cols.coil_voltage_v, cols.coil_current_a
+    drive_v, hold = _bare_coil_drive(voltage, cols.coil_voltage_mean_v, topic, notes)
+    n_missing = int(np.count_nonzero(~np.isfinite(current)))
     supply_all = cols.supply_pressure_pa
     supply = float(np.median(supply_all))
     if np.ptp(supply_all) > 0.01 * max(abs(supply), 1e3):
@@ -378,7 +445,7 @@ def _bench_steps(duty: np.ndarray, coil_voltage_v: np.ndarray) -> bool:
 
 
 def _state_operation(spath: str, topic: str, frame: str, t: np.ndarray, cols: StateColumns,
-                     notes: list[str]) -> Measurement:
+                     notes: list[str], n_gaps: int) -> Measurement:
     """A bag of the suite running PWM: an operational record (drive electronics on)."""
     mean = cols.coil_current_mean_a
     if mean is None or not np.any(np.isfinite(mean)):
@@ -388,7 +455,6 @@ def _state_operation(spath: str, topic: str, frame: str, t: np.ndarray, cols: St
             f'NaN) {MEAN_CURRENT_FIELD!r} field (the mean coil current since the previous '
             'message): a 1 kHz sample of a chopped current cannot be compared with the '
             'model; record the bag with a suite whose ValveState carries it')
-    n_gaps = _sequence_gaps(cols.sequence, notes)
     supply = median_pressure(cols.supply_pressure_pa, 'supply_pressure', None, notes)
     output = median_pressure(cols.output_pressure_pa, 'output_pressure', 0.0, notes)
     notes.append(f'the bag does not carry the drive supply voltage: {DEFAULT_BAG_SUPPLY_V:g} V '
