@@ -197,6 +197,10 @@ def test_counter_jumps_are_counted(live) -> None:
                what='counter jumps, reported')
     live.emu.inject(EmulatorFault.CLEAR_ALL)
     assert live.core.counters['frames_lost'] >= live.core.counters['counter_jumps']
+    live.core.close()   # no frame in flight between the two counts below
+    # every lost frame is handed on with the sample after it (the means' interval)
+    lost = [s.samples_lost_before for s in live.states]
+    assert sum(lost) == live.core.counters['frames_lost'] and max(lost) >= 1
 
 
 def test_checksum_failures_are_rejected_and_counted(live) -> None:

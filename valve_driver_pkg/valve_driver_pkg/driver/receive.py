@@ -319,7 +319,7 @@ class ReceiveTracker:
         if state is None or self._on_sample is None:
             return
         # Outside the lock: the orifice equation and the callback (the node publishes).
-        average, duty, pwm_hz, supply, output, velocity = state
+        average, duty, pwm_hz, supply, output, velocity, lost = state
         flow = self._mass_flow(average, supply, output) if self._mass_flow else 0.0
         self._on_sample(ValveSample(
             t_s=frame_time_s(timestamp_s, wall), coil_voltage_v=float(signals['CoilVoltage']),
@@ -328,7 +328,8 @@ class ReceiveTracker:
             position_avg_m=average, mass_flow_kg_s=flow, duty=duty, pwm_frequency_hz=pwm_hz,
             supply_pressure_pa=supply, output_pressure_pa=output,
             position_measured=bool(signals['PositionValid']),
-            coil_current_mean_a=current_mean, coil_voltage_mean_v=voltage_mean))
+            coil_current_mean_a=current_mean, coil_voltage_mean_v=voltage_mean,
+            samples_lost_before=lost))
 
     def _track_telemetry(self, signals: dict, counter: int) -> tuple[tuple | None, bool]:
         """Account for one telemetry frame (lock held).
@@ -377,7 +378,7 @@ class ReceiveTracker:
             average, duty, pwm_hz = self.period[0], self.period[1], self.period[2] or pwm_hz
         if not scheduler.active:
             return None, False
-        return (average, duty, pwm_hz, supply, output, velocity), False
+        return (average, duty, pwm_hz, supply, output, velocity, steps - 1), False
 
     def _driver_average(self, t: float, position: float) -> float:
         """The suite's period average on the telemetry positions (used without ValvePeriod).

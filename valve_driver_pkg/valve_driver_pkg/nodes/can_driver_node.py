@@ -397,6 +397,9 @@ class CanDriverNode(Node):
             stamp = Time(nanoseconds=int(round(sample.t_s * 1e9))).to_msg()
         else:
             stamp = self.get_clock().now().to_msg()
+        # samples the controller took and the bus lost count in the sequence: a reader
+        # then knows the means cover one telemetry period, not the gap
+        self._sequence += sample.samples_lost_before
         msg = state_message(sample, stamp, self._frame_id, self._sequence,
                             ValveState.SOURCE_CAN)
         self._sequence += 1

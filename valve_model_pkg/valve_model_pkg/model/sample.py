@@ -50,6 +50,11 @@ class ValveSample:
         (CAN). NaN when the source does not provide it.
     coil_voltage_mean_v : float
         Mean coil terminal voltage over the same interval, V (NaN when not provided).
+    samples_lost_before : int
+        Samples the source took but did not deliver just before this one (a controller's
+        telemetry counter that jumped): the interval of the means is then one sample
+        period, not the time since the previous delivered sample, and a publisher
+        advances its message counter by this many so that a reader can tell.
     """
 
     t_s: float
@@ -67,3 +72,4 @@ class ValveSample:
     position_measured: bool = False
     coil_current_mean_a: float = math.nan
     coil_voltage_mean_v: float = math.nan
+    samples_lost_before: int = 0
