@@ -353,6 +353,9 @@ class ReceiveTracker:
             self._tally.count('frames_lost', self._telemetry_counter.lost)
             self._tally.mark('counter_jump', now)
         self.health.frame(now, self._telemetry_counter.lost)
+        # the counter tells the controller's skipped instants even after a stall of this
+        # process (frames queued, not lost), unless it wrapped (more than 15)
+        lost = 0 if check is CounterCheck.FIRST else self._telemetry_counter.lost
         steps = 1 + self._telemetry_counter.lost
         if gap or check is CounterCheck.FIRST:
             self._averager = None
@@ -378,7 +381,7 @@ class ReceiveTracker:
             average, duty, pwm_hz = self.period[0], self.period[1], self.period[2] or pwm_hz
         if not scheduler.active:
             return None, False
-        return (average, duty, pwm_hz, supply, output, velocity, steps - 1), False
+        return (average, duty, pwm_hz, supply, output, velocity, lost), False
 
     def _driver_average(self, t: float, position: float) -> float:
         """The suite's period average on the telemetry positions (used without ValvePeriod).
