@@ -354,7 +354,7 @@ class ReceiveTracker:
             self._tally.mark('counter_jump', now)
         self.health.frame(now, self._telemetry_counter.lost)
         # the counter tells the controller's skipped instants even after a stall of this
-        # process (frames queued, not lost), unless it wrapped (more than 15)
+        # process (frames queued, not lost), unless it wrapped (more than 14)
         lost = 0 if check is CounterCheck.FIRST else self._telemetry_counter.lost
         steps = 1 + self._telemetry_counter.lost
         if gap or check is CounterCheck.FIRST:
