@@ -438,11 +438,8 @@ def fit_forms(data: FitData, space: ParameterSpace, centre: FormFit,
     todo = [FormFit(c, centre.params, math.inf) for c in forms] + screened[:KEPT_FORMS]
     if incumbent is not None:
         todo.append(incumbent)
-    fits: list[FormFit] = []
-    for f in sorted(_pool_map(lambda f: _constants_only(data, f, grid), todo, workers),
-                    key=lambda f: f.search_cost):
-        if not any(_same_form(f.electronics, g.electronics) for g in fits):
-            fits.append(f)
+    fits = _best_per_form(sorted(_pool_map(lambda f: _constants_only(data, f, grid), todo,
+                                           workers), key=lambda f: f.search_cost))
     for f in fits:
         f.prior = _same_form(f.electronics, prior)
     chosen = fits[:FINALISTS] + [f for f in fits[FINALISTS:] if f.prior]
