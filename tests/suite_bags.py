@@ -38,6 +38,37 @@ def write_bag(path: Path, store: object,
             w.write(conns[topic], log_ns, bytes(store.serialize_cdr(msg, msgtype)))
 
 
+#: Bus time of a bench bag's first state [ns] (:func:`write_bench_state_bag`).
+BENCH_T0_NS = 1_795_820_000 * 10**9
+
+
+def write_bench_state_bag(path: Path, t_s, voltage_v, current_a, voltage_mean_v=None,
+                          sequence=None) -> Path:
+    """A bench step's ``valve/state`` as the CAN driver publishes it in bench mode: duty 1
+    while the unchopped coil voltage is on, 50 Hz, the current's mean = its sample. Times
+    [s] from :data:`BENCH_T0_NS`; ``voltage_mean_v`` defaults to the voltage, ``sequence``
+    to 0, 1, 2, ..."""
+    from valve_model_pkg.recording import build_typestore
+    store = build_typestore()
+    ty = store.types
+    v_mean = voltage_v if voltage_mean_v is None else voltage_mean_v
+    seq = range(len(t_s)) if sequence is None else sequence
+    msgs = []
+    for tj, vj, ij, mj, sj in zip(t_s, voltage_v, current_a, v_mean, seq):
+        ns = BENCH_T0_NS + int(round(tj * 1e9))
+        msgs.append(('valve/state', 'valve_msgs/msg/ValveState', ns,
+                     ty['valve_msgs/msg/ValveState'](
+                         header=header(ty, ns, 'valve'), sequence=int(sj),
+                         coil_voltage=float(vj), coil_current=float(ij),
+                         coil_current_mean=float(ij), coil_voltage_mean=float(mj),
+                         spool_position=0.0, spool_velocity=0.0, spool_position_avg=0.0,
+                         mass_flow=0.0, duty=1.0 if vj > 0.0 else 0.0, pwm_frequency=50.0,
+                         supply_pressure=4e5, output_pressure=0.0, source=2,
+                         position_measured=False)))
+    write_bag(path, store, msgs)
+    return path
+
+
 #: rosbag2 storage-file layouts :func:`write_rosbag2` writes.
 COMPRESSIONS = ('none', 'file', 'message', 'chunk')
 

@@ -13,18 +13,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from suite_bags import header, write_bag
+from suite_bags import write_bench_state_bag
 
 from valve_model_pkg.identification.bag_reader import read_bag
 from valve_model_pkg.identification.model_adapter import prepare_trace, simulate_measurement
 from valve_model_pkg.model import InputTrace, load_parameters, simulate_trace_batch
-from valve_model_pkg.recording import build_typestore
 
 RATE_HZ = 1000.0
 SUPPLY_V = 15.0
 #: Switch on and off between two messages (0.4 ms after one).
 ON_S, OFF_S = 0.3004, 1.1004
-T0_NS = 1_795_820_000 * 10**9
 
 
 def _mean_voltage(t: np.ndarray) -> np.ndarray:
@@ -47,24 +45,9 @@ def step() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _bag(path: Path, t: np.ndarray, v: np.ndarray, i: np.ndarray, v_mean: np.ndarray,
          lost: np.ndarray | None = None) -> Path:
-    store = build_typestore()
-    ty = store.types
-    msgs = []
-    for j in range(t.size):
-        if lost is not None and lost[j]:
-            continue
-        ns = T0_NS + int(round(t[j] * 1e9))
-        msgs.append(('valve/state', 'valve_msgs/msg/ValveState', ns,
-                     ty['valve_msgs/msg/ValveState'](
-                         header=header(ty, ns, 'valve'), sequence=j, coil_voltage=float(v[j]),
-                         coil_current=float(i[j]), coil_current_mean=float(i[j]),
-                         coil_voltage_mean=float(v_mean[j]), spool_position=0.0,
-                         spool_velocity=0.0, spool_position_avg=0.0, mass_flow=0.0,
-                         duty=1.0 if v[j] > 0.0 else 0.0, pwm_frequency=50.0,
-                         supply_pressure=4e5, output_pressure=0.0, source=2,
-                         position_measured=False)))
-    write_bag(path, store, msgs)
-    return path
+    kept = np.ones(t.size, dtype=bool) if lost is None else ~lost
+    return write_bench_state_bag(path, t[kept], v[kept], i[kept], v_mean[kept],
+                                 sequence=np.flatnonzero(kept))
 
 
 def _misfit_a(m, truth_a: np.ndarray) -> float:

@@ -12,15 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from datagen.truth import TruthValve, simulate_truth
-from suite_bags import header, write_bag
+from suite_bags import write_bench_state_bag
 
 from valve_bringup.bench import (BenchRecord, BenchStep, bag_gaps, check_bench_bag,
                                  record_checked_step)
-from valve_model_pkg.recording import build_typestore
 
 RECORD = BenchRecord('validate', 15.0)
 RATE_HZ = 1000.0
-T0_NS = 1_795_820_000 * 10**9
 
 
 @pytest.fixture(scope='module')
@@ -35,22 +33,7 @@ def truth_step() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _bag(path: Path, t: np.ndarray, voltage: np.ndarray, current: np.ndarray) -> Path:
-    store = build_typestore()
-    ty = store.types
-    msgs = []
-    for j, (tj, vj, ij) in enumerate(zip(t, voltage, current)):
-        ns = T0_NS + int(round(tj * 1e9))
-        msgs.append(('valve/state', 'valve_msgs/msg/ValveState', ns,
-                     ty['valve_msgs/msg/ValveState'](
-                         header=header(ty, ns, 'valve'), sequence=j, coil_voltage=float(vj),
-                         coil_current=float(ij), coil_current_mean=float(ij),
-                         coil_voltage_mean=float(vj), spool_position=0.0,
-                         spool_velocity=0.0, spool_position_avg=0.0, mass_flow=0.0,
-                         duty=1.0 if vj > 0.0 else 0.0, pwm_frequency=50.0,
-                         supply_pressure=4e5, output_pressure=0.0, source=2,
-                         position_measured=False)))
-    write_bag(path, store, msgs)
-    return path
+    return write_bench_state_bag(path, t, voltage, current)
 
 
 def test_a_recorded_step_passes(tmp_path: Path, truth_step) -> None:

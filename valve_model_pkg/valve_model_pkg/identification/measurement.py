@@ -352,6 +352,14 @@ class Measurement:
         return np.isfinite(self.current_a) & (self.t_s >= self.exclude_before_s)
 
     @property
+    def in_service(self) -> bool:
+        """True for a record of a valve in service (long: held out, windowed): through the
+        drive electronics, or around them through its mean coil voltage. A bench step
+        driven by its mean voltage is a bench record."""
+        return self.drive is not None or (self.voltage_hold == 'interval_mean'
+                                          and self.experiment == 'operation')
+
+    @property
     def has_coil_voltage_mean(self) -> bool:
         """True when every sample carries a finite measured mean coil voltage."""
         v = self.coil_voltage_mean_v

@@ -247,7 +247,7 @@ def prepare_trace(m: Measurement, *, h_stop_s: float | None = None,
                                           d.supply_voltage_v),
             sampling=m.sampling)
     if m.voltage_hold == 'interval_mean':
-        if h_stop_s is None and m.experiment != 'operation':
+        if h_stop_s is None and not m.in_service:
             # a bench step driven by its mean voltage rests as long as a sampled one;
             # records in service keep the kernel's default (their chopped means switch
             # within most intervals of a PWM period)

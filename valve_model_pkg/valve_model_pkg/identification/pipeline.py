@@ -409,14 +409,6 @@ def route_inputs(inputs: Inputs, settings: IdentifySettings, say: Say
     return Inputs(route.fit, route.validation, inputs.base), route
 
 
-def _in_service(m: Measurement) -> bool:
-    """A record of a valve in service (long: held out, windowed), through the drive
-    electronics or around them through its mean coil voltage (a bench step driven by its
-    mean voltage is a bench record)."""
-    return m.drive is not None or (m.voltage_hold == 'interval_mean'
-                                   and m.experiment == 'operation')
-
-
 # --- stage 2: the data -----------------------------------------------------------------
 
 def _window(m: Measurement, span_s: float) -> Measurement:
@@ -491,15 +483,15 @@ def prepare_files(fit_files: Sequence[Measurement], val_files: Sequence[Measurem
     """Hold-out of a single operational record, windows of long ones; notes in words."""
     fit, val = list(fit_files), list(val_files)
     notes = []
-    if len(fit) == 1 and not val and _in_service(fit[0]):
+    if len(fit) == 1 and not val and fit[0].in_service:
         f, v = hold_out(fit[0], settings.hold_out_fraction)
         fit, val = [f], [v]
         notes.append(f'one record and no validation file: the last '
                      f'{100 * settings.hold_out_fraction:.0f} % of {fit[0].name} (from '
                      f'{v.held_out_from_s:.3g} s) is held out for validation')
-    fit = [_window(m, settings.operation_fit_window_s) if _in_service(m) else m
+    fit = [_window(m, settings.operation_fit_window_s) if m.in_service else m
            for m in fit]
-    val = [_window(m, settings.operation_validation_window_s) if _in_service(m) else m
+    val = [_window(m, settings.operation_validation_window_s) if m.in_service else m
            for m in val]
     return PreparedFiles(fit, val, notes)
 
@@ -509,7 +501,7 @@ def search_data(fit_list: list[Measurement], fit: FitData, settings: IdentifySet
     """The data the search stages run on: records through the electronics cut to the
     search window (``fit`` itself when nothing is cut), and a note in words."""
     span = settings.operation_search_window_s
-    cut = [_window(m, span) if _in_service(m) else m for m in fit_list]
+    cut = [_window(m, span) if m.in_service else m for m in fit_list]
     if all(a is b for a, b in zip(cut, fit_list)):
         return fit, ''
     data = FitData(cut)
