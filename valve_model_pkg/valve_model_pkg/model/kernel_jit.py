@@ -214,43 +214,80 @@ def _voltage(t: float, phase: int, d: np.ndarray, e: np.ndarray) -> float:
 
 
 @njit(cache=True, _nrt=False, inline='always')
+def _opens(volt: float, i_m: float, phase: int, p: np.ndarray, e: np.ndarray) -> bool:
+    """Whether the coil's terminal is open: the eddy path is on, the driver's path in
+    ``phase`` conducts forward current only (a clamp always; the capacitor pulse and fast
+    decay when the driver blocks reverse current) and its voltage ``volt`` would drive the
+    terminal current i_t = (i_m + G_e volt) / (1 + R G_e) below zero. The diodes block the
+    terminal current, not the magnetising current: the terminal opens at i_t = 0 while i_m
+    still flows, and i_m then decays through the eddy path."""
+    if p[P_GE] == 0.0 or i_m + p[P_GE] * volt >= 0.0:
+        return False
+    if phase == PH_CLAMP:
+        return True
+    return (phase == PH_OFF or phase == PH_FAST) and e[_el.E_BLOCK_REVERSE] != 0.0
+
+
+@njit(cache=True, _nrt=False, inline='always')
+def _open_voltage(i_m: float, g_open: float) -> float:
+    """Terminal voltage of the open coil, V: the one that keeps i_t at zero, -i_m / G_e
+    (the eddy path carries i_m). ``g_open`` is G_e, or in :func:`_rhs` at least half a step
+    over L: below that the decay's time constant L G_e is shorter than the step can follow
+    (RK4 is stable to h / tau = 2.8), and the magnetising current falls within a step
+    either way."""
+    return -i_m / g_open
+
+
+@njit(cache=True, _nrt=False, inline='always')
 def _rhs(volt: float, i_m: float, x: float, v: float, d_temp: float, moving: bool,
-         phase: int, f_prs: float, ind: float, slope: float, p: np.ndarray, e: np.ndarray
-         ) -> tuple[float, float, float, float]:
-    """Derivatives (di_m/dt, dx/dt, dx_dot/dt, dT/dt) and the terminal current: eqs. (7), (11).
+         phase: int, f_prs: float, ind: float, slope: float, h: float, p: np.ndarray,
+         e: np.ndarray) -> tuple[float, float, float, float, float, float]:
+    """Derivatives (di_m/dt, dx/dt, dx_dot/dt, dT/dt), the terminal current and voltage:
+    eqs. (7), (11).
 
     ``volt`` is the driver's terminal voltage at the stage time, ``ind``, ``slope`` are
-    L(x) and dL/dx at the stage position (eqs. 4, 6).
+    L(x) and dL/dx at the stage position (eqs. 4, 6), ``h`` the step (an open terminal,
+    :func:`_opens`).
     """
     r = _resistance(p[P_R], d_temp)
     x_dot = v if moving else 0.0
+    is_open = _opens(volt, i_m, phase, p, e)
+    if is_open:
+        volt = _open_voltage(i_m, max(p[P_GE], 0.5 * h / ind))
     di, i_t = _current_derivative(volt, i_m, x_dot, ind, slope, r, p[P_GE], p[P_LLEAK],
                                   p[P_BETA])
+    if is_open:
+        i_t = 0.0
     if phase == PH_OFF and i_m <= 0.0 and di < 0.0 and e[_el.E_BLOCK_REVERSE] != 0.0:
         di = 0.0  # the driver's diode blocks reverse current
     ddt = _temperature_derivative(d_temp, i_t, r, p[P_RTH], p[P_TAUTH])
     if moving:
         f_a = _active_force(_force(i_m, slope, p[P_BETA]), p[P_K], x, p[P_DELTA], f_prs)
         dv = _acceleration(f_a, v, p[P_B], p[P_FC], p[P_M])  # eq. (11)
-        return di, v, dv, ddt, i_t
-    return di, 0.0, 0.0, ddt, i_t
+        return di, v, dv, ddt, i_t, volt
+    return di, 0.0, 0.0, ddt, i_t, volt
 
 
 @njit(cache=True, _nrt=False)
 def _rhs_emulated(t: float, i_m: float, x: float, v: float, d_temp: float, i_b: float,
-                  mode: int, phase: int, f_prs: float, p: np.ndarray, d: np.ndarray,
-                  e: np.ndarray) -> tuple[float, float, float, float, float, float, float,
-                                          float]:
+                  mode: int, phase: int, f_prs: float, h: float, p: np.ndarray,
+                  d: np.ndarray, e: np.ndarray) -> tuple[float, float, float, float, float,
+                                                         float, float, float]:
     """Derivatives of (i_m, x, x_dot, dT, q, q_i, q_v, i_b) with the emulator forms on."""
     ind = _inductance(x, p[P_KL], p[P_L0], p[P_B2])
     slope = _inductance_slope(ind, p[P_KL], p[P_B2])
     r = _resistance(p[P_R], d_temp)
     volt = _voltage(t, phase, d, e)
+    is_open = _opens(volt, i_m, phase, p, e)
+    if is_open:
+        volt = _open_voltage(i_m, max(p[P_GE], 0.5 * h / ind))
     moving = mode == MODE_FREE
     x_dot = v if moving else 0.0
     di, dib, i_t = _ladder_derivatives(volt, i_m, i_b, x_dot, ind, slope, r, p[P_GE],
                                        p[P_LLEAK], p[P_BETA], p[P_LAMS], p[P_LADR],
                                        p[P_LADRB])
+    if is_open:
+        i_t = 0.0
     if phase == PH_OFF and i_m <= 0.0 and di < 0.0 and e[_el.E_BLOCK_REVERSE] != 0.0:
         di = 0.0  # the driver's diode blocks reverse current
     ddt = _temperature_derivative(d_temp, i_t, r, p[P_RTH], p[P_TAUTH])
@@ -311,25 +348,26 @@ def _rk4_from(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float,
     v_g = _voltage(t + h, phase, d, e)
     k_l, l_0, b_2 = p[P_KL], p[P_L0], p[P_B2]
     moving = mode == MODE_FREE
-    a0, a1, a2, a3, i_a = _rhs(v_a, y0, y1, y2, y3, moving, phase, f_prs, ind, slope, p, e)
+    a0, a1, a2, a3, i_a, u_a = _rhs(v_a, y0, y1, y2, y3, moving, phase, f_prs, ind, slope, h,
+                                    p, e)
     x_b = y1 + hh * a1
     if moving:
         ind = _inductance(x_b, k_l, l_0, b_2)
         slope = _inductance_slope(ind, k_l, b_2)
-    b0, b1, b2, b3, i_b = _rhs(v_m, y0 + hh * a0, x_b, y2 + hh * a2, y3 + hh * a3, moving,
-                               phase, f_prs, ind, slope, p, e)
+    b0, b1, b2, b3, i_b, u_b = _rhs(v_m, y0 + hh * a0, x_b, y2 + hh * a2, y3 + hh * a3,
+                                    moving, phase, f_prs, ind, slope, h, p, e)
     x_c = y1 + hh * b1
     if moving:
         ind = _inductance(x_c, k_l, l_0, b_2)
         slope = _inductance_slope(ind, k_l, b_2)
-    c0, c1, c2, c3, i_c = _rhs(v_m, y0 + hh * b0, x_c, y2 + hh * b2, y3 + hh * b3, moving,
-                               phase, f_prs, ind, slope, p, e)
+    c0, c1, c2, c3, i_c, u_c = _rhs(v_m, y0 + hh * b0, x_c, y2 + hh * b2, y3 + hh * b3,
+                                    moving, phase, f_prs, ind, slope, h, p, e)
     x_g = y1 + h * c1
     if moving:
         ind = _inductance(x_g, k_l, l_0, b_2)
         slope = _inductance_slope(ind, k_l, b_2)
-    g0, g1, g2, g3, i_g = _rhs(v_g, y0 + h * c0, x_g, y2 + h * c2,
-                               y3 + h * c3, moving, phase, f_prs, ind, slope, p, e)
+    g0, g1, g2, g3, i_g, u_g = _rhs(v_g, y0 + h * c0, x_g, y2 + h * c2,
+                                    y3 + h * c3, moving, phase, f_prs, ind, slope, h, p, e)
     s = h / 6.0
     return (y0 + s * (a0 + 2.0 * (b0 + c0) + g0),
             y1 + s * (a1 + 2.0 * (b1 + c1) + g1),
@@ -337,7 +375,7 @@ def _rk4_from(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: float,
             y3 + s * (a3 + 2.0 * (b3 + c3) + g3),
             y4 + s * (y1 + 2.0 * (x_b + x_c) + x_g),
             y5 + s * (i_a + 2.0 * (i_b + i_c) + i_g),
-            y6 + s * (v_a + 2.0 * (v_m + v_m) + v_g),
+            y6 + s * (u_a + 2.0 * (u_b + u_c) + u_g),
             y7), v_g
 
 
@@ -347,17 +385,17 @@ def _rk4_emulated(t: float, h: float, y: tuple, mode: int, phase: int, f_prs: fl
     """:func:`_rk4` with the emulator forms on (the slow ladder current i_b is y[7])."""
     y0, y1, y2, y3, y4, y5, y6, y7 = y
     a0, a1, a2, a3, a4, a5, a6, a7 = _rhs_emulated(t, y0, y1, y2, y3, y7, mode, phase,
-                                                   f_prs, p, d, e)
+                                                   f_prs, h, p, d, e)
     hh = 0.5 * h
     b0, b1, b2, b3, b4, b5, b6, b7 = _rhs_emulated(t + hh, y0 + hh * a0, y1 + hh * a1,
                                                    y2 + hh * a2, y3 + hh * a3, y7 + hh * a7,
-                                                   mode, phase, f_prs, p, d, e)
+                                                   mode, phase, f_prs, h, p, d, e)
     c0, c1, c2, c3, c4, c5, c6, c7 = _rhs_emulated(t + hh, y0 + hh * b0, y1 + hh * b1,
                                                    y2 + hh * b2, y3 + hh * b3, y7 + hh * b7,
-                                                   mode, phase, f_prs, p, d, e)
+                                                   mode, phase, f_prs, h, p, d, e)
     g0, g1, g2, g3, g4, g5, g6, g7 = _rhs_emulated(t + h, y0 + h * c0, y1 + h * c1,
                                                    y2 + h * c2, y3 + h * c3, y7 + h * c7,
-                                                   mode, phase, f_prs, p, d, e)
+                                                   mode, phase, f_prs, h, p, d, e)
     s = h / 6.0
     return (y0 + s * (a0 + 2.0 * (b0 + c0) + g0),
             y1 + s * (a1 + 2.0 * (b1 + c1) + g1),
@@ -374,7 +412,20 @@ def _terminal_current(t: float, y: np.ndarray, phase: int, p: np.ndarray, d: np.
                       e: np.ndarray) -> float:
     if p[P_GE] == 0.0:
         return y[Y_I]
-    return _terminal_current_at(_voltage(t, phase, d, e), y, p)
+    volt = _voltage(t, phase, d, e)
+    if _opens(volt, y[Y_I], phase, p, e):
+        return 0.0
+    return _terminal_current_at(volt, y, p)
+
+
+@njit(cache=True, _nrt=False)
+def _terminal_voltage(volt: float, y: np.ndarray, phase: int, p: np.ndarray,
+                      e: np.ndarray) -> float:
+    """The coil's terminal voltage under the driver's ``volt``: that, or the open
+    terminal's (:func:`_opens`), V."""
+    if p[P_GE] != 0.0 and _opens(volt, y[Y_I], phase, p, e):
+        return _open_voltage(y[Y_I], p[P_GE])
+    return volt
 
 
 @njit(cache=True, _nrt=False)
@@ -657,17 +708,21 @@ def _record(t: float, y: np.ndarray, p: np.ndarray, d: np.ndarray, e: np.ndarray
             out: np.ndarray) -> None:
     """Write the sample row ``d[D_SAMPLE_IDX]`` at time t and schedule the next sample."""
     volt = _voltage(t, int(d[D_PHASE]), d, e) if d[D_SAMPLE_IDX] < out.shape[0] else 0.0
-    _record_at(t, volt, y, p, d, out)
+    _record_at(t, volt, y, p, d, e, out)
 
 
 @njit(cache=True, _nrt=False)
 def _record_at(t: float, volt: float, y: np.ndarray, p: np.ndarray, d: np.ndarray,
-               out: np.ndarray) -> None:
-    """:func:`_record` with the terminal voltage at t given."""
+               e: np.ndarray, out: np.ndarray) -> None:
+    """:func:`_record` with the driver's voltage at t given."""
     k = int(d[D_SAMPLE_IDX])
     if k < out.shape[0]:
-        out[k, O_V] = volt
-        out[k, O_I] = _terminal_current_at(volt, y, p)
+        if p[P_GE] != 0.0 and _opens(volt, y[Y_I], int(d[D_PHASE]), p, e):
+            out[k, O_V] = _open_voltage(y[Y_I], p[P_GE])
+            out[k, O_I] = 0.0
+        else:
+            out[k, O_V] = volt
+            out[k, O_I] = _terminal_current_at(volt, y, p)
         out[k, O_X] = y[Y_X]
         out[k, O_XDOT] = y[Y_V]
         out[k, O_DT] = y[Y_DT]
@@ -1088,7 +1143,7 @@ def _advance(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray, t_end: 
             # an output sample alone is due at the step's end: recorded here, as the
             # event pass would (the guard counts as if that pass had run)
             if t_new == t_known:
-                _record_at(t_new, v_known, y, p, d, out)
+                _record_at(t_new, v_known, y, p, d, e, out)
             else:
                 _record(t_new, y, p, d, e, out)
             t_prog = t_new
@@ -1261,7 +1316,7 @@ def _bank_sample(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray,
         t = dr[D_T]
         phase = int(dr[D_PHASE])
         out[r, S_T] = t
-        out[r, S_V] = _voltage(t, phase, dr, e[r])
+        out[r, S_V] = _terminal_voltage(_voltage(t, phase, dr, e[r]), y[r], phase, p[r], e[r])
         out[r, S_I] = _terminal_current(t, y[r], phase, p[r], dr, e[r])
         out[r, S_X] = y[r, Y_X]
         out[r, S_XDOT] = y[r, Y_V]
