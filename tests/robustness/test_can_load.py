@@ -4,8 +4,9 @@ Driver core and controller emulator run in real time on python-can's virtual bus
 CPU-bound processes (``python3 -c 'while True: pass'``) for 20 s, fault-free: no status
 may go to ERROR while the emulator keeps up. Frames that arrive late are no loss; only
 missing frames (counter gaps over 3 windows, or silence beyond 100 ms) are. When the
-machine starves the emulator as well (other load beside the hogs), its telemetry really
-stops: the driver may then report exactly that, and must recover. Marked slow (about 25 s).
+machine starves the emulator as well (other load beside the hogs), its telemetry is really
+lost (instants it skipped) or stops: the driver may then report exactly that, and must
+recover. Marked slow (about 25 s).
 """
 from __future__ import annotations
 
@@ -86,13 +87,17 @@ def test_no_error_transition_in_20_s_fault_free_under_two_cpu_hogs() -> None:
                f'{counters["counter_jumps"]} gaps, {counters["telemetry_losses"]} losses, '
                f'emulator {emu.stats}')
     # The emulator runs in this process: when the machine starves it too (its overruns:
-    # telemetry instants it never sent), the telemetry really stops and ERROR is the true
-    # report; the driver must then say only that, and recover. Otherwise nothing may err.
+    # telemetry instants it never sent, the counter stepped over them), the telemetry is
+    # really lost or stops, and ERROR is the true report; the driver must then say only
+    # that, count no more frames lost than the emulator skipped (the virtual bus loses
+    # none), and recover. Otherwise nothing may err.
     if emu.stats['overruns'] == 0:
         assert errors == [], f'ERROR transitions under load: {errors[:5]}; {summary}'
     else:
         assert {name for _, name, _ in errors} <= {'telemetry'}, \
-            f'ERROR beyond the stopped telemetry: {errors[:5]}; {summary}'
-        assert all('telemetry stopped' in message for _, _, message in errors), errors[:5]
+            f'ERROR beyond the starved telemetry: {errors[:5]}; {summary}'
+        assert all('telemetry stopped' in message or 'telemetry lost' in message
+                   for _, _, message in errors), errors[:5]
+        assert counters['frames_lost'] <= emu.stats['overruns'], summary
     assert all(level < Level.ERROR for level, _ in final.values()), final
     assert states[0] > 0.5 * RUN_S * 1000, summary     # the telemetry really flowed
