@@ -239,6 +239,17 @@ def _open_voltage(i_m: float, g_open: float) -> float:
 
 
 @njit(cache=True, _nrt=False, inline='always')
+def _stage_voltage(volt: float, i_m: float, phase: int, h: float, ind: float, p: np.ndarray,
+                   e: np.ndarray) -> tuple[float, bool]:
+    """The terminal voltage at an RK4 stage of step ``h`` under the driver's ``volt`` and
+    whether the terminal is open (:func:`_opens`; L(x) = ``ind`` sets the floor of the
+    open terminal's conductance, :func:`_open_voltage`)."""
+    if _opens(volt, i_m, phase, p, e):
+        return _open_voltage(i_m, max(p[P_GE], 0.5 * h / ind)), True
+    return volt, False
+
+
+@njit(cache=True, _nrt=False, inline='always')
 def _rhs(volt: float, i_m: float, x: float, v: float, d_temp: float, moving: bool,
          phase: int, f_prs: float, ind: float, slope: float, h: float, p: np.ndarray,
          e: np.ndarray) -> tuple[float, float, float, float, float, float]:
@@ -251,9 +262,7 @@ def _rhs(volt: float, i_m: float, x: float, v: float, d_temp: float, moving: boo
     """
     r = _resistance(p[P_R], d_temp)
     x_dot = v if moving else 0.0
-    is_open = _opens(volt, i_m, phase, p, e)
-    if is_open:
-        volt = _open_voltage(i_m, max(p[P_GE], 0.5 * h / ind))
+    volt, is_open = _stage_voltage(volt, i_m, phase, h, ind, p, e)
     di, i_t = _current_derivative(volt, i_m, x_dot, ind, slope, r, p[P_GE], p[P_LLEAK],
                                   p[P_BETA])
     if is_open:
@@ -278,9 +287,7 @@ def _rhs_emulated(t: float, i_m: float, x: float, v: float, d_temp: float, i_b: 
     slope = _inductance_slope(ind, p[P_KL], p[P_B2])
     r = _resistance(p[P_R], d_temp)
     volt = _voltage(t, phase, d, e)
-    is_open = _opens(volt, i_m, phase, p, e)
-    if is_open:
-        volt = _open_voltage(i_m, max(p[P_GE], 0.5 * h / ind))
+    volt, is_open = _stage_voltage(volt, i_m, phase, h, ind, p, e)
     moving = mode == MODE_FREE
     x_dot = v if moving else 0.0
     di, dib, i_t = _ladder_derivatives(volt, i_m, i_b, x_dot, ind, slope, r, p[P_GE],
@@ -412,20 +419,17 @@ def _terminal_current(t: float, y: np.ndarray, phase: int, p: np.ndarray, d: np.
                       e: np.ndarray) -> float:
     if p[P_GE] == 0.0:
         return y[Y_I]
-    volt = _voltage(t, phase, d, e)
-    if _opens(volt, y[Y_I], phase, p, e):
-        return 0.0
-    return _terminal_current_at(volt, y, p)
+    return _terminal_at(_voltage(t, phase, d, e), y, phase, p, e)[1]
 
 
 @njit(cache=True, _nrt=False)
-def _terminal_voltage(volt: float, y: np.ndarray, phase: int, p: np.ndarray,
-                      e: np.ndarray) -> float:
-    """The coil's terminal voltage under the driver's ``volt``: that, or the open
-    terminal's (:func:`_opens`), V."""
-    if p[P_GE] != 0.0 and _opens(volt, y[Y_I], phase, p, e):
-        return _open_voltage(y[Y_I], p[P_GE])
-    return volt
+def _terminal_at(volt: float, y: np.ndarray, phase: int, p: np.ndarray, e: np.ndarray
+                 ) -> tuple[float, float]:
+    """Terminal voltage [V] and current [A] under the driver's ``volt``: those, or the
+    open terminal's (:func:`_opens`), -i_m / G_e and 0."""
+    if _opens(volt, y[Y_I], phase, p, e):
+        return _open_voltage(y[Y_I], p[P_GE]), 0.0
+    return volt, _terminal_current_at(volt, y, p)
 
 
 @njit(cache=True, _nrt=False)
@@ -717,12 +721,7 @@ def _record_at(t: float, volt: float, y: np.ndarray, p: np.ndarray, d: np.ndarra
     """:func:`_record` with the driver's voltage at t given."""
     k = int(d[D_SAMPLE_IDX])
     if k < out.shape[0]:
-        if p[P_GE] != 0.0 and _opens(volt, y[Y_I], int(d[D_PHASE]), p, e):
-            out[k, O_V] = _open_voltage(y[Y_I], p[P_GE])
-            out[k, O_I] = 0.0
-        else:
-            out[k, O_V] = volt
-            out[k, O_I] = _terminal_current_at(volt, y, p)
+        out[k, O_V], out[k, O_I] = _terminal_at(volt, y, int(d[D_PHASE]), p, e)
         out[k, O_X] = y[Y_X]
         out[k, O_XDOT] = y[Y_V]
         out[k, O_DT] = y[Y_DT]
@@ -1316,8 +1315,8 @@ def _bank_sample(p: np.ndarray, e: np.ndarray, y: np.ndarray, d: np.ndarray,
         t = dr[D_T]
         phase = int(dr[D_PHASE])
         out[r, S_T] = t
-        out[r, S_V] = _terminal_voltage(_voltage(t, phase, dr, e[r]), y[r], phase, p[r], e[r])
-        out[r, S_I] = _terminal_current(t, y[r], phase, p[r], dr, e[r])
+        out[r, S_V], out[r, S_I] = _terminal_at(_voltage(t, phase, dr, e[r]), y[r], phase,
+                                                p[r], e[r])
         out[r, S_X] = y[r, Y_X]
         out[r, S_XDOT] = y[r, Y_V]
         x_avg = dr[D_XAVG]
