@@ -39,6 +39,7 @@ import numpy as np
 from ..model.parameters import EFFECTS, ValveParameters
 from .criteria import (DBIC_THRESHOLD, MIN_EXPLAINED, MIN_VALIDATION_GAIN, delta_bic,
                        effective_counts, noise_per_file, resolution_floors, structured_energy)
+from .phase import AmountPhases, place, shiftable
 from .problem import (ErrorFigures, FitData, ParameterSpace, amount_limit, effect_space,
                       unit_objective, with_upper_bound)
 from .residuals import drive_phase_masks, ljung_box
@@ -399,9 +400,11 @@ def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, 
     ext = effect_space(space, effect)
     u_base = ext.to_unit(params)
     first = ext.names.index(EFFECTS[effect].fields[0])
-    fun = unit_objective(ext, data)
+    phases = AmountPhases(data, EFFECTS[effect].fields[0]) if shiftable(data) else None
+    fun = _objective(ext, data, phases)
     fractions = list(_PROFILE_FRACTIONS)
     starts = _profile_starts(u_base, first)
+    _anchor(phases, ext, starts)
     scanned: list[tuple[np.ndarray, float]] = []
     origins = []
     if rank_data is not None:
@@ -422,7 +425,7 @@ def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, 
         return RefitResult(ext.params(res.u), res.cost, ext, stopped=True)
     if rank_data is not None and scanned:
         points = np.array([res.u] + [u for u, _ in scanned])
-        ranked = unit_objective(ext, rank_data)(points)
+        ranked = _placed_costs(ext, rank_data, points)
         pick = int(np.argmin(ranked))
         if pick > 0:   # a scanned point beats the profile's best on the whole fit window
             u_pick, c_pick = scanned[pick - 1]
@@ -432,13 +435,35 @@ def refit_effect(space: ParameterSpace, data: FitData, params: ValveParameters, 
         d = screen(ext.params(res.u))
         if not d < SCREEN_DBIC:
             return RefitResult(ext.params(res.u), res.cost, ext, screen_dbic=d)
-    res2 = direct_search(fun, _fine_starts(res.u, fractions, first),
-                         replace(settings, initial_step=0.5 * settings.initial_step),
+    fine = _fine_starts(res.u, fractions, first)
+    _anchor(phases, ext, fine)
+    res2 = direct_search(fun, fine, replace(settings, initial_step=0.5 * settings.initial_step),
                          progress=progress, label=f'refit {effect} (fine)',
                          fixed=np.array([first]))
     best = res2 if res2.cost <= res.cost else res
     return widen_at_bound(RefitResult(ext.params(best.u), best.cost, ext, screen_dbic=d),
-                          data, effect, settings, progress)
+                          data, effect, settings, progress, phases)
+
+
+def _objective(space: ParameterSpace, data: FitData, phases: AmountPhases | None):
+    """The batch objective of a refit: on the grids placed per amount when the records'
+    main PWM grids may move (:class:`~.phase.AmountPhases`), else on ``data``."""
+    return phases.objective(space) if phases is not None else unit_objective(space, data)
+
+
+def _anchor(phases: AmountPhases | None, space: ParameterSpace, starts: Sequence) -> None:
+    """Place the grids exactly at each start of a profile (its trial amount)."""
+    if phases is not None:
+        for u in starts:
+            phases.anchor(space.params(np.asarray(u)))
+
+
+def _placed_costs(space: ParameterSpace, data: FitData, points: np.ndarray) -> np.ndarray:
+    """Cost of each point on ``data``, each on the grids placed at its own parameters."""
+    if not shiftable(data):
+        return unit_objective(space, data)(points)
+    return np.array([float(unit_objective(space, place(data, space.params(u)))(u[None, :])[0])
+                     for u in points])
 
 
 #: An effect's refit whose amount ends within this share of its range from the upper search
@@ -455,18 +480,21 @@ DETERMINED_RISE = 1e-3
 _UNITS = {'coulomb_friction_n': 'N', 'leakage_inductance_h': 'H', 'eddy_conductance_s': 'S'}
 
 
-def _determined_at_bound(r: RefitResult, data: FitData, first: int) -> bool:
+def _determined_at_bound(r: RefitResult, data: FitData, first: int,
+                         phases: AmountPhases | None = None) -> bool:
     """True when the cost rises (:data:`DETERMINED_RISE`) as the amount steps back."""
     u = r.space.to_unit(r.params)
     back = u.copy()
     back[first] = 0.9
-    cost = unit_objective(r.space, data)(np.vstack([u, back]))
+    _anchor(phases, r.space, [back])
+    cost = _objective(r.space, data, phases)(np.vstack([u, back]))
     return bool(cost[1] > cost[0] * (1.0 + DETERMINED_RISE))
 
 
 def _widened_profile(wide: ParameterSpace, data: FitData, params: ValveParameters,
                      first: int, settings: SearchSettings,
-                     progress: Callable[[str], None] | None, label: str) -> SearchResult:
+                     progress: Callable[[str], None] | None, label: str,
+                     phases: AmountPhases | None = None) -> SearchResult:
     """The profiles of :func:`refit_effect` over the widened part of the range, from the
     bound-hitting point ``params``: trial amounts from the old bound to the new one."""
     u0 = wide.to_unit(params)
@@ -477,17 +505,21 @@ def _widened_profile(wide: ParameterSpace, data: FitData, params: ValveParameter
         u = u0.copy()
         u[first] = frac
         starts.append(u)
-    fun = unit_objective(wide, data)
+    _anchor(phases, wide, starts)
+    fun = _objective(wide, data, phases)
     res = direct_search(fun, np.array(starts), replace(settings, restarts=0),
                         progress=progress, label=label, fixed=np.array([first]))
-    res2 = direct_search(fun, _fine_starts(res.u, fractions, first),
+    fine = _fine_starts(res.u, fractions, first)
+    _anchor(phases, wide, fine)
+    res2 = direct_search(fun, fine,
                          replace(settings, initial_step=0.5 * settings.initial_step),
                          progress=progress, label=f'{label} (fine)', fixed=np.array([first]))
     return res2 if res2.cost <= res.cost else res
 
 
 def widen_at_bound(r: RefitResult, data: FitData, effect: str, settings: SearchSettings,
-                   progress: Callable[[str], None] | None = None) -> RefitResult:
+                   progress: Callable[[str], None] | None = None,
+                   phases: AmountPhases | None = None) -> RefitResult:
     """Widen the upper search bound of an effect amount that its refit reached, and refit.
 
     When the effect's first field ends within :data:`BOUND_FRACTION` of its upper bound,
@@ -507,7 +539,7 @@ def widen_at_bound(r: RefitResult, data: FitData, effect: str, settings: SearchS
         bound = r.space.bounds[first]
         limit = amount_limit(name, r.space.base)
         if (r.space.to_unit(r.params)[first] < 1.0 - BOUND_FRACTION or limit is None
-                or not _determined_at_bound(r, data, first)):
+                or not _determined_at_bound(r, data, first, phases)):
             break
         if not limit.value > bound.high:
             r = replace(r, widened=r.widened + (
@@ -517,7 +549,7 @@ def widen_at_bound(r: RefitResult, data: FitData, effect: str, settings: SearchS
         high = min(WIDEN_FACTOR * bound.high, limit.value)
         wide = with_upper_bound(r.space, name, high)
         res = _widened_profile(wide, data, r.params, first, settings, progress,
-                               f'refit {effect} (bound widened)')
+                               f'refit {effect} (bound widened)', phases)
         note = (f'{name} reached its search bound {bound.high:.4g} {unit}: widened to '
                 f'{high:.4g} {unit} ({limit.why} {limit.value:.4g} {unit})')
         if not res.cost < r.cost:
@@ -610,6 +642,10 @@ def _judge_candidate(c: CandidateResult, ref: Reference, fit: FitData, val: FitD
     when None), as for the baseline: the damping of a step record, which the friction
     force dwarfs, may sit at a bound without any misfit."""
     p = len(c.fields)
+    # Each model on its own main PWM grids (:mod:`.phase`): the baseline's were placed at
+    # its optimum, the candidate's are placed at its refit.
+    fit, val = place(fit, c.params), place(val, c.params) if val is not None else None
+    judge = place(ref.judge, c.params)
     # Independent samples are counted in the residual of the model under test (the
     # augmented one): the baseline's misfit is the very structure the candidate may
     # remove, and counted there it would leave a handful of samples and hide a candidate
@@ -626,7 +662,7 @@ def _judge_candidate(c: CandidateResult, ref: Reference, fit: FitData, val: FitD
         c.val_gain = 1.0 - c.val_cost / sum(ref.validation_errors.mae_per_file.values())
         c.dbic_val = delta_bic(ref.validation_errors.mae_per_file, aug_val.mae_per_file,
                                effective_counts(val, c.params), p, ref.validation_floors)
-    struct_aug = structured_energy(ref.judge, c.params, ref.noise)
+    struct_aug = structured_energy(judge, c.params, ref.noise)
     c.structure_explained = (1.0 - struct_aug / ref.structured_energy
                              if ref.structured_energy > 0 else 0.0)
     reasons = []
@@ -900,21 +936,23 @@ def second_effect(diag: Diagnosis, space: ParameterSpace, fit: FitData, val: Fit
         return
     other = others[0]
     ext = effect_space(space, diag.effect, at=diag.params)
-    one_fit = fit.errors(diag.params)
+    one_fit = place(fit, diag.params).errors(diag.params)
     p = len(other.fields)
     floors = resolution_floors(fit)
 
     def fit_dbic(params: ValveParameters) -> float:
-        # samples counted in the model under test, as select() counts them
-        return delta_bic(one_fit.mae_per_file, fit.errors(params).mae_per_file,
-                         effective_counts(fit, params), p, floors)
-    p2 = refit_effect(ext, fit.serial(), diag.params, other.effect, settings,
-                      screen=fit_dbic).params
+        # samples counted in the model under test, as select() counts them; each model on
+        # its own main PWM grids
+        data = place(fit, params)
+        return delta_bic(one_fit.mae_per_file, data.errors(params).mae_per_file,
+                         effective_counts(data, params), p, floors)
+    p2 = refit_effect(ext, place(fit, diag.params).serial(), diag.params, other.effect,
+                      settings, screen=fit_dbic).params
     # The pair is judged against the same refit with the second effect switched off: a
     # refit moves the claimed effect's parameters too, and that further optimisation of
     # the one-effect model is no evidence for the second effect.
     p1 = _without_effect(p2, other.effect)
-    p1_fit = fit.errors(p1)
+    p1_fit = place(fit, p1).errors(p1)
     if sum(p1_fit.mae_per_file.values()) < sum(one_fit.mae_per_file.values()):
         say(f'second effect {other.effect}: the refit also improves the {diag.effect} '
             f'model with {other.effect} switched off; the pair is judged against that')
@@ -923,8 +961,9 @@ def second_effect(diag: Diagnosis, space: ParameterSpace, fit: FitData, val: Fit
     dval = math.nan
     gain_val = math.nan
     if val is not None:
-        counts_val = effective_counts(val, p2)
-        one_val, two_val = val.errors(diag.params), val.errors(p2)
+        val2 = place(val, p2)
+        counts_val = effective_counts(val2, p2)
+        one_val, two_val = place(val, diag.params).errors(diag.params), val2.errors(p2)
         dval = delta_bic(one_val.mae_per_file, two_val.mae_per_file, counts_val, p,
                          resolution_floors(val))
         gain_val = 1.0 - sum(two_val.mae_per_file.values()) / sum(

@@ -39,7 +39,7 @@ __all__ = ['CurrentResponse', 'DriveInput', 'MIN_SAMPLES', 'MIN_LSB_LEVELS', 'Me
            'RESPONSE_NOISE_SIGMAS', 'RESPONSE_SHARE_OF_V_OVER_R', 'check_current_response',
            'check_excitation', 'current_response',
            'check_time_axis', 'hold_out', 'mean_voltage_column', 'median_pressure', 'refused_bag',
-           'with_current_lsb']
+           'window', 'with_current_lsb']
 
 #: Fewest samples a record must have.
 MIN_SAMPLES = 10
@@ -646,6 +646,17 @@ def hold_out(m: Measurement, fraction: float = 0.3, fit_window_s: float | None =
                                    f'{t[-1]:.3g} s (the last {100 * fraction:.0f} %), never '
                                    'seen by the fit',))
     return fit, val
+
+
+def window(m: Measurement, span_s: float) -> Measurement:
+    """``m`` cut to ``span_s`` after the start of its compared part (a long record)."""
+    end = max(m.exclude_before_s, float(m.t_s[0])) + span_s
+    if m.t_s[-1] <= end:
+        return m
+    keep = m.t_s <= end
+    return replace(m.samples(keep),
+                   notes=m.notes + (f'compared up to {end:.3g} s of {m.t_s[-1]:.3g} s (the '
+                                    f'first {span_s:g} s of its compared part)',))
 
 
 def _header_lsb(m: Measurement) -> float | None:

@@ -55,7 +55,10 @@ from .mean_voltage import (ROUTE_AUTO, ROUTE_BARE_COIL, ROUTE_CHOICES, ROUTE_ELE
                            ROUTE_MEAN_VOLTAGE, Route, RouteScreen, check_mean_voltage,
                            choose_route, hold_error, settle_route,
                            through_drive_counterparts)
-from .measurement import Measurement, check_current_response, hold_out, with_current_lsb
+from .measurement import (Measurement, check_current_response, hold_out, window,
+                          with_current_lsb)
+from .phase import (PHASE_RESOLUTION_S, best_phase, phase_free, phase_shifts, place, placed,
+                    shift_measurement, shiftable)
 from .pwm_compare import pwm_comparison
 from .problem import (
     SEARCH_RATE_HZ, ErrorFigures, FitData, ParameterSpace, baseline_space, coarse_data,
@@ -411,61 +414,23 @@ def route_inputs(inputs: Inputs, settings: IdentifySettings, say: Say
 
 # --- stage 2: the data -----------------------------------------------------------------
 
-def _window(m: Measurement, span_s: float) -> Measurement:
-    """``m`` cut to ``span_s`` after the start of its compared part (a long record)."""
-    end = max(m.exclude_before_s, float(m.t_s[0])) + span_s
-    if m.t_s[-1] <= end:
-        return m
-    keep = m.t_s <= end
-    return replace(m.samples(keep),
-                   notes=m.notes + (f'compared up to {end:.3g} s of {m.t_s[-1]:.3g} s (the '
-                                    f'first {span_s:g} s of its compared part)',))
-
-
-#: Span of each trial of the PWM grid's phase [s].
-PHASE_TRIAL_WINDOW_S = 0.4
-
-
-def _best_phase(m: Measurement, params: ValveParameters, electronics=None) -> float:
-    """The shift of ``m``'s main PWM period grid whose simulated current is closest to the
-    measured one: eleven trial shifts over the range the command changes allow, then
-    eleven more over a tenth of it around the best."""
-    d = m.drive
-    lo, hi = d.phase_range_s
-    best, best_cost = 0.0, math.inf
-    for width in (hi - lo, (hi - lo) / 10.0):
-        centre = best if math.isfinite(best_cost) else 0.5 * (lo + hi)
-        for delta in np.linspace(max(lo, centre - width / 2), min(hi, centre + width / 2),
-                                 11):
-            trial = _window(replace(m, drive=d.shifted(float(delta))), PHASE_TRIAL_WINDOW_S)
-            data = FitData([trial])
-            if electronics is not None:
-                data.electronics = electronics
-            c = float(data.cost(params.to_vector()[None, :])[0])
-            if c < best_cost:
-                best, best_cost = float(delta), c
-    return best
-
-
 def refine_phases(files: list[Measurement], params: ValveParameters, say: Say,
                   electronics=None) -> list[Measurement]:
     """Place each record's main PWM period grid where the current says, within the range
     its command changes allow (1 kHz telemetry bounds a period start to 1 ms)."""
     out = []
     for m in files:
-        d = m.drive
-        lo, hi = d.phase_range_s if d is not None else (0.0, 0.0)
-        if d is None or hi - lo <= 1e-6:
+        if not phase_free(m):
             out.append(m)
             continue
-        best = _best_phase(m, params, electronics)
-        new = d.shifted(best)
+        lo, hi = m.drive.phase_range_s
+        best = best_phase(m, params, electronics, parallel=True)
+        new = shift_measurement(m, best)
         say(f'{m.name}: main PWM period grid placed {1e3 * best:+.3f} ms from the middle of '
             f'the range its command changes allow ({1e3 * lo:+.3f}..{1e3 * hi:+.3f} ms)')
-        out.append(replace(m, drive=new, voltage_v=new.main_pwm_level(m.t_s),
-                           notes=m.notes + (f'main PWM phase refined from the current: first '
-                                            f'period start {1e3 * new.period_starts_s[0]:.3f} '
-                                            'ms',)))
+        out.append(replace(new, notes=m.notes + (
+            f'main PWM phase refined from the current: first period start '
+            f'{1e3 * new.drive.period_starts_s[0]:.3f} ms',)))
     return out
 
 
@@ -489,9 +454,9 @@ def prepare_files(fit_files: Sequence[Measurement], val_files: Sequence[Measurem
         notes.append(f'one record and no validation file: the last '
                      f'{100 * settings.hold_out_fraction:.0f} % of {fit[0].name} (from '
                      f'{v.held_out_from_s:.3g} s) is held out for validation')
-    fit = [_window(m, settings.operation_fit_window_s) if m.in_service else m
+    fit = [window(m, settings.operation_fit_window_s) if m.in_service else m
            for m in fit]
-    val = [_window(m, settings.operation_validation_window_s) if m.in_service else m
+    val = [window(m, settings.operation_validation_window_s) if m.in_service else m
            for m in val]
     return PreparedFiles(fit, val, notes)
 
@@ -501,7 +466,7 @@ def search_data(fit_list: list[Measurement], fit: FitData, settings: IdentifySet
     """The data the search stages run on: records through the electronics cut to the
     search window (``fit`` itself when nothing is cut), and a note in words."""
     span = settings.operation_search_window_s
-    cut = [_window(m, span) if m.in_service else m for m in fit_list]
+    cut = [window(m, span) if m.in_service else m for m in fit_list]
     if all(a is b for a, b in zip(cut, fit_list)):
         return fit, ''
     data = FitData(cut)
@@ -568,6 +533,27 @@ class Prepared:
         for d in (self.fit, self.search, self.coarse, self.validation):
             if d is not None:
                 d.electronics = electronics
+
+    def place_phases(self, params: ValveParameters) -> list[str]:
+        """Place every record's main PWM grid again where ``params``' current fits best
+        (:mod:`.phase`): the fit, search and coarse data share the fit records' grids, the
+        validation records have their own. Returns what moved, in words."""
+        moved = []
+        shifts = phase_shifts(self.fit, params) if shiftable(self.fit) else ()
+        if any(abs(s) >= PHASE_RESOLUTION_S for s in shifts):
+            same = self.search is self.fit
+            same_coarse = self.coarse is self.search
+            self.fit = placed(self.fit, shifts)
+            self.search = self.fit if same else placed(self.search, shifts)
+            self.coarse = self.search if same_coarse else placed(self.coarse, shifts)
+            moved += [(m.name, s) for m, s in zip(self.fit.full, shifts)
+                      if abs(s) >= PHASE_RESOLUTION_S]
+        if self.validation is not None and shiftable(self.validation):
+            v_shifts = phase_shifts(self.validation, params)
+            self.validation = placed(self.validation, v_shifts)
+            moved += [(m.name, s) for m, s in zip(self.validation.full, v_shifts)
+                      if abs(s) >= PHASE_RESOLUTION_S]
+        return [f'{name}: main PWM period grid moved {1e3 * s:+.3f} ms' for name, s in moved]
 
 
 def _fit_data(files: list[Measurement], settings: IdentifySettings) -> FitData:
@@ -1036,9 +1022,18 @@ def polish_baseline(prep: Prepared, rounds: ElectronicsRounds, settings: Identif
     """Local polishes on the whole fit window until they no longer pay, from the search's
     optimum and from the measured values (and for records through the electronics the
     prior); then the electronics' last fit there."""
-    space, fit = prep.space, prep.fit
+    space = prep.space
     through = prep.through_electronics
     u_best, drive = rounds.u, rounds.drive
+    # The grids were placed with the start point's current; the baseline's own phase is
+    # where its optimum fits (each model is judged on its own grids, :mod:`.phase`).
+    moved = prep.place_phases(space.params(u_best))
+    if moved:
+        note = ('main PWM grids placed again at the baseline search\'s optimum (the phase '
+                'is fitted with each model): ' + '; '.join(moved))
+        say(note)
+        prep.notes.append(note)
+    fit = prep.fit
     c_best = float(unit_objective(space, fit)(u_best[None, :])[0])
     noise0 = float(np.nanmedian([noise_std(r, m.current_lsb_a) for m, r in zip(
         fit.measurements, fit.residuals(space.params(u_best)))]))
@@ -1056,6 +1051,13 @@ def polish_baseline(prep: Prepared, rounds: ElectronicsRounds, settings: Identif
                           check_label=prep.search_note and f'the first '
                           f'{settings.operation_search_window_s:g} s (search window)',
                           iterations=settings.operation_local_iterations if through else 300)
+    moved = prep.place_phases(space.params(u_best))
+    if moved:
+        fit = prep.fit
+        cost = float(unit_objective(space, fit)(u_best[None, :])[0])
+        conv = replace(conv, final_cost_a=cost, statement=(
+            conv.statement + f'; the main PWM grids placed again at the polished optimum '
+            f'({"; ".join(moved)}): cost {cost:.4g} A'))
     say(conv.statement)
     if through:
         drive = fit_drive(fit, space.params(u_best), effort=settings.final_drive_effort,
@@ -1293,8 +1295,9 @@ def _fit_criterion(bar: RefitBar, c: CandidateResult) -> Callable[[ValveParamete
     """The fit criterion's dBIC of a refit of ``c`` on the data ``bar`` searches, with the
     refit's own effective sample counts (as :func:`~.diagnosis.select` counts them)."""
     def dbic(params: ValveParameters) -> float:
-        return delta_bic(bar.base_mae, bar.data.errors(params).mae_per_file,
-                         effective_counts(bar.data, params), len(c.fields), bar.floors)
+        data = place(bar.data, params)   # the candidate on its own main PWM grids
+        return delta_bic(bar.base_mae, data.errors(params).mae_per_file,
+                         effective_counts(data, params), len(c.fields), bar.floors)
     return dbic
 
 
@@ -1302,8 +1305,9 @@ def polish_candidate(ext: ParameterSpace, data: FitData, params: ValveParameters
                      baseline: ValveParameters, settings: IdentifySettings
                      ) -> tuple[ValveParameters, float]:
     """Local search of a refitted candidate on the whole fit window: from its search-window
-    optimum and from the baseline with the candidate's effect amount."""
-    fun = unit_objective(ext, data)
+    optimum and from the baseline with the candidate's effect amount; on the main PWM grids
+    placed at the former (:mod:`.phase`)."""
+    fun = unit_objective(ext, place(data, params))
     u_a = ext.to_unit(params)
     mixed = baseline.replace(**{n: getattr(params, n) for n in ext.names
                                 if n not in baseline_space(baseline).names})
@@ -1356,7 +1360,7 @@ def _refit_on_window(c: CandidateResult, job: RefitJob) -> WindowRefit:
         return WindowRefit(p_aug, cost,
                            how + f' ({window} dBIC {dbic_s:.1f}: polished on the fit window)',
                            r.widened)
-    cost = float(fit.serial().cost(r.params.to_vector()[None, :])[0])
+    cost = float(place(fit.serial(), r.params).cost(r.params.to_vector()[None, :])[0])
     if not r.stopped and not r.screened_out:
         how += (f' ({window} dBIC {dbic_s:.1f}, not below {DBIC_THRESHOLD:g}: cannot pay, '
                 'not polished on the fit window, evaluated as found)')
@@ -1372,7 +1376,7 @@ def _refit_coarse(c: CandidateResult, job: RefitJob) -> WindowRefit:
                                   job.baseline.params, c.effect, job.effort,
                                   screen=_fit_criterion(bar, c))
     if r.screened_out:
-        cost = sum(bar.data.errors(r.params).mae_per_file.values())
+        cost = sum(place(bar.data, r.params).errors(r.params).mae_per_file.values())
         return WindowRefit(r.params, cost, _screened(r, 'fit'))
     p_aug, cost = polish_candidate(r.space, bar.data, r.params, job.baseline.params,
                                    job.settings)
@@ -1419,13 +1423,15 @@ def refit_candidate(c: CandidateResult, job: RefitJob) -> CandidateResult:
 def augmented_stage(prep: Prepared, diag: Diagnosis) -> EvaluatedStage:
     """The augmented model's errors, residuals and intervals (its effects' fields with
     the baseline's); the structure it leaves is added to ``diag``."""
-    ev = evaluate_stage(diag.params, prep.fit, prep.validation)
+    fit = place(prep.fit, diag.params)   # on its own main PWM grids (:mod:`.phase`)
+    val = place(prep.validation, diag.params) if prep.validation is not None else None
+    ev = evaluate_stage(diag.params, fit, val)
     aug_space = prep.space
     for eff in diag.kept_effects:
         aug_space = effect_space(aug_space, eff, at=diag.params)
     ev.stage.sensitivity = analyse_sensitivity(
-        aug_space, prep.fit, diag.params,
-        at_bound=[n for n in prep.fit.at_bound(aug_space, diag.params)
+        aug_space, fit, diag.params,
+        at_bound=[n for n in fit.at_bound(aug_space, diag.params)
                   if n in prep.space.names],
         nrmse_pct=ev.stage.fit.nrmse_pct)
     describe_remaining(diag, ev.stage)

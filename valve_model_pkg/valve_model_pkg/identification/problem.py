@@ -427,6 +427,7 @@ class FitData:
         if not measurements:
             raise IdentificationError('no measurement given')
         self.full = list(measurements)
+        self.max_rate_hz = max_rate_hz
         self.measurements = []
         self.setups: list[TraceSetup] = []
         for m in self.full:
@@ -456,6 +457,9 @@ class FitData:
         # (errors, noise, effective sample counts, structure), and a run is dear.
         self._residuals: OrderedDict[tuple, list[np.ndarray]] = OrderedDict()
         self._lock = threading.Lock()
+        #: Main PWM grid placements of parameter sets (:func:`.phase.phase_shifts`;
+        #: shared with serial() views).
+        self.phase_cache: dict[tuple, tuple[float, ...]] = {}
 
     @property
     def through_electronics(self) -> bool:
