@@ -115,3 +115,27 @@ def test_a_claim_through_a_chosen_form_needs_structure_twice_the_noise(
         assert 'not claimed' in diag.evidence[0]
     else:
         assert diag.effect == 'eddy_current' and len(diag.evidence) == 1
+
+
+def test_a_claim_through_a_chosen_form_needs_an_effect_the_data_tell_apart(
+        tmp_path: Path) -> None:
+    # structure far above the noise (a coil resistance 30 % off), but the claimed effect
+    # explains it no better than an unlike one: a misfit of the chosen form, withdrawn
+    truth = operation_dataset(tmp_path, seed=2, noise_a=3e-3, duration_s=0.6)
+    data = FitData(read_measurements([truth['file']]))
+    model = load_parameters()
+    baseline = model.replace(coil_resistance_ohm=1.3 * model.coil_resistance_ohm)
+    assert structured_misfit(data, baseline, [0.0]).over_noise > \
+        CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE
+    for close, withdrawn in (([], False), (['end_stop_bounce'], True)):
+        diag = Diagnosis(effect='coil_heating', confidence='low', candidates=[],
+                         evidence=['coil_heating lowers the validation error'], numbers={},
+                         params=baseline.replace(thermal_resistance_k_per_w=5.0),
+                         unexplained_structure=False, judge=data, indistinguishable=close)
+        assert withdraw_below_form_error(diag, baseline) is withdrawn
+        if withdrawn:
+            assert (diag.effect, diag.confidence, diag.params) == ('none', 'low', baseline)
+            assert 'cannot be told apart from end_stop_bounce' in diag.evidence[0]
+            assert diag.indistinguishable == []
+        else:
+            assert diag.effect == 'coil_heating'

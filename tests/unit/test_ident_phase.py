@@ -117,3 +117,25 @@ def test_eddy_current_is_named_through_the_given_hysteresis_form(tmp_path: Path)
     assert ident.augmented.params.eddy_conductance_s == pytest.approx(1.0 / EDDY_OHM,
                                                                       rel=0.1)
     assert ident.augmented.validation.rmse < 1.5 * 3e-3
+
+
+def test_a_grid_moved_alone_looks_like_no_effect(tmp_path: Path,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    # the record's current replaced by the model's own on its grid moved by 40 us: the
+    # residual on the unmoved grid is the phase's direction alone, which the phase fitted
+    # with each model takes; without that direction the eddy path's signature matches it
+    from valve_model_pkg.identification import diagnosis
+    data = _data(tmp_path, 'none')
+    params = load_parameters()
+    moved = placed(data, [40e-6])
+    cur = moved.simulate(params.to_vector()[None, :])[0][0][0]
+    m = data.measurements[0]
+    data = FitData([m.with_current(cur)])
+    data.electronics = moved.electronics
+    residuals = data.residuals(params)
+    space = baseline_space(params)
+    scores = diagnosis.score_signatures(space, data, params, residuals)
+    assert max(abs(c) for c, _ in scores.values()) < 0.05
+    monkeypatch.setattr(diagnosis, '_phase_columns', lambda *a: [])
+    blind = diagnosis.score_signatures(space, data, params, residuals)
+    assert max(abs(c) for c, _ in blind.values()) > 0.3

@@ -39,7 +39,7 @@ import numpy as np
 from ..model.parameters import EFFECTS, ValveParameters
 from .criteria import (DBIC_THRESHOLD, MIN_EXPLAINED, MIN_VALIDATION_GAIN, delta_bic,
                        effective_counts, noise_per_file, resolution_floors, structured_energy)
-from .phase import AmountPhases, place, shiftable
+from .phase import PHASE_RESOLUTION_S, AmountPhases, phase_free, place, placed, shiftable
 from .problem import (ErrorFigures, FitData, ParameterSpace, amount_limit, effect_space,
                       unit_objective, with_upper_bound)
 from .residuals import drive_phase_masks, ljung_box
@@ -225,9 +225,42 @@ def _probe(params: ValveParameters, effect: str, fraction: float) -> ValveParame
     return params.replace(**{name: spec.neutral[name] + fraction * (hi - lo)})
 
 
+#: Shift of the main PWM grids whose difference gives the phase's direction [s]
+#: (:func:`_phase_columns`): two periods of a 40 kHz hysteresis clock, so the secant
+#: does not follow the chopper's limit cycle.
+PHASE_PROBE_S = 50e-6
+
+
+def _phase_columns(data: FitData, params: ValveParameters) -> list[np.ndarray]:
+    """The current's derivative along each movable main PWM grid's phase at ``params``
+    (a secant over :data:`PHASE_PROBE_S` either side, within the range the record allows),
+    stacked as :func:`_stack` does, one column per file whose grid may move. The phase is
+    fitted with each model (:mod:`.phase`): the part of an effect's signature along it is
+    taken by the phase, not the effect."""
+    free = [phase_free(m) for m in data.full]
+    if not any(free):
+        return []
+    up = [min(PHASE_PROBE_S, m.drive.phase_range_s[1]) if f else 0.0
+          for m, f in zip(data.full, free)]
+    down = [min(PHASE_PROBE_S, -m.drive.phase_range_s[0]) if f else 0.0
+            for m, f in zip(data.full, free)]
+    raw = params.to_vector()[None, :]
+    plus = placed(data, up).simulate(raw)
+    minus = placed(data, [-d for d in down]).simulate(raw)
+    cols = []
+    for k in range(len(free)):   # p, q: a file's (1, n) currents
+        span = up[k] + down[k]
+        if not free[k] or span <= PHASE_RESOLUTION_S:
+            continue
+        cols.append(_stack(data, [(p[0] - q[0]) / span if j == k else np.zeros(p.shape[1])
+                                  for j, ((p, _), (q, _)) in enumerate(zip(plus, minus))]))
+    return cols
+
+
 def score_signatures(space: ParameterSpace, data: FitData, params: ValveParameters,
                      residuals: list[np.ndarray]) -> dict[str, tuple[float, float]]:
-    """Correlation of the residual with each effect's signature, baseline part removed.
+    """Correlation of the residual with each effect's signature, the part along the baseline
+    parameters and the main PWM grids' phases removed.
 
     Returns
     -------
@@ -250,7 +283,7 @@ def score_signatures(space: ParameterSpace, data: FitData, params: ValveParamete
     cols = []
     for j in range(n):
         cols.append(_stack(data, [(c[1 + 2 * j] - c[2 + 2 * j]) / denom[j] for c in sims]))
-    jac = np.column_stack(cols)
+    jac = np.column_stack(cols + _phase_columns(data, params))
     out = {}
     for k, eff in enumerate(effects):
         sig = _stack(data, [c[1 + 2 * n + k] - c[0] for c in sims])
@@ -1087,20 +1120,29 @@ def _judged_structure(diag: Diagnosis, baseline: ValveParameters) -> StructuredM
 def withdraw_below_form_error(diag: Diagnosis, baseline: ValveParameters) -> bool:
     """Withdraw the claimed effect of a record fitted through a form the data chose when
     the structure it explains is below :data:`CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE` times
-    the noise; the answer becomes ``none`` (low) and the first evidence says why. True
-    when withdrawn."""
+    the noise, or when the data cannot tell it from another effect (its indistinguishable
+    runners-up): unlike effects that explain the structure about equally point to a misfit
+    of the chosen form, which each absorbs in part. The answer becomes ``none`` (low) and
+    the first evidence says why. True when withdrawn."""
     data = diag.judge
     if diag.effect == 'none' or data is None:
         return False
     size = _judged_structure(diag, baseline)
-    if size.over_noise >= CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE:
+    if diag.indistinguishable:
+        text = (f'{diag.effect} cannot be told apart from '
+                f'{" or ".join(diag.indistinguishable)} by these data: unlike effects that '
+                'explain the structure about equally, through a drive electronics\' form the '
+                'data chose, point to a misfit of that form, which each absorbs in part; not '
+                'claimed (answer none)')
+    elif size.over_noise >= CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE:
         return False
-    text = (f'{diag.effect} would explain structure of {1e3 * size.structured_a:.2g} mA RMS '
-            f'in the baseline residual, {size.over_noise:.2g} x the noise of '
-            f'{1e3 * size.noise_a:.2g} mA (from {size.noise_from}), below the '
-            f'{CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE:g} x that an effect needs through a drive '
-            'electronics\' form the data chose: forms these data cannot tell apart leave '
-            'that much of their own; not claimed (answer none)')
+    else:
+        text = (f'{diag.effect} would explain structure of {1e3 * size.structured_a:.2g} mA '
+                f'RMS in the baseline residual, {size.over_noise:.2g} x the noise of '
+                f'{1e3 * size.noise_a:.2g} mA (from {size.noise_from}), below the '
+                f'{CLAIM_THROUGH_CHOSEN_FORM_OVER_NOISE:g} x that an effect needs through a '
+                'drive electronics\' form the data chose: forms these data cannot tell apart '
+                'leave that much of their own; not claimed (answer none)')
     diag.numbers['withdrawn_effect'] = diag.effect
     for c in diag.candidates:
         if c.kept:
