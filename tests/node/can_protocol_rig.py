@@ -109,7 +109,7 @@ class Client(Node):
         self.prefix = f'valve_can_driver {label}: '
         self.states: list[ValveState] = []
         self.status: dict[str, object] = {}
-        self.device_error_s: float | None = None   # stamp of the first device ERROR
+        self.device_errors_s: list[float] = []   # stamps of the device ERROR reports
         self.create_subscription(ValveState, 'valve/state', self.states.append, 1000)
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 100)
         self.pub = self.create_publisher(DutyCommand, 'valve/duty_command', 10)
@@ -120,8 +120,12 @@ class Client(Node):
             if status.name.startswith(self.prefix):
                 name = status.name[len(self.prefix):]
                 self.status[name] = status
-                if name == 'device' and self.level(name) == 2 and self.device_error_s is None:
-                    self.device_error_s = stamp_seconds(msg.header.stamp)
+                if name == 'device' and self.level(name) == 2:
+                    self.device_errors_s.append(stamp_seconds(msg.header.stamp))
+
+    def device_error_after(self, t_s: float) -> float | None:
+        """Stamp of the first device ERROR report stamped after ``t_s`` (wall clock, s)."""
+        return next((e for e in self.device_errors_s if e > t_s), None)
 
     def level(self, name: str) -> int:
         status = self.status.get(name)
