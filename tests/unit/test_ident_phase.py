@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from datagen.cache import operation_dataset
+from suite_electronics import TIMER_HYSTERESIS_ZENER_YAML
 from valve_model_pkg.identification import IdentifySettings, identify
 from valve_model_pkg.identification.phase import (
     PHASE_RESOLUTION_S, AmountPhases, phase_shifts, place, placed,
@@ -22,21 +23,6 @@ from valve_model_pkg.identification.problem import FitData, baseline_space, effe
 from valve_model_pkg.model import load_electronics
 from valve_model_pkg.model.parameters import load_parameters
 
-# The generator's timer_hysteresis_zener form as the suite's description (5 ms timer,
-# 0.55 A +- 30 mA band clocked at 40 kHz with diode free-wheeling, 36 V Zener).
-THZ_YAML = """\
-electronics:
-  peak_end: timer
-  max_boost_time_s: 0.005
-  hold: hysteresis
-  holding_current_a: 0.55
-  hysteresis_band_a: 0.06
-  comparator_frequency_hz: 40000.0
-  hold_decay: diode
-  diode_drop_v: 0.7
-  release: zener
-  zener_voltage_v: 36.0
-"""
 #: The generator's eddy-current resistance [ohm] (tests/datagen/generate.py).
 EDDY_OHM = 250.0
 
@@ -50,7 +36,7 @@ def _record(tmp_path: Path, effect: str, noise_a: float = 0.0, seed: int = 11,
 
 def _electronics(tmp_path: Path) -> Path:
     path = tmp_path / 'thz.yaml'
-    path.write_text(THZ_YAML, encoding='utf-8')
+    path.write_text(TIMER_HYSTERESIS_ZENER_YAML, encoding='utf-8')
     return path
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from datagen.cache import ELECTRONICS_PAIR_NOISE_A, electronics_pair
+from suite_electronics import TIMER_HYSTERESIS_ZENER_YAML
 from valve_model_pkg.cli.identify import _parser, settings_from_args
 from valve_model_pkg.cli.identify import main as identify_main
 from valve_model_pkg.errors import ParameterError
@@ -27,22 +28,6 @@ from valve_model_pkg.model.electronics import HOLD_FORMS, PEAK_ENDS, RELEASES
 from valve_model_pkg.model.parameters import load_parameters
 
 NOISE_A = ELECTRONICS_PAIR_NOISE_A
-
-# The generator's timer_hysteresis_zener form written as the suite's description: a 5 ms
-# timer, a 0.55 A +- 30 mA band clocked at 40 kHz with diode free-wheeling, a 36 V Zener.
-TIMER_HYSTERESIS_ZENER_YAML = """\
-electronics:
-  peak_end: timer
-  max_boost_time_s: 0.005
-  hold: hysteresis
-  holding_current_a: 0.55
-  hysteresis_band_a: 0.06
-  comparator_frequency_hz: 40000.0
-  hold_decay: diode
-  diode_drop_v: 0.7
-  release: zener
-  zener_voltage_v: 36.0
-"""
 
 
 def test_every_form_of_the_model_has_its_constants_and_words() -> None:
