@@ -35,7 +35,8 @@ __all__ = ['AmountPhases', 'PHASE_RESOLUTION_S', 'PHASE_TRIAL_WINDOW_S', 'best_p
            'shiftable']
 
 #: Span of the record each trial phase is judged on [s] (from the start of its compared
-#: part): a placement costs two rounds of :data:`PHASE_TRIALS` runs of this span.
+#: part): a placement costs one round of :data:`PHASE_TRIALS` runs of this span around
+#: the expected phase, three when the best lies beyond that round (:func:`best_phase`).
 PHASE_TRIAL_WINDOW_S = 0.4
 #: Trial shifts per round of :func:`best_phase`.
 PHASE_TRIALS = 11
@@ -67,12 +68,18 @@ def shift_measurement(m: Measurement, delta_s: float) -> Measurement:
 
 
 def best_phase(m: Measurement, params: ValveParameters,
-               electronics: ElectronicsConfig | None = None, parallel: bool = False) -> float:
+               electronics: ElectronicsConfig | None = None, parallel: bool = False,
+               around_s: float | None = None) -> float:
     """The shift [s] of ``m``'s main PWM grid, within the range its command changes allow,
     whose simulated current on the first :data:`PHASE_TRIAL_WINDOW_S` of its compared part
-    is closest to the measured one (mean absolute error): :data:`PHASE_TRIALS` trial shifts
-    over the range, then as many over a tenth of it around the best. ``parallel`` runs
-    each round's trials on the identification's threads."""
+    is closest to the measured one (mean absolute error).
+
+    The search: :data:`PHASE_TRIALS` trial shifts over the range, then as many over a
+    tenth of it around the best. With ``around_s`` (a shift expected near the best: the
+    grid placed for a model close to this one) the fine round comes first, around it, and
+    stands when its best lies inside its bracket (or on the range's end); a best on the
+    bracket's edge means the minimum lies beyond it, and the whole search runs.
+    ``parallel`` runs each round's trials on the identification's threads."""
     d = m.drive
     lo, hi = d.phase_range_s
     head = window(m, PHASE_TRIAL_WINDOW_S)
@@ -85,15 +92,26 @@ def best_phase(m: Measurement, params: ValveParameters,
             data.electronics = electronics
         return float(data.cost(raw)[0])
 
-    best, best_cost = 0.0, np.inf
-    for width in (hi - lo, (hi - lo) / 10.0):
-        centre = best if np.isfinite(best_cost) else 0.5 * (lo + hi)
+    def trial_round(centre: float, width: float) -> tuple[float, float, list[float]]:
         trials = [float(x) for x in np.linspace(max(lo, centre - width / 2),
                                                 min(hi, centre + width / 2), PHASE_TRIALS)]
         costs = list(_pool().map(cost, trials)) if parallel else [cost(x) for x in trials]
-        for delta, c in zip(trials, costs):
-            if c < best_cost:
-                best, best_cost = delta, c
+        k = int(np.argmin(np.nan_to_num(costs, nan=np.inf)))   # the first of equal ones
+        return trials[k], costs[k], trials
+
+    fine = (hi - lo) / 10.0
+    if around_s is not None:
+        best, best_cost, trials = trial_round(min(max(around_s, lo), hi), fine)
+        inner = trials[0] < best < trials[-1]
+        at_end = best <= lo + PHASE_RESOLUTION_S or best >= hi - PHASE_RESOLUTION_S
+        if np.isfinite(best_cost) and (inner or at_end):
+            return best
+    best, best_cost = 0.0, np.inf
+    for width in (hi - lo, fine):
+        centre = best if np.isfinite(best_cost) else 0.5 * (lo + hi)
+        delta, c, _ = trial_round(centre, width)
+        if c < best_cost:
+            best, best_cost = delta, c
     return best
 
 
@@ -109,17 +127,21 @@ def placed(data: FitData, shifts: Sequence[float]) -> FitData:
     return out
 
 
-def phase_shifts(data: FitData, params: ValveParameters) -> tuple[float, ...]:
+def phase_shifts(data: FitData, params: ValveParameters,
+                 around_s: Sequence[float] | None = None) -> tuple[float, ...]:
     """Each file's best grid shift at ``params`` [s] (:func:`best_phase`; 0 for a file
-    whose grid may not move). The last :data:`PLACEMENT_CACHE` placements (under the
-    electronics in force) are kept on ``data`` and its serial views."""
+    whose grid may not move), searched first around ``around_s`` (per file; default 0:
+    ``data``'s grids were placed for a model close to ``params``). The last
+    :data:`PLACEMENT_CACHE` placements (under the electronics in force) are kept on
+    ``data`` and its serial views."""
     key = (params.to_vector().tobytes(), data.electronics)
     cache = data.phase_cache
     hit = cache.get(key)
     if hit is not None:
         return hit
-    shifts = tuple(best_phase(m, params, data.electronics, data.parallel) if phase_free(m)
-                   else 0.0 for m in data.full)
+    around = tuple(around_s) if around_s is not None else (0.0,) * len(data.full)
+    shifts = tuple(best_phase(m, params, data.electronics, data.parallel, a)
+                   if phase_free(m) else 0.0 for m, a in zip(data.full, around))
     cache[key] = shifts
     while len(cache) > PLACEMENT_CACHE:
         cache.pop(next(iter(cache)))
@@ -169,7 +191,9 @@ class AmountPhases:
         """Place the grids exactly at ``params`` for its amount."""
         amount = float(getattr(params, self.field))
         if amount not in self._anchors:
-            self._anchors[amount] = tuple(_rounded(s) for s in phase_shifts(self.data, params))
+            near = self.shifts_at(amount)   # interpolated from the anchors so far
+            self._anchors[amount] = tuple(_rounded(s) for s in phase_shifts(self.data, params,
+                                                                            near))
 
     def shifts_at(self, amount: float) -> tuple[float, ...]:
         """Each file's shift at ``amount`` of the effect [s]."""
