@@ -16,7 +16,7 @@ from datagen.cache import operation_dataset
 from suite_electronics import TIMER_HYSTERESIS_ZENER_YAML
 from valve_model_pkg.identification import IdentifySettings, identify
 from valve_model_pkg.identification.phase import (
-    PHASE_RESOLUTION_S, AmountPhases, phase_shifts, place, placed,
+    PHASE_RESOLUTION_S, AmountPhases, best_phase, phase_shifts, place, placed,
 )
 from valve_model_pkg.identification.pipeline import read_inputs
 from valve_model_pkg.identification.problem import FitData, baseline_space, effect_space
@@ -64,6 +64,23 @@ def test_each_model_is_judged_on_its_own_grid(tmp_path: Path) -> None:
     assert own < 1e-3            # noise-free record: the truth on its own grid
     assert other > 10.0 * own    # ... and charged for the other model's grid
     assert other > place(data, without).errors(without).rmse   # worse than no eddy path
+
+
+def test_a_search_around_an_expected_phase_finds_the_best(tmp_path: Path) -> None:
+    # a placement searches a tenth of the range around the phase expected and goes to the
+    # whole range when its best lies on that bracket's edge: a wrong expectation costs
+    # runs, not the phase
+    data = _data(tmp_path, 'eddy_current')
+    truth = load_parameters().replace(eddy_conductance_s=1.0 / EDDY_OHM)
+    m = data.full[0]
+    lo, hi = m.drive.phase_range_s
+    fine_step = (hi - lo) / 100.0   # the fine round: 11 trials over a tenth of the range
+    whole = best_phase(m, truth, data.electronics)
+    far = lo if whole - lo > hi - whole else hi
+    assert abs(far - whole) > 0.3 * (hi - lo)
+    for around in (whole + 2.0 * fine_step, far):
+        found = best_phase(m, truth, data.electronics, around_s=around)
+        assert abs(found - whole) <= fine_step + PHASE_RESOLUTION_S, around
 
 
 def test_a_refit_places_the_grid_per_amount(tmp_path: Path) -> None:

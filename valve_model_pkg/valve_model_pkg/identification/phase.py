@@ -28,7 +28,7 @@ from ..model import ElectronicsConfig
 from ..model.parameters import ValveParameters
 from .measurement import Measurement, window
 from .model_adapter import FIELD_INDEX
-from .problem import FitData, ParameterSpace, _pool
+from .problem import FitData, ParameterSpace, _pool, unit_objective
 
 __all__ = ['AmountPhases', 'PHASE_RESOLUTION_S', 'PHASE_TRIAL_WINDOW_S', 'best_phase',
            'phase_free', 'phase_shifts', 'place', 'placed', 'shift_measurement',
@@ -228,17 +228,16 @@ class AmountPhases:
         col = FIELD_INDEX[self.field]
 
         def fun(u: np.ndarray) -> np.ndarray:
+            u = np.atleast_2d(u)
             raw = space.raw_matrix(u)
-            ok = space.feasible(raw)
             out = np.full(raw.shape[0], np.inf)
-            rows = np.flatnonzero(ok)
-            groups: dict[int, list[int]] = {}
-            datas: dict[int, FitData] = {}
-            for r in rows:
-                d = self.data_at(float(raw[r, col]))
-                groups.setdefault(id(d), []).append(int(r))
-                datas[id(d)] = d
-            for key, idx in groups.items():
-                out[idx] = datas[key].cost(raw[idx])
+            groups: dict[int, tuple[FitData, list[int]]] = {}
+            for r in range(raw.shape[0]):
+                amount = float(raw[r, col])
+                # a row unit_objective refuses needs no grid of its own
+                d = self.data_at(amount) if np.isfinite(amount) else self.data
+                groups.setdefault(id(d), (d, []))[1].append(r)
+            for d, idx in groups.values():
+                out[idx] = unit_objective(space, d)(u[idx])
             return out
         return fun
