@@ -12,16 +12,21 @@ from pathlib import Path
 
 import pytest
 
-from datagen.cache import ELECTRONICS_PAIR_NOISE_A, electronics_pair
+from datagen.cache import ELECTRONICS_PAIR_NOISE_A, electronics_pair, operation_dataset
 from suite_electronics import TIMER_HYSTERESIS_ZENER_YAML
 from valve_model_pkg.cli.identify import _parser, settings_from_args
 from valve_model_pkg.cli.identify import main as identify_main
 from valve_model_pkg.errors import ParameterError
 from valve_model_pkg.identification import IdentifySettings, identify, write_report
-from valve_model_pkg.identification.drive import FORM_CONSTANTS, form_constants
+from valve_model_pkg.identification.drive import (
+    FORM_CONSTANTS, HYSTERESIS_BANDS_A, HYSTERESIS_HOLD_OFFSETS_A, form_constants,
+    search_constants,
+)
 from valve_model_pkg.identification.electronics_family import (
     HOLD_OPTIONS, PEAK_OPTIONS, RELEASE_OPTIONS, describe_form,
 )
+from valve_model_pkg.identification.measurement import window
+from valve_model_pkg.identification.pipeline import read_inputs
 from valve_model_pkg.identification.problem import FitData
 from valve_model_pkg.model import ElectronicsConfig, load_electronics
 from valve_model_pkg.model.electronics import HOLD_FORMS, PEAK_ENDS, RELEASES
@@ -163,3 +168,28 @@ def test_the_data_choose_the_form(tmp_path: Path) -> None:
     assert 'open-loop PWM hold' in ident.electronics_source
     assert 'freewheel diode release' in ident.electronics_source
     assert ident.baseline.validation.rmse < 1.5 * NOISE_A
+
+
+def test_a_search_of_the_constants_asked_again_runs_nothing(tmp_path: Path) -> None:
+    # the form choice asks for the same search from several stages: the data keep it
+    rec = operation_dataset(tmp_path, seed=11, noise_a=NOISE_A, duration_s=0.3,
+                            electronics='generator_default', valve_seed=11)
+    inputs = read_inputs([str(rec['file'])], [], IdentifySettings(), None, lambda s: None)
+    head = [window(m, 0.1) for m in inputs.fit]
+    params = load_parameters()
+    cfg = ElectronicsConfig(hold='hysteresis')   # a hold whose constants start on a grid
+
+    def fresh() -> FitData:
+        data = FitData(head)
+        data.electronics = cfg
+        return data
+    data = fresh()
+    first = search_constants(data, params, cfg, 10, grid=True)
+    runs = data.simulations
+    assert runs > len(HYSTERESIS_BANDS_A) * len(HYSTERESIS_HOLD_OFFSETS_A)   # the grid ran
+    again = search_constants(data.serial(), params, cfg, 10, grid=True)   # a view shares it
+    assert data.simulations == runs
+    assert again == first
+    other = fresh()
+    assert search_constants(other, params, cfg, 10, grid=True) == first   # what a search gives
+    assert other.simulations == runs

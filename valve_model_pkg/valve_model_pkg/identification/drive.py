@@ -135,7 +135,7 @@ class DriveReport:
                 'nominal': {k: getattr(ElectronicsConfig(), k) for k in self.values}}
 
 
-@dataclass
+@dataclass(frozen=True)
 class DriveFit:
     """Electronics constants and their cost [A] (:func:`_search_drive`)."""
 
@@ -231,14 +231,37 @@ def search_constants(data: FitData, params: ValveParameters, base: ElectronicsCo
     return _search_clocked(data, params, base, bounds, effort, grid)
 
 
+#: Searches kept per data set (:attr:`~.problem.FitData.drive_cache`).
+DRIVE_CACHE = 256
+
+
+def _remembered(data: FitData, key: tuple, search) -> DriveFit:
+    """``search()``'s result, from ``data``'s cache when the same search ran on it before
+    (the searches are deterministic: the same arguments give the same constants)."""
+    cache = data.drive_cache
+    hit = cache.get(key)
+    if hit is not None:
+        return hit
+    out = search()
+    cache[key] = out
+    while len(cache) > DRIVE_CACHE:
+        cache.popitem(last=False)
+    return out
+
+
 def _search_clocked(data: FitData, params: ValveParameters, base: ElectronicsConfig,
                     bounds: list[ParameterBound], effort: int, grid: bool) -> DriveFit:
     """The bounded search of :func:`_search_drive`; for a hysteresis hold with ``grid``
     first its comparator's clock and band (:func:`hysteresis_grid`), the search then starting
     from the best point of the grid."""
-    if grid and form_choices(base) and effort > 0:
-        base = hysteresis_grid(data, params, base).electronics
-    return _search_drive(data, params, base, bounds, effort)
+    def search() -> DriveFit:
+        start = base
+        if grid and form_choices(base) and effort > 0:
+            start = hysteresis_grid(data, params, base).electronics
+        return _search_drive(data, params, start, bounds, effort)
+    key = ('search', params.to_vector().tobytes(), base,
+           tuple((b.name, b.low, b.high, b.log) for b in bounds), effort, grid)
+    return _remembered(data, key, search)
 
 
 def hysteresis_grid(data: FitData, params: ValveParameters, base: ElectronicsConfig
@@ -251,14 +274,16 @@ def hysteresis_grid(data: FitData, params: ValveParameters, base: ElectronicsCon
     sampled limit cycle there, which jumps with these three: the cost has narrow valleys a
     local search from a default value does not reach, but a grid of this spacing does.
     """
-    clocks = sorted(set(COMPARATOR_CLOCKS_HZ) | {base.comparator_frequency_hz})
-    lo, hi = DRIVE_BOUNDS['holding_current_a']
-    cfgs = [base.replace(comparator_frequency_hz=f, hysteresis_band_a=b,
-                         holding_current_a=min(max(base.holding_current_a + dh, lo), hi))
-            for f in clocks for b in HYSTERESIS_BANDS_A for dh in HYSTERESIS_HOLD_OFFSETS_A]
-    costs = _costs(data, params.to_vector(), [base] + cfgs)
-    k = int(np.argmin(costs))
-    return DriveFit(([base] + cfgs)[k], float(costs[k]))
+    def search() -> DriveFit:
+        clocks = sorted(set(COMPARATOR_CLOCKS_HZ) | {base.comparator_frequency_hz})
+        lo, hi = DRIVE_BOUNDS['holding_current_a']
+        cfgs = [base.replace(comparator_frequency_hz=f, hysteresis_band_a=b,
+                             holding_current_a=min(max(base.holding_current_a + dh, lo), hi))
+                for f in clocks for b in HYSTERESIS_BANDS_A for dh in HYSTERESIS_HOLD_OFFSETS_A]
+        costs = _costs(data, params.to_vector(), [base] + cfgs)
+        k = int(np.argmin(costs))
+        return DriveFit(([base] + cfgs)[k], float(costs[k]))
+    return _remembered(data, ('grid', params.to_vector().tobytes(), base), search)
 
 
 def _search_drive(data: FitData, params: ValveParameters, base: ElectronicsConfig,

@@ -460,6 +460,10 @@ class FitData:
         #: Main PWM grid placements of parameter sets (:func:`.phase.phase_shifts`;
         #: shared with serial() views).
         self.phase_cache: dict[tuple, tuple[float, ...]] = {}
+        #: Searches of the drive electronics' constants with the valve held (:mod:`.drive`),
+        #: by their arguments (shared with serial() views): the form choice asks for the
+        #: same search again from several of its stages, and each costs hundreds of runs.
+        self.drive_cache: OrderedDict[tuple, object] = OrderedDict()
 
     @property
     def through_electronics(self) -> bool:
