@@ -22,8 +22,9 @@ from valve_model_pkg.identification.drive import (
     FORM_CONSTANTS, HYSTERESIS_BANDS_A, HYSTERESIS_HOLD_OFFSETS_A, form_constants,
     search_constants,
 )
+from valve_model_pkg.identification import electronics_family
 from valve_model_pkg.identification.electronics_family import (
-    HOLD_OPTIONS, PEAK_OPTIONS, RELEASE_OPTIONS, describe_form,
+    HOLD_OPTIONS, PEAK_OPTIONS, RELEASE_OPTIONS, FormFit, describe_form,
 )
 from valve_model_pkg.identification.measurement import window
 from valve_model_pkg.identification.pipeline import read_inputs
@@ -193,3 +194,29 @@ def test_a_search_of_the_constants_asked_again_runs_nothing(tmp_path: Path) -> N
     other = fresh()
     assert search_constants(other, params, cfg, 10, grid=True) == first   # what a search gives
     assert other.simulations == runs
+
+
+@pytest.mark.parametrize('told_apart', [True, False])
+def test_the_choice_says_which_form_it_took_when_none_beat_the_prior(
+        monkeypatch: pytest.MonkeyPatch, told_apart: bool) -> None:
+    # no form beats the prior (the paper's driver, its capacitor at 1 V: at a search
+    # bound); a Zener clamp the data cannot tell from it is plainer and is taken, and the
+    # statement says so instead of "it is kept"
+    fam = electronics_family
+    valve = load_parameters()
+    prior = FormFit(ElectronicsConfig(capacitor_voltage_v=1.0), valve, 1e-3, refined=True,
+                    prior=True)
+    zener = FormFit(ElectronicsConfig(release='zener'), valve, 1.1e-3, refined=True)
+    assert prior.at_bound and not zener.at_bound
+    monkeypatch.setattr(fam, '_judge', lambda f, fit, val: None)
+    monkeypatch.setattr(fam, '_beats', lambda fit, val, ref, f: False)
+    monkeypatch.setattr(fam, '_cannot_tell',
+                        lambda fit, val, chosen, f: not told_apart and f is not chosen)
+    chosen, _, text = fam.choose_form([prior, zener], None, None, 1)
+    assert 'no form beat the prior one' in text
+    if told_apart:
+        assert chosen is prior and 'it is kept' in text and 'taken' not in text
+    else:
+        assert chosen is zener and 'it is kept' not in text
+        assert text.startswith('drive electronics chosen by the data: ' + zener.name)
+        assert f'{prior.name} has a constant at a search bound' in text

@@ -516,6 +516,7 @@ def choose_form(forms: list[FormFit], fit: FitData, val: FitData | None, workers
         chosen = ref
     same = [f for f in finalists if _cannot_tell(fit, val, chosen, f)]
     plainer = [f for f in same if _plainness(f) < _plainness(chosen)]
+    first = chosen
     if plainer:
         # the data cannot tell them apart: no constant at a bound, then fewer constants
         chosen = min(plainer, key=lambda f: (_plainness(f), sum(f.fit_mae.values())))
@@ -525,9 +526,19 @@ def choose_form(forms: list[FormFit], fit: FitData, val: FitData | None, workers
             f'{describe_constants(chosen.electronics)} ({where} RMSE {1e3 * err:.3g} mA; '
             f'{len(forms)} complete forms fitted, {len(finalists)} compared on the fit and '
             f'{where} data')
-    text += (')' if pool else '; no form beat the prior one (the paper\'s driver) by dBIC '
-             f'below {DBIC_THRESHOLD:g} on the fit data and '
-             f'{100 * MIN_VALIDATION_GAIN:g} % less {where} error: it is kept)')
+    if not pool:
+        whom = ('the prior one (the paper\'s driver)' if ref.prior else
+                'the one of lowest fit-window error')
+        text += (f'; no form beat {whom} by dBIC below {DBIC_THRESHOLD:g} on the fit data '
+                 f'and {100 * MIN_VALIDATION_GAIN:g} % less {where} error')
+    if chosen is not first:
+        worse = ('a constant at a search bound' if first.at_bound and not chosen.at_bound
+                 else 'more constants')
+        text += (f'; {first.name} has {worse}, and the data cannot tell this form from it: '
+                 'this one is taken')
+    elif not pool:
+        text += ': it is kept'
+    text += ')'
     if same:
         text += ('; the data cannot tell it from: ' + '; '.join(f.name for f in same)
                  + f' (|dBIC| below {-DBIC_THRESHOLD:g} and {where} error within '
