@@ -37,7 +37,7 @@ import numpy as np
 
 from ..model import ElectronicsConfig
 from ..model.parameters import ValveParameters
-from .problem import FitData, ParameterBound
+from .problem import FitData, ParameterBound, remembered
 from .search import SearchSettings, direct_search
 
 __all__ = ['DRIVE_BOUNDS', 'FORM_CONSTANTS', 'DriveReport', 'estimate_hold_current',
@@ -235,20 +235,6 @@ def search_constants(data: FitData, params: ValveParameters, base: ElectronicsCo
 DRIVE_CACHE = 256
 
 
-def _remembered(data: FitData, key: tuple, search) -> DriveFit:
-    """``search()``'s result, from ``data``'s cache when the same search ran on it before
-    (the searches are deterministic: the same arguments give the same constants)."""
-    cache = data.drive_cache
-    hit = cache.get(key)
-    if hit is not None:
-        return hit
-    out = search()
-    cache[key] = out
-    while len(cache) > DRIVE_CACHE:
-        cache.popitem(last=False)
-    return out
-
-
 def _search_clocked(data: FitData, params: ValveParameters, base: ElectronicsConfig,
                     bounds: list[ParameterBound], effort: int, grid: bool) -> DriveFit:
     """The bounded search of :func:`_search_drive`; for a hysteresis hold with ``grid``
@@ -261,7 +247,7 @@ def _search_clocked(data: FitData, params: ValveParameters, base: ElectronicsCon
         return _search_drive(data, params, start, bounds, effort)
     key = ('search', params.to_vector().tobytes(), base,
            tuple((b.name, b.low, b.high, b.log) for b in bounds), effort, grid)
-    return _remembered(data, key, search)
+    return remembered(data.drive_cache, key, search, DRIVE_CACHE)
 
 
 def hysteresis_grid(data: FitData, params: ValveParameters, base: ElectronicsConfig
@@ -283,7 +269,8 @@ def hysteresis_grid(data: FitData, params: ValveParameters, base: ElectronicsCon
         costs = _costs(data, params.to_vector(), [base] + cfgs)
         k = int(np.argmin(costs))
         return DriveFit(([base] + cfgs)[k], float(costs[k]))
-    return _remembered(data, ('grid', params.to_vector().tobytes(), base), search)
+    return remembered(data.drive_cache, ('grid', params.to_vector().tobytes(), base),
+                      search, DRIVE_CACHE)
 
 
 def _search_drive(data: FitData, params: ValveParameters, base: ElectronicsConfig,

@@ -28,7 +28,7 @@ from ..model import ElectronicsConfig
 from ..model.parameters import ValveParameters
 from .measurement import Measurement, window
 from .model_adapter import FIELD_INDEX
-from .problem import FitData, ParameterSpace, _pool, unit_objective
+from .problem import FitData, ParameterSpace, _pool, remembered, unit_objective
 
 __all__ = ['AmountPhases', 'PHASE_RESOLUTION_S', 'PHASE_TRIAL_WINDOW_S', 'best_phase',
            'phase_free', 'phase_shifts', 'place', 'placed', 'shift_measurement',
@@ -134,18 +134,13 @@ def phase_shifts(data: FitData, params: ValveParameters,
     ``data``'s grids were placed for a model close to ``params``). The last
     :data:`PLACEMENT_CACHE` placements (under the electronics in force) are kept on
     ``data`` and its serial views."""
-    key = (params.to_vector().tobytes(), data.electronics)
-    cache = data.phase_cache
-    hit = cache.get(key)
-    if hit is not None:
-        return hit
     around = tuple(around_s) if around_s is not None else (0.0,) * len(data.full)
-    shifts = tuple(best_phase(m, params, data.electronics, data.parallel, a)
-                   if phase_free(m) else 0.0 for m, a in zip(data.full, around))
-    cache[key] = shifts
-    while len(cache) > PLACEMENT_CACHE:
-        cache.pop(next(iter(cache)))
-    return shifts
+
+    def search() -> tuple[float, ...]:
+        return tuple(best_phase(m, params, data.electronics, data.parallel, a)
+                     if phase_free(m) else 0.0 for m, a in zip(data.full, around))
+    return remembered(data.phase_cache, (params.to_vector().tobytes(), data.electronics),
+                      search, PLACEMENT_CACHE)
 
 
 def place(data: FitData, params: ValveParameters) -> FitData:

@@ -20,7 +20,7 @@ import threading
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import Callable, Sequence, TypeVar
 
 import numpy as np
 
@@ -463,7 +463,7 @@ class FitData:
         #: Searches of the drive electronics' constants with the valve held (:mod:`.drive`),
         #: by their arguments (shared with serial() views): the form choice asks for the
         #: same search again from several of its stages, and each costs hundreds of runs.
-        self.drive_cache: OrderedDict[tuple, object] = OrderedDict()
+        self.drive_cache: dict[tuple, object] = {}
 
     @property
     def through_electronics(self) -> bool:
@@ -595,6 +595,22 @@ def unit_objective(space: ParameterSpace, data: FitData):
     return fun
 
 
+_T = TypeVar('_T')
+
+
+def remembered(cache: dict, key: object, compute: Callable[[], _T], limit: int) -> _T:
+    """``compute()``'s result, kept in ``cache`` (a dict a :class:`FitData` shares with
+    its serial views) under ``key`` and handed out again; beyond ``limit`` entries the
+    oldest goes. For deterministic work only: the same key must give the same result."""
+    if key in cache:
+        return cache[key]
+    out = compute()
+    cache[key] = out
+    while len(cache) > limit:
+        cache.pop(next(iter(cache)))
+    return out
+
+
 __all__ += ['AmountLimit', 'GAP', 'MIN_HOLDING_GAP_M', 'PAPER_SYMBOLS', 'SEARCH_RATE_HZ',
             'amount_limit', 'coarse_data', 'equivalent_gap_m', 'with_upper_bound',
-            'start_point', 'unit_objective']
+            'remembered', 'start_point', 'unit_objective']
