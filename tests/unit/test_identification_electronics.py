@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from datagen.cache import ELECTRONICS_PAIR_NOISE_A, electronics_pair, operation_dataset
@@ -18,9 +20,10 @@ from valve_model_pkg.cli.identify import _parser, settings_from_args
 from valve_model_pkg.cli.identify import main as identify_main
 from valve_model_pkg.errors import ParameterError
 from valve_model_pkg.identification import IdentifySettings, identify, write_report
+from valve_model_pkg.identification import drive as drive_module
 from valve_model_pkg.identification.drive import (
-    FORM_CONSTANTS, HYSTERESIS_BANDS_A, HYSTERESIS_HOLD_OFFSETS_A, form_constants,
-    search_constants,
+    COMPARATOR_CLOCKS_HZ, FORM_CONSTANTS, GRID_FINE_PAIRS, HYSTERESIS_BANDS_A,
+    HYSTERESIS_HOLD_OFFSETS_A, form_constants, hysteresis_grid, search_constants,
 )
 from valve_model_pkg.identification import electronics_family
 from valve_model_pkg.identification.electronics_family import (
@@ -169,6 +172,31 @@ def test_the_data_choose_the_form(tmp_path: Path) -> None:
     assert 'open-loop PWM hold' in ident.electronics_source
     assert 'freewheel diode release' in ident.electronics_source
     assert ident.baseline.validation.rmse < 1.5 * NOISE_A
+
+
+def test_the_hysteresis_grid_finds_a_set_point_off_the_middle_in_fewer_runs(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # a cost whose valley in clock x band holds at every set point and is deepest 6 mA
+    # above the start's set point: the coarse stage finds the pair, the fine one the set
+    # point, in fewer runs than every clock x band x set point
+    base = ElectronicsConfig(hold='hysteresis', holding_current_a=0.5)
+    clock, band, hold = 40e3, HYSTERESIS_BANDS_A[9], 0.506
+    tried: list[ElectronicsConfig] = []
+
+    def costs(data, raw, configs):
+        tried.extend(configs)
+        return np.array([abs(c.comparator_frequency_hz - clock) / 1e4
+                         + abs(math.log(c.hysteresis_band_a / band))
+                         + 100.0 * abs(c.holding_current_a - hold) for c in configs])
+    monkeypatch.setattr(drive_module, '_costs', costs)
+    found = hysteresis_grid(SimpleNamespace(drive_cache={}), load_parameters(), base)
+    assert found.electronics.comparator_frequency_hz == clock
+    assert found.electronics.hysteresis_band_a == band
+    assert found.electronics.holding_current_a == pytest.approx(hold)
+    pairs = len(set(COMPARATOR_CLOCKS_HZ) | {base.comparator_frequency_hz}) * len(
+        HYSTERESIS_BANDS_A)
+    assert len(tried) == 1 + pairs + GRID_FINE_PAIRS * (len(HYSTERESIS_HOLD_OFFSETS_A) - 1)
+    assert len(tried) < pairs * len(HYSTERESIS_HOLD_OFFSETS_A)
 
 
 def test_a_search_of_the_constants_asked_again_runs_nothing(tmp_path: Path) -> None:
