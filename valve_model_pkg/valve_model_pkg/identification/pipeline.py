@@ -1302,24 +1302,36 @@ def _fit_criterion(bar: RefitBar, c: CandidateResult) -> Callable[[ValveParamete
 
 
 def polish_candidate(ext: ParameterSpace, data: FitData, params: ValveParameters,
-                     baseline: ValveParameters, settings: IdentifySettings
-                     ) -> tuple[ValveParameters, float]:
+                     baseline: ValveParameters, settings: IdentifySettings,
+                     baseline_cost: float | None = None
+                     ) -> tuple[ValveParameters, float, str]:
     """Local search of a refitted candidate on the whole fit window: from its search-window
     optimum and from the baseline with the candidate's effect amount; on the main PWM grids
-    placed at the former (:mod:`.phase`)."""
+    placed at the former (:mod:`.phase`).
+
+    The baseline (the effect off) is a point of the candidate's model: when neither start
+    leads below ``baseline_cost`` (the baseline's cost on ``data`` [A]) and the effect's off
+    value lies within its search bounds, the baseline is the refit, and the third element
+    says so (else empty): an amount that the search window asked for and the whole fit
+    window refuses is not reported as the effect's best.
+    """
     fun = unit_objective(ext, place(data, params))
     u_a = ext.to_unit(params)
-    mixed = baseline.replace(**{n: getattr(params, n) for n in ext.names
-                                if n not in baseline_space(baseline).names})
+    own = [b for b in ext.bounds if b.name not in baseline_space(baseline).names]
+    mixed = baseline.replace(**{b.name: getattr(params, b.name) for b in own})
     u_b = ext.to_unit(mixed)
     st = SearchSettings(global_samples=0, starts=2,
                         max_iterations=settings.refit_polish_iterations, initial_step=0.03,
                         restarts=1, stall_iterations=30, tolerance=1e-5)
     res = direct_search(fun, np.vstack([u_a, u_b]), st, label='refit polish')
     c_a = float(fun(u_a[None, :])[0])
-    if c_a <= res.cost:
-        return params, c_a
-    return ext.params(res.u), float(res.cost)
+    best, cost = (params, c_a) if c_a <= res.cost else (ext.params(res.u), float(res.cost))
+    inside = all(b.low <= getattr(baseline, b.name) <= b.high for b in own)
+    if baseline_cost is not None and cost > baseline_cost and inside:
+        return baseline, float(baseline_cost), (
+            f'; on the fit window no point below the baseline\'s {baseline_cost:.4g} A '
+            f'(best {cost:.4g} A): the baseline, the effect off, is the refit')
+    return best, cost, ''
 
 
 @dataclass
@@ -1355,11 +1367,11 @@ def _refit_on_window(c: CandidateResult, job: RefitJob) -> WindowRefit:
         how += _screened(r, window)
     dbic_s = criterion(r.params)
     if not r.stopped and dbic_s < DBIC_THRESHOLD:
-        p_aug, cost = polish_candidate(r.space, fit.serial(), r.params, job.baseline.params,
-                                       job.settings)
-        return WindowRefit(p_aug, cost,
-                           how + f' ({window} dBIC {dbic_s:.1f}: polished on the fit window)',
-                           r.widened)
+        p_aug, cost, fell = polish_candidate(r.space, fit.serial(), r.params,
+                                             job.baseline.params, job.settings,
+                                             job.baseline.convergence.final_cost_a)
+        return WindowRefit(p_aug, cost, how + f' ({window} dBIC {dbic_s:.1f}: polished on '
+                           f'the fit window{fell})', r.widened)
     cost = float(place(fit.serial(), r.params).cost(r.params.to_vector()[None, :])[0])
     if not r.stopped and not r.screened_out:
         how += (f' ({window} dBIC {dbic_s:.1f}, not below {DBIC_THRESHOLD:g}: cannot pay, '
@@ -1378,10 +1390,10 @@ def _refit_coarse(c: CandidateResult, job: RefitJob) -> WindowRefit:
     if r.screened_out:
         cost = sum(place(bar.data, r.params).errors(r.params).mae_per_file.values())
         return WindowRefit(r.params, cost, _screened(r, 'fit'))
-    p_aug, cost = polish_candidate(r.space, bar.data, r.params, job.baseline.params,
-                                   job.settings)
+    p_aug, cost, fell = polish_candidate(r.space, bar.data, r.params, job.baseline.params,
+                                         job.settings, bar.cost)
     return WindowRefit(p_aug, cost, f' (profiles at {SEARCH_RATE_HZ / 1e3:g} kHz, polished '
-                       'on every sample)', r.widened)
+                       f'on every sample{fell})', r.widened)
 
 
 def _screened(r: RefitResult, where: str) -> str:
