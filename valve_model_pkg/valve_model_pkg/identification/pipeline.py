@@ -1329,7 +1329,7 @@ def polish_candidate(ext: ParameterSpace, data: FitData, params: ValveParameters
     inside = all(b.low <= getattr(baseline, b.name) <= b.high for b in own)
     if baseline_cost is not None and cost > baseline_cost and inside:
         return baseline, float(baseline_cost), (
-            f'; on the fit window no point below the baseline\'s {baseline_cost:.4g} A '
+            f'; no point there below the baseline\'s {baseline_cost:.4g} A '
             f'(best {cost:.4g} A): the baseline, the effect off, is the refit')
     return best, cost, ''
 
